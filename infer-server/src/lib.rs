@@ -1,0 +1,1 @@
+//! The inference server. Filled in by the infer-server issue.

@@ -1,0 +1,9 @@
+# Sourced by the scripts: where the project's own installs live.
+_root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+if [ -f "$_root/.ort/libonnxruntime.so" ]; then
+  export ORT_DYLIB_PATH="$_root/.ort/libonnxruntime.so"
+fi
+if [ -d "$_root/.venv/bin" ]; then
+  export HAPTICS_PYTHON="$_root/.venv/bin/python"
+fi
+unset _root

@@ -1,0 +1,59 @@
+#!/usr/bin/env bash
+# Installs everything the project needs from the package registries, idempotently:
+#   - .venv with the train/ package (and onnxruntime, whose wheel ships libonnxruntime.so)
+#   - .ort/libonnxruntime.so, the library `ort` loads dynamically (ORT_DYLIB_PATH)
+#   - web-ui's npm packages and Debian's chromium, when the web UI exists
+# Nothing is downloaded from anywhere but crates.io, PyPI, npm and Debian's archive.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+if [ -f train/pyproject.toml ]; then
+  if [ ! -x .venv/bin/python ]; then
+    echo "setup: creating .venv"
+    python3 -m venv .venv
+  fi
+  stamp=.venv/.train-installed
+  if [ ! -f "$stamp" ] || [ train/pyproject.toml -nt "$stamp" ]; then
+    echo "setup: installing train/ into .venv (first time: PyTorch is large, a few minutes)"
+    .venv/bin/python -m pip install -q --upgrade pip
+    .venv/bin/python -m pip install -q -e 'train[dev]'
+    touch "$stamp"
+  fi
+fi
+
+if [ ! -f .ort/libonnxruntime.so ]; then
+  lib=""
+  if [ -x .venv/bin/python ]; then
+    lib=$(.venv/bin/python - <<'PY' 2>/dev/null || true
+import glob, os
+try:
+    import onnxruntime
+except ImportError:
+    raise SystemExit(1)
+d = os.path.join(os.path.dirname(onnxruntime.__file__), "capi")
+libs = sorted(glob.glob(os.path.join(d, "libonnxruntime.so*")))
+print(libs[0] if libs else "")
+PY
+)
+  fi
+  if [ -n "$lib" ]; then
+    mkdir -p .ort
+    cp -L "$lib" .ort/libonnxruntime.so
+    echo "setup: ONNX Runtime library at .ort/libonnxruntime.so (from the onnxruntime wheel)"
+  fi
+fi
+
+if [ -f web-ui/package.json ]; then
+  if [ ! -d web-ui/node_modules ]; then
+    echo "setup: npm ci in web-ui/"
+    (cd web-ui && npm ci --no-audit --no-fund)
+  fi
+  if [ ! -x /usr/bin/chromium ]; then
+    echo "setup: installing Debian's chromium for the browser tests"
+    if [ "$(id -u)" = 0 ]; then
+      apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+    else
+      sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+    fi
+  fi
+fi
