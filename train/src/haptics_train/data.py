@@ -1,0 +1,178 @@
+"""Recordings (docs/recording-format.md) as column arrays, and the train/test dataset layout."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import pyarrow.parquet as pq
+
+from .features import F_PREVIOUS, NINE, TARGET_DEFAULT
+
+#: Columns a recording must have for training (the rest of the format is optional here).
+REQUIRED_COLUMNS: tuple[str, ...] = ("time", TARGET_DEFAULT, *NINE)
+
+
+class DataError(ValueError):
+    """A recording or dataset that cannot be used, with the reason."""
+
+
+@dataclass
+class Recording:
+    """One recording: every column as a float64 numpy array, at the loop rate."""
+
+    name: str
+    columns: dict[str, np.ndarray]
+    meta: dict = field(default_factory=dict)
+    source: str = ""
+    sha256: str = ""
+
+    def __len__(self) -> int:
+        return len(self.columns["time"])
+
+    def column(self, name: str) -> np.ndarray:
+        try:
+            return self.columns[name]
+        except KeyError:
+            raise DataError(f"{self.name}: no column {name!r}") from None
+
+    def matrix(self, features: tuple[str, ...] | list[str], stride: int = 1) -> np.ndarray:
+        """Features as an [n, f] float64 matrix, rows 0, stride, 2*stride, ..."""
+        return np.column_stack([self.column(f)[::stride] for f in features])
+
+    def target(self, name: str = TARGET_DEFAULT, stride: int = 1) -> np.ndarray:
+        return self.column(name)[::stride]
+
+    @property
+    def ramp_rate(self) -> float | None:
+        run = self.meta.get("haptics.run")
+        if isinstance(run, dict) and "ramp_rate" in run:
+            try:
+                return float(run["ramp_rate"])
+            except (TypeError, ValueError):
+                return None
+        m = re.search(r"_(\d+(?:\.\d+)?)$", self.name)
+        return float(m.group(1)) if m else None
+
+
+def add_previous_force(columns: dict[str, np.ndarray], target: str = TARGET_DEFAULT) -> None:
+    """`f_previous`: the force response one control step earlier (0 before the first step)."""
+    f = columns[target]
+    prev = np.empty_like(f)
+    prev[0] = 0.0
+    prev[1:] = f[:-1]
+    columns[F_PREVIOUS] = prev
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with path.open("rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _table_to_columns(table: pa.Table) -> dict[str, np.ndarray]:
+    cols: dict[str, np.ndarray] = {}
+    for name in table.column_names:
+        col = table.column(name)
+        if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
+            continue
+        arr = col.to_numpy(zero_copy_only=False)
+        cols[name] = np.asarray(arr, dtype=np.float64)
+    return cols
+
+
+def load_recording(path: str | Path, name: str | None = None) -> Recording:
+    """Reads a Parquet (or CSV with a `.meta.json` sidecar) recording and checks its columns."""
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"no such recording: {path}")
+    meta: dict = {}
+    try:
+        if path.suffix.lower() == ".csv":
+            table = pacsv.read_csv(path)
+            side = path.with_suffix(".meta.json")
+            if side.exists():
+                meta = json.loads(side.read_text())
+        else:
+            pf = pq.ParquetFile(path)
+            table = pf.read()
+            kv = pf.schema_arrow.metadata or {}
+            for k, v in kv.items():
+                key = k.decode(errors="replace")
+                if not key.startswith("haptics."):
+                    continue
+                text = v.decode(errors="replace")
+                try:
+                    meta[key] = json.loads(text)
+                except json.JSONDecodeError:
+                    meta[key] = text
+    except (OSError, pa.ArrowException) as e:
+        raise DataError(f"cannot read recording {path}: {e}") from e
+    cols = _table_to_columns(table)
+    missing = [c for c in REQUIRED_COLUMNS if c not in cols]
+    if missing:
+        raise DataError(f"{path}: missing columns {missing} (see docs/recording-format.md)")
+    if len(cols["time"]) < 3:
+        raise DataError(f"{path}: only {len(cols['time'])} rows")
+    add_previous_force(cols)
+    return Recording(
+        name=name or path.stem, columns=cols, meta=meta, source=str(path), sha256=_sha256(path)
+    )
+
+
+def recording_from_columns(
+    name: str, columns: dict[str, np.ndarray], meta: dict | None = None
+) -> Recording:
+    cols = {k: np.asarray(v, dtype=np.float64) for k, v in columns.items()}
+    missing = [c for c in REQUIRED_COLUMNS if c not in cols]
+    if missing:
+        raise DataError(f"{name}: missing columns {missing}")
+    add_previous_force(cols)
+    return Recording(name=name, columns=cols, meta=meta or {})
+
+
+@dataclass
+class Dataset:
+    train: list[Recording]
+    test: list[Recording]
+    root: str = ""
+
+    def describe(self) -> list[dict]:
+        out = []
+        for split, recs in (("train", self.train), ("test", self.test)):
+            for r in recs:
+                out.append(
+                    {
+                        "split": split,
+                        "name": r.name,
+                        "rows": len(r),
+                        "duration_s": float(r.columns["time"][-1] - r.columns["time"][0]),
+                        "ramp_rate": r.ramp_rate,
+                        "sha256": r.sha256[:16],
+                    }
+                )
+        return out
+
+
+def load_dataset(root: str | Path) -> Dataset:
+    """`train_*.parquet` are the training recordings, `test_*.parquet` the held-out ones."""
+    root = Path(root)
+    if not root.is_dir():
+        raise DataError(
+            f"dataset directory {root} does not exist (record it with scripts/record-dataset.sh)"
+        )
+    train = [load_recording(p) for p in sorted(root.glob("train_*.parquet"))]
+    test = [load_recording(p) for p in sorted(root.glob("test_*.parquet"))]
+    if not train:
+        raise DataError(f"{root}: no train_*.parquet recordings")
+    if not test:
+        raise DataError(f"{root}: no test_*.parquet recording (held-out ramp rate)")
+    return Dataset(train=train, test=test, root=str(root))

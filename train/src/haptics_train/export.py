@@ -1,0 +1,128 @@
+"""ONNX export with the contract's metadata, and parity against the framework."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import onnx
+
+from . import __version__
+from .closed_loop import OnnxStepper, session
+from .contract import validate_model
+from .data import Dataset, Recording
+from .features import PREVIOUS_FORCE_FEATURES
+from .models.base import ForceModel, TrainConfig
+
+
+def git_commit(cwd: str | Path | None = None) -> str:
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=cwd, capture_output=True, text=True, timeout=10
+        )
+        return out.stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def _jsonable(o: object) -> object:
+    if isinstance(o, dict):
+        return {str(k): _jsonable(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [_jsonable(v) for v in o]
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, float) and not np.isfinite(o):
+        return None
+    return o
+
+
+def provenance(
+    model: ForceModel, cfg: TrainConfig, dataset: Dataset | None, metrics: dict | None
+) -> dict:
+    ds = None
+    if dataset is not None:
+        ds = {
+            "root": dataset.root,
+            "train": [{"name": r.name, "sha256": r.sha256[:16]} for r in dataset.train],
+            "test": [{"name": r.name, "sha256": r.sha256[:16]} for r in dataset.test],
+        }
+    return _jsonable(
+        {
+            "model": model.name,
+            "algo": model.algo,
+            "feature_set": model.feature_set,
+            "dataset": ds,
+            "git_commit": git_commit(Path(__file__).parent),
+            "hyperparameters": model.hyper,
+            "training": {**cfg.to_dict(), **model.train_info},
+            "metrics": metrics or {},
+            "created": dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "decimation": cfg.decimate,
+            "haptics_train_version": __version__,
+        }
+    )  # type: ignore[return-value]
+
+
+def to_contract_onnx(model: ForceModel, prov: dict) -> onnx.ModelProto:
+    m = model.to_onnx()
+    m.producer_name = "haptics-train"
+    m.producer_version = __version__
+    m.doc_string = f"haptics reaction-force model {model.name}"
+    meta = {
+        "haptics.features": ",".join(model.features),
+        "haptics.kind": model.kind,
+        "haptics.units": "N",
+        "haptics.provenance": json.dumps(prov, sort_keys=True),
+    }
+    if model.kind == "stateful":
+        h_in = next(i for i in m.graph.input if i.name == "h_in")
+        meta["haptics.state_size"] = str(h_in.type.tensor_type.shape.dim[-1].dim_value)
+    if any(f in PREVIOUS_FORCE_FEATURES for f in model.features):
+        meta["haptics.previous_force"] = "step"
+    del m.metadata_props[:]
+    for k, v in meta.items():
+        m.metadata_props.add(key=k, value=v)
+    onnx.checker.check_model(m)
+    validate_model(m)
+    return m
+
+
+def onnx_predict(
+    m: onnx.ModelProto, rec: Recording, features: tuple[str, ...], limit: int | None = None
+) -> np.ndarray:
+    """The exported model's one-step predictions on a recording's recorded features."""
+    x = rec.matrix(features)[:limit].astype(np.float32)
+    kinds = {p.key: p.value for p in m.metadata_props}
+    if kinds.get("haptics.kind") == "stateful":
+        st = OnnxStepper(m)
+        return np.array([st.step(row) for row in x])
+    sess = session(m)
+    out = [sess.run(None, {"features": x[i : i + 65536]})[0][:, 0] for i in range(0, len(x), 65536)]
+    return np.concatenate(out).astype(np.float64)
+
+
+def parity(
+    model: ForceModel, m: onnx.ModelProto, rec: Recording, stateful_limit: int = 20_000
+) -> dict:
+    """Max |ONNX - framework| over the test recording (a prefix for stepped stateful models)."""
+    limit = stateful_limit if model.kind == "stateful" else None
+    ref = model.predict_matrix(rec.matrix(model.features)[:limit])
+    got = onnx_predict(m, rec, model.features, limit)
+    diff = np.abs(got - ref)
+    return {
+        "rows": int(len(ref)),
+        "max_abs_diff": float(np.nanmax(diff)) if len(diff) else 0.0,
+        "mean_abs_diff": float(np.nanmean(diff)) if len(diff) else 0.0,
+        "all_finite": bool(np.isfinite(got).all()),
+    }
+
+
+def save_onnx(m: onnx.ModelProto, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    onnx.save(m, str(path))
+    return path

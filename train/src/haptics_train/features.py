@@ -1,0 +1,84 @@
+"""Feature names and named feature sets (SPEC section 5, thesis Table 3.1 and Table 6.10).
+
+"Previous force" everywhere in this package means the force response of the *previous control
+step* of the loop (t-1 at the loop rate, 10 kHz on the simulated board), exactly as rt-loop
+computes the features. Decimation for training only drops rows; it never changes what
+"previous" means, so a model trained on every 20th row is fed the very feature definitions the
+loop computes at every step when it is served. (In reproduction the previous force is the
+model's own prediction of the previous control step; see `closed_loop`.)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+#: The nine features of thesis Table 3.1, in its order (docs/recording-format.md).
+NINE: tuple[str, ...] = (
+    "position_x",
+    "velocity",
+    "acceleration",
+    "f_previous_x",
+    "f_previous_v",
+    "f_previous_a",
+    "cycle_no",
+    "deformation",
+    "area_fx",
+)
+
+#: Ratio features: name -> the column it divides the previous force by. On a zero divisor the
+#: ratio keeps its previous value (thesis code), which the closed loop reproduces.
+RATIO_DIVISORS: dict[str, str] = {
+    "f_previous_x": "position_x",
+    "f_previous_v": "velocity",
+    "f_previous_a": "acceleration",
+}
+
+#: Better-conditioned alternative to the ratios: the previous force itself, in N. Derived by
+#: train/ from the recording (`rtob_force` one control step earlier); it is not a column
+#: rt-loop records, so a model using it needs a loop that publishes it.
+F_PREVIOUS = "f_previous"
+
+#: Columns whose value depends on the previous force (closed loop recomputes them).
+PREVIOUS_FORCE_FEATURES: frozenset[str] = frozenset({*RATIO_DIVISORS, F_PREVIOUS})
+
+TARGET_DEFAULT = "rtob_force"
+
+
+@dataclass(frozen=True)
+class FeatureSet:
+    name: str
+    features: tuple[str, ...]
+    description: str
+
+    @property
+    def uses_previous_force(self) -> bool:
+        return any(f in PREVIOUS_FORCE_FEATURES for f in self.features)
+
+
+FEATURE_SETS: dict[str, FeatureSet] = {
+    fs.name: fs
+    for fs in (
+        FeatureSet("six", NINE[:6], "the six selected features (thesis Tables 6.10, 6.15)"),
+        FeatureSet("x", ("position_x",), "position only (Table 6.10 ablation)"),
+        FeatureSet("x_v", ("position_x", "velocity"), "position and velocity (Table 6.10)"),
+        FeatureSet("nine", NINE, "all nine features of Table 3.1"),
+        FeatureSet(
+            "xva_f",
+            ("position_x", "velocity", "acceleration", F_PREVIOUS),
+            "x, v, a and the previous force itself (well-conditioned alternative to the ratios)",
+        ),
+        FeatureSet(
+            "memory",
+            ("position_x", "velocity", "acceleration", "cycle_no", "deformation", "area_fx"),
+            "no previous force: kinematics plus the per-cycle memory features",
+        ),
+    )
+}
+
+
+def feature_set(name: str) -> FeatureSet:
+    try:
+        return FEATURE_SETS[name]
+    except KeyError:
+        known = ", ".join(FEATURE_SETS)
+        raise ValueError(f"unknown feature set {name!r} (known: {known})") from None

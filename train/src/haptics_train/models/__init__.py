@@ -1,0 +1,46 @@
+"""Model registry: algorithm name + feature set + preset -> an untrained ForceModel."""
+
+from __future__ import annotations
+
+from ..features import feature_set
+from .base import ForceModel, TrainConfig
+from .networks import DNN_THESIS, LSTM_THESIS, DenseModel, LSTMModel
+from .sklearn_models import RF_THESIS, SVR_THESIS, ForestModel, LinearModel, SVRModel
+from .spring_damper import SpringDamper
+
+ALGOS = ("sd_const", "sd_poly1", "sd_poly2", "lr", "svr", "rf", "dnn", "lstm")
+
+__all__ = ["ALGOS", "ForceModel", "TrainConfig", "make_model", "parse_spec"]
+
+
+def make_model(
+    algo: str, fset: str = "six", preset: str = "default", hyper: dict | None = None
+) -> ForceModel:
+    """`preset="thesis"` takes the thesis's hyperparameters (SPEC section 6); `hyper` overrides."""
+    if preset not in ("default", "thesis"):
+        raise ValueError(f"unknown preset {preset!r} (default|thesis)")
+    thesis = preset == "thesis"
+    h = dict(hyper or {})
+    if algo.startswith("sd_"):
+        order = {"sd_const": 0, "sd_poly1": 1, "sd_poly2": 2}.get(algo)
+        if order is None:
+            raise ValueError(f"unknown spring-damper {algo!r} (sd_const|sd_poly1|sd_poly2)")
+        return SpringDamper(order)
+    fs = feature_set(fset)
+    if algo == "lr":
+        return LinearModel(fs.features, fs.name)
+    if algo == "svr":
+        return SVRModel(fs.features, fs.name, {**(SVR_THESIS if thesis else {}), **h})
+    if algo == "rf":
+        return ForestModel(fs.features, fs.name, {**(RF_THESIS if thesis else {}), **h})
+    if algo == "dnn":
+        return DenseModel(fs.features, fs.name, {**(DNN_THESIS if thesis else {}), **h})
+    if algo == "lstm":
+        return LSTMModel(fs.features, fs.name, {**(LSTM_THESIS if thesis else {}), **h})
+    raise ValueError(f"unknown algorithm {algo!r} (known: {', '.join(ALGOS)})")
+
+
+def parse_spec(spec: str, preset: str = "default") -> ForceModel:
+    """`rf:six`, `lstm:xva_f`, `sd_poly2` (spring-dampers always use x and v)."""
+    algo, _, fset = spec.partition(":")
+    return make_model(algo.strip(), (fset or "six").strip(), preset)

@@ -1,0 +1,71 @@
+"""The common shape of every force model: fit on recordings, predict one-step, export ONNX."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import onnx
+
+from ..data import Recording
+from ..features import TARGET_DEFAULT
+
+
+@dataclass
+class TrainConfig:
+    """What every model shares: which rows, which target, which seed."""
+
+    #: keep every `decimate`-th row of the loop-rate recordings for stateless training
+    decimate: int = 20
+    target: str = TARGET_DEFAULT
+    seed: int = 0
+    #: show progress bars
+    progress: bool = True
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def stacked(
+    recs: list[Recording], features: tuple[str, ...], cfg: TrainConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Decimated rows of all recordings: X [n, f] float64 and y [n], non-finite rows dropped."""
+    xs = [r.matrix(features, cfg.decimate) for r in recs]
+    ys = [r.target(cfg.target, cfg.decimate) for r in recs]
+    x = np.concatenate(xs)
+    y = np.concatenate(ys)
+    ok = np.isfinite(x).all(axis=1) & np.isfinite(y)
+    return x[ok], y[ok]
+
+
+class ForceModel(ABC):
+    """A trained reaction-force model of one algorithm on one feature set."""
+
+    algo: str = ""
+    kind: str = "stateless"
+
+    def __init__(self, features: tuple[str, ...], feature_set: str, hyper: dict) -> None:
+        self.features = tuple(features)
+        self.feature_set = feature_set
+        self.hyper = dict(hyper)
+        self.train_info: dict = {}
+
+    @property
+    def name(self) -> str:
+        return f"{self.algo}_{self.feature_set}"
+
+    @abstractmethod
+    def fit(self, recs: list[Recording], cfg: TrainConfig) -> None: ...
+
+    @abstractmethod
+    def predict_matrix(self, x: np.ndarray) -> np.ndarray:
+        """One-step predictions for rows of features (stateless models)."""
+
+    def predict_recording(self, rec: Recording) -> np.ndarray:
+        """One-step predictions at every row of a recording, in order (recorded features)."""
+        return self.predict_matrix(rec.matrix(self.features))
+
+    @abstractmethod
+    def to_onnx(self) -> onnx.ModelProto:
+        """The graph of docs/model-contract.md (metadata is added by `export`)."""

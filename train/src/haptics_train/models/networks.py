@@ -1,0 +1,360 @@
+"""The dense network and the LSTM (PyTorch), with all scaling inside the exported graph.
+
+Input scaling: the ratio features F_res(t-1)/x, /v, /a reach +-1e7 near zero divisors, which
+wrecks plain standardisation, so they pass through asinh(z / s) first (s = the median |z| of the
+training rows: linear near zero, logarithmic in the tails), then every feature is standardised.
+The target is standardised too and the output de-standardised in the graph. asinh is
+written out with Log/Sqrt inside the graph, so the served model takes the raw features the
+loop computes.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import onnx
+import torch
+from torch import nn
+from tqdm.auto import tqdm
+
+from ..data import Recording
+from ..features import RATIO_DIVISORS
+from .base import ForceModel, TrainConfig, stacked
+from .torch_export import export_stateful, export_stateless
+
+
+class InputScaler(nn.Module):
+    def __init__(self, features: tuple[str, ...], x: np.ndarray) -> None:
+        super().__init__()
+        soft = np.array([f in RATIO_DIVISORS for f in features])
+        s = np.ones(len(features))
+        for j in np.flatnonzero(soft):
+            med = float(np.median(np.abs(x[:, j])))
+            s[j] = med if med > 0 else 1.0
+        z = np.where(soft, np.arcsinh(x / s), x)
+        mu = z.mean(axis=0)
+        sd = z.std(axis=0)
+        sd[sd == 0] = 1.0
+        self.register_buffer("soft", torch.tensor(soft))
+        self.register_buffer("s", torch.tensor(s, dtype=torch.float32))
+        self.register_buffer("mu", torch.tensor(mu, dtype=torch.float32))
+        self.register_buffer("sd", torch.tensor(sd, dtype=torch.float32))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        u = x / self.s
+        # asinh written out: the TorchScript exporter has no symbolic for aten::asinh.
+        # (|u| < 1e19 keeps u*u finite in float32; the ratios stay far below that.)
+        asinh = torch.sign(u) * torch.log(torch.abs(u) + torch.sqrt(u * u + 1.0))
+        z = torch.where(self.soft, asinh, x)
+        return (z - self.mu) / self.sd
+
+
+class TargetScaler(nn.Module):
+    """y = offset + scale * output (standardisation, or min-max for a sigmoid output)."""
+
+    def __init__(self, offset: float, scale: float) -> None:
+        super().__init__()
+        self.register_buffer("offset", torch.tensor(offset, dtype=torch.float32))
+        self.register_buffer("scale", torch.tensor(scale, dtype=torch.float32))
+
+    def forward(self, out: torch.Tensor) -> torch.Tensor:
+        return out * self.scale + self.offset
+
+    def encode(self, y: np.ndarray) -> np.ndarray:
+        return (y - float(self.offset)) / float(self.scale)
+
+
+class DenseNet(nn.Module):
+    def __init__(self, inp: InputScaler, body: nn.Module, out: TargetScaler) -> None:
+        super().__init__()
+        self.inp, self.body, self.out = inp, body, out
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        return self.out(self.body(self.inp(features)))
+
+
+DNN_DEFAULT = {
+    "arch": "mlp",
+    "hidden": [128, 128, 64],
+    "activation": "silu",
+    "dropout": 0.0,
+    "optimizer": "adam",
+    "lr": 1e-3,
+    "epochs": 30,
+    "batch": 1024,
+    "loss": "mse",
+}
+#: thesis: 150 sigmoid - dropout 0.2 - 25 tanh - dropout 0.2 - 1 sigmoid, MSE, lr 1e-6
+DNN_THESIS = {
+    "arch": "thesis",
+    "hidden": [150, 25],
+    "dropout": 0.2,
+    "optimizer": "adam",
+    "lr": 1e-6,
+    "epochs": 30,
+    "batch": 32,
+    "loss": "mse",
+}
+
+_ACT = {"silu": nn.SiLU, "tanh": nn.Tanh, "relu": nn.ReLU, "sigmoid": nn.Sigmoid}
+
+
+def _loss(name: str) -> nn.Module:
+    return {"mse": nn.MSELoss(), "mae": nn.L1Loss()}[name]
+
+
+def _optim(name: str, params: object, lr: float) -> torch.optim.Optimizer:
+    if name == "sgd":
+        return torch.optim.SGD(params, lr=lr)
+    return torch.optim.Adam(params, lr=lr)
+
+
+class DenseModel(ForceModel):
+    algo = "dnn"
+
+    def __init__(
+        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None
+    ) -> None:
+        h = dict(DNN_DEFAULT)
+        h.update(hyper or {})
+        super().__init__(features, feature_set, h)
+        self.net: DenseNet | None = None
+
+    def _build(self, x: np.ndarray, y: np.ndarray) -> DenseNet:
+        h = self.hyper
+        inp = InputScaler(self.features, x)
+        n = len(self.features)
+        if h["arch"] == "thesis":
+            # Sigmoid output: the target is min-max scaled into [0, 1] (inside the graph).
+            lo, hi = float(y.min()), float(y.max())
+            out = TargetScaler(lo, max(hi - lo, 1e-9))
+            body = nn.Sequential(
+                nn.Linear(n, 150), nn.Sigmoid(), nn.Dropout(h["dropout"]),
+                nn.Linear(150, 25), nn.Tanh(), nn.Dropout(h["dropout"]),
+                nn.Linear(25, 1), nn.Sigmoid(),
+            )  # fmt: skip
+        else:
+            out = TargetScaler(float(y.mean()), float(y.std()) or 1.0)
+            layers: list[nn.Module] = []
+            prev = n
+            for w in h["hidden"]:
+                layers += [nn.Linear(prev, int(w)), _ACT[h["activation"]]()]
+                if h["dropout"]:
+                    layers.append(nn.Dropout(h["dropout"]))
+                prev = int(w)
+            layers.append(nn.Linear(prev, 1))
+            body = nn.Sequential(*layers)
+        return DenseNet(inp, body, out)
+
+    def fit(self, recs: list[Recording], cfg: TrainConfig) -> None:
+        torch.manual_seed(cfg.seed)
+        h = self.hyper
+        x, y = stacked(recs, self.features, cfg)
+        net = self._build(x, y)
+        xt = torch.tensor(x, dtype=torch.float32)
+        yt = torch.tensor(net.out.encode(y), dtype=torch.float32).unsqueeze(1)
+        # Pre-scale once: the scaler is fixed, only the body learns.
+        with torch.no_grad():
+            zt = net.inp(xt)
+        opt = _optim(h["optimizer"], net.body.parameters(), h["lr"])
+        epochs, batch = int(h["epochs"]), int(h["batch"])
+        steps = epochs * math.ceil(len(y) / batch)
+        sched = (
+            torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
+            if h["arch"] != "thesis"
+            else None
+        )
+        lossf = _loss(h["loss"])
+        gen = torch.Generator().manual_seed(cfg.seed)
+        t0 = time.perf_counter()
+        net.train()
+        losses = []
+        bar = tqdm(range(epochs), desc=f"{self.name} epochs", disable=not cfg.progress)
+        for _ in bar:
+            perm = torch.randperm(len(y), generator=gen)
+            total = 0.0
+            for i in range(0, len(y), batch):
+                idx = perm[i : i + batch]
+                opt.zero_grad()
+                loss = lossf(net.body(zt[idx]), yt[idx])
+                loss.backward()
+                opt.step()
+                if sched is not None:
+                    sched.step()
+                total += float(loss) * len(idx)
+            losses.append(total / len(y))
+            bar.set_postfix(loss=f"{losses[-1]:.4g}")
+        net.eval()
+        self.net = net
+        self.train_info = {
+            "rows": int(len(y)),
+            "fit_seconds": round(time.perf_counter() - t0, 2),
+            "final_train_loss_scaled": losses[-1],
+        }
+
+    def predict_matrix(self, x: np.ndarray) -> np.ndarray:
+        assert self.net is not None, "not trained"
+        out = []
+        with torch.no_grad():
+            for i in range(0, len(x), 65536):
+                xt = torch.tensor(x[i : i + 65536], dtype=torch.float32)
+                out.append(self.net(xt).numpy()[:, 0])
+        return np.concatenate(out).astype(np.float64) if out else np.zeros(0)
+
+    def to_onnx(self) -> onnx.ModelProto:
+        assert self.net is not None, "not trained"
+        return export_stateless(self.net.eval(), len(self.features))
+
+
+class LSTMNet(nn.Module):
+    def __init__(self, inp: InputScaler, hidden: int, out: TargetScaler) -> None:
+        super().__init__()
+        self.inp = inp
+        self.lstm = nn.LSTM(len(inp.mu), hidden, batch_first=True)
+        self.head = nn.Linear(hidden, 1)
+        self.out = out
+
+    def forward_scaled(
+        self, z: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor] | None
+    ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+        y, st = self.lstm(z, state)
+        return self.head(y), st
+
+
+class LSTMStep(nn.Module):
+    """One control step: the stateful graph of the model contract."""
+
+    def __init__(self, net: LSTMNet) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(
+        self, features: torch.Tensor, h_in: torch.Tensor, c_in: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        z = self.net.inp(features).unsqueeze(1)  # [batch 1, seq 1, n]
+        y, (h, c) = self.net.lstm(z, (h_in, c_in))
+        force = self.net.out(self.net.head(y[:, 0, :]))  # [1, 1]
+        return force, h, c
+
+
+LSTM_DEFAULT = {
+    "hidden": 100,
+    "lr": 1e-3,
+    "loss": "mse",
+    "streams": 32,
+    "chunk": 200,
+    "iterations": 1500,
+    "optimizer": "adam",
+}
+#: thesis: 100 units + dense 1, MAE loss, learning rate 1e-6
+LSTM_THESIS = {**LSTM_DEFAULT, "lr": 1e-6, "loss": "mae"}
+
+
+class LSTMModel(ForceModel):
+    """LSTM stepped at the loop rate, trained by truncated back-propagation through time.
+
+    Serving steps the LSTM once per control step and carries its state indefinitely, so
+    training does the same: `streams` parallel cursors walk through the loop-rate training
+    recordings in consecutive `chunk`-step pieces, carrying (detached) state from chunk to
+    chunk; a cursor that reaches the end of its recording restarts at a random place with zero
+    state. Rows are never decimated here (the state's time step must be the loop's).
+    """
+
+    algo = "lstm"
+    kind = "stateful"
+
+    def __init__(
+        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None
+    ) -> None:
+        h = dict(LSTM_DEFAULT)
+        h.update(hyper or {})
+        super().__init__(features, feature_set, h)
+        self.net: LSTMNet | None = None
+
+    def fit(self, recs: list[Recording], cfg: TrainConfig) -> None:
+        torch.manual_seed(cfg.seed)
+        rng = np.random.default_rng(cfg.seed)
+        h = self.hyper
+        xs, ys = stacked(recs, self.features, cfg)
+        net = LSTMNet(
+            InputScaler(self.features, xs), int(h["hidden"]),
+            TargetScaler(float(ys.mean()), float(ys.std()) or 1.0),
+        )  # fmt: skip
+        series = []
+        with torch.no_grad():
+            for r in recs:
+                x = torch.tensor(r.matrix(self.features), dtype=torch.float32)
+                y = net.out.encode(r.target(cfg.target))
+                z = net.inp(x)
+                z = torch.nan_to_num(z)
+                series.append((z, torch.tensor(y, dtype=torch.float32)))
+        lengths = np.array([len(s[1]) for s in series])
+        chunk, n_streams = int(h["chunk"]), int(h["streams"])
+        if lengths.min() <= chunk + 1:
+            raise ValueError(f"recordings shorter than one LSTM chunk ({chunk} steps)")
+
+        def restart() -> tuple[int, int]:
+            k = int(rng.choice(len(series), p=lengths / lengths.sum()))
+            return k, int(rng.integers(0, lengths[k] - chunk))
+
+        cursors = [restart() for _ in range(n_streams)]
+        hid = int(h["hidden"])
+        hs = torch.zeros(1, n_streams, hid)
+        cs = torch.zeros(1, n_streams, hid)
+        opt = _optim(h["optimizer"], net.parameters(), h["lr"])
+        iters = int(h["iterations"])
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, iters) if h["lr"] >= 1e-4 else None
+        lossf = _loss(h["loss"])
+        t0 = time.perf_counter()
+        losses = []
+        bar = tqdm(range(iters), desc=f"{self.name} TBPTT", disable=not cfg.progress)
+        for _ in bar:
+            zb = torch.stack([series[k][0][p : p + chunk] for k, p in cursors])
+            yb = torch.stack([series[k][1][p : p + chunk] for k, p in cursors]).unsqueeze(2)
+            opt.zero_grad()
+            pred, (hn, cn) = net.forward_scaled(zb, (hs, cs))
+            loss = lossf(pred, yb)
+            loss.backward()
+            nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+            opt.step()
+            if sched is not None:
+                sched.step()
+            hs, cs = hn.detach(), cn.detach()
+            for i, (k, p) in enumerate(cursors):
+                if p + 2 * chunk > lengths[k]:
+                    cursors[i] = restart()
+                    hs[:, i] = 0.0
+                    cs[:, i] = 0.0
+                else:
+                    cursors[i] = (k, p + chunk)
+            losses.append(float(loss))
+            if len(losses) % 50 == 0:
+                bar.set_postfix(loss=f"{np.mean(losses[-50:]):.4g}")
+        net.eval()
+        self.net = net
+        self.train_info = {
+            "steps_seen": iters * n_streams * chunk,
+            "fit_seconds": round(time.perf_counter() - t0, 2),
+            "final_train_loss_scaled": float(np.mean(losses[-50:])),
+        }
+
+    def predict_matrix(self, x: np.ndarray) -> np.ndarray:
+        """Runs the rows as one sequence in order from zero state (one-step: recorded inputs)."""
+        assert self.net is not None, "not trained"
+        net = self.net
+        out = []
+        state = None
+        with torch.no_grad():
+            for i in range(0, len(x), 50_000):
+                z = net.inp(torch.tensor(x[i : i + 50_000], dtype=torch.float32)).unsqueeze(0)
+                y, state = net.forward_scaled(z, state)
+                out.append(net.out(y)[0, :, 0].numpy())
+        return np.concatenate(out).astype(np.float64) if out else np.zeros(0)
+
+    def to_onnx(self) -> onnx.ModelProto:
+        assert self.net is not None, "not trained"
+        return export_stateful(
+            LSTMStep(self.net).eval(), len(self.features), self.net.lstm.hidden_size
+        )

@@ -1,0 +1,136 @@
+"""Linear regression, SVR and random forest (scikit-learn), exported with skl2onnx."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import onnx
+from skl2onnx import convert_sklearn
+from skl2onnx.common.data_types import FloatTensorType
+from sklearn.ensemble import RandomForestRegressor
+from sklearn.linear_model import LinearRegression
+from sklearn.pipeline import Pipeline, make_pipeline
+from sklearn.preprocessing import StandardScaler
+from sklearn.svm import SVR
+
+from ..data import Recording
+from .base import ForceModel, TrainConfig, stacked
+
+#: ai.onnx.ml 3 is what ONNX Runtime 1.2x-1.31 serve for TreeEnsembleRegressor and friends.
+TARGET_OPSET = {"": 17, "ai.onnx.ml": 3}
+
+
+def _to_onnx(estimator: object, n_features: int) -> onnx.ModelProto:
+    return convert_sklearn(
+        estimator,
+        initial_types=[("features", FloatTensorType([None, n_features]))],
+        final_types=[("force", FloatTensorType([None, 1]))],
+        target_opset=TARGET_OPSET,
+    )
+
+
+class SklearnModel(ForceModel):
+    """Shared fit/predict for the scikit-learn regressors."""
+
+    estimator: Pipeline | RandomForestRegressor
+
+    #: train on float32 features so that float32 ONNX thresholds take the same branches
+    float32_features = False
+    #: at most this many training rows (after decimation); None = all
+    max_rows: int | None = None
+
+    def _make(self, cfg: TrainConfig) -> Pipeline | RandomForestRegressor:
+        raise NotImplementedError
+
+    def fit(self, recs: list[Recording], cfg: TrainConfig) -> None:
+        x, y = stacked(recs, self.features, cfg)
+        n_all = len(y)
+        if self.max_rows is not None and n_all > self.max_rows:
+            rng = np.random.default_rng(cfg.seed)
+            keep = np.sort(rng.choice(n_all, self.max_rows, replace=False))
+            x, y = x[keep], y[keep]
+        if self.float32_features:
+            x = x.astype(np.float32)
+        self.estimator = self._make(cfg)
+        t0 = time.perf_counter()
+        self.estimator.fit(x, y)
+        self.train_info = {
+            "rows": int(len(y)),
+            "rows_available": int(n_all),
+            "fit_seconds": round(time.perf_counter() - t0, 2),
+        }
+
+    def predict_matrix(self, x: np.ndarray) -> np.ndarray:
+        if self.float32_features:
+            x = x.astype(np.float32)
+        return np.asarray(self.estimator.predict(x), dtype=np.float64)
+
+    def to_onnx(self) -> onnx.ModelProto:
+        return _to_onnx(self.estimator, len(self.features))
+
+
+class LinearModel(SklearnModel):
+    algo = "lr"
+
+    def __init__(self, features: tuple[str, ...], feature_set: str) -> None:
+        super().__init__(features, feature_set, {"scaler": "standard"})
+
+    def _make(self, cfg: TrainConfig) -> Pipeline:
+        return make_pipeline(StandardScaler(), LinearRegression())
+
+
+SVR_THESIS = {"kernel": "rbf", "C": 0.1, "gamma": 0.002, "epsilon": 1e-4, "max_rows": 5000}
+SVR_DEFAULT = {"kernel": "rbf", "C": 10.0, "gamma": "scale", "epsilon": 0.01, "max_rows": 5000}
+
+
+class SVRModel(SklearnModel):
+    """RBF SVR on standardised features.
+
+    Kernel SVR scales quadratically-to-cubically with rows and its prediction cost grows with
+    the support vectors, so it is fitted on a random subsample (`max_rows`, default 5000 of the
+    decimated rows); the subsample is part of the hyperparameters and the provenance.
+    """
+
+    algo = "svr"
+
+    def __init__(
+        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None
+    ) -> None:
+        h = dict(SVR_DEFAULT)
+        h.update(hyper or {})
+        super().__init__(features, feature_set, h)
+        self.max_rows = int(h["max_rows"]) if h.get("max_rows") else None
+
+    def _make(self, cfg: TrainConfig) -> Pipeline:
+        h = self.hyper
+        return make_pipeline(
+            StandardScaler(),
+            SVR(kernel=h["kernel"], C=h["C"], gamma=h["gamma"], epsilon=h["epsilon"]),
+        )
+
+
+RF_THESIS = {"n_estimators": 1000, "max_depth": 6}
+RF_DEFAULT = {"n_estimators": 100, "max_depth": 9, "min_samples_leaf": 1}
+
+
+class ForestModel(SklearnModel):
+    algo = "rf"
+    float32_features = True
+
+    def __init__(
+        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None
+    ) -> None:
+        h = dict(RF_DEFAULT)
+        h.update(hyper or {})
+        super().__init__(features, feature_set, h)
+
+    def _make(self, cfg: TrainConfig) -> RandomForestRegressor:
+        h = self.hyper
+        return RandomForestRegressor(
+            n_estimators=int(h["n_estimators"]),
+            max_depth=None if h.get("max_depth") is None else int(h["max_depth"]),
+            min_samples_leaf=int(h.get("min_samples_leaf", 1)),
+            n_jobs=2,
+            random_state=cfg.seed,
+        )

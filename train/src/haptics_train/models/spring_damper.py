@@ -1,0 +1,73 @@
+"""Spring-damper baselines (thesis 6.1): F = k(x) x + b(x) v with polynomial k and b.
+
+order 0: constant k and b; order 1: k = k0 + k1 x, b = b0 + b1 x; order 2 adds x^2 terms.
+Fitted by linear least squares on the decimated training rows. No intercept: a spring-damper
+exerts no force at rest at x = 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import onnx
+import torch
+
+from ..data import Recording
+from .base import ForceModel, TrainConfig, stacked
+from .torch_export import export_stateless
+
+
+def design(x: np.ndarray, v: np.ndarray, order: int) -> np.ndarray:
+    cols = [x * x**i for i in range(order + 1)] + [v * x**i for i in range(order + 1)]
+    return np.column_stack(cols)
+
+
+class _SpringDamperModule(torch.nn.Module):
+    def __init__(self, k: np.ndarray, b: np.ndarray) -> None:
+        super().__init__()
+        self.register_buffer("k", torch.tensor(k, dtype=torch.float32))
+        self.register_buffer("b", torch.tensor(b, dtype=torch.float32))
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        x = features[:, 0:1]
+        v = features[:, 1:2]
+        # Horner's scheme for k(x) and b(x), highest coefficient first.
+        kx = torch.zeros_like(x) + self.k[-1]
+        bx = torch.zeros_like(x) + self.b[-1]
+        for i in range(self.k.shape[0] - 2, -1, -1):
+            kx = kx * x + self.k[i]
+            bx = bx * x + self.b[i]
+        return kx * x + bx * v
+
+
+class SpringDamper(ForceModel):
+    algo = "sd"
+
+    def __init__(self, order: int = 2, feature_set: str = "x_v") -> None:
+        if order not in (0, 1, 2):
+            raise ValueError("spring-damper order must be 0, 1 or 2")
+        super().__init__(("position_x", "velocity"), feature_set, {"order": order})
+        self.order = order
+        self.k = np.zeros(order + 1)
+        self.b = np.zeros(order + 1)
+
+    @property
+    def name(self) -> str:
+        return ("sd_const", "sd_poly1", "sd_poly2")[self.order]
+
+    def fit(self, recs: list[Recording], cfg: TrainConfig) -> None:
+        x, y = stacked(recs, self.features, cfg)
+        a = design(x[:, 0], x[:, 1], self.order)
+        # Column scaling keeps the normal equations well conditioned (x ~ 1e-2, x^3 ~ 1e-6).
+        scale = np.abs(a).max(axis=0)
+        scale[scale == 0] = 1.0
+        coef, *_ = np.linalg.lstsq(a / scale, y, rcond=None)
+        coef = coef / scale
+        self.k = coef[: self.order + 1]
+        self.b = coef[self.order + 1 :]
+        self.train_info = {"rows": int(len(y)), "k": self.k.tolist(), "b": self.b.tolist()}
+
+    def predict_matrix(self, x: np.ndarray) -> np.ndarray:
+        return design(x[:, 0], x[:, 1], self.order) @ np.concatenate([self.k, self.b])
+
+    def to_onnx(self) -> onnx.ModelProto:
+        return export_stateless(_SpringDamperModule(self.k, self.b), len(self.features))

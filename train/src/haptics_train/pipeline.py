@@ -1,0 +1,148 @@
+"""Train -> export (with parity) -> evaluate, persisting models and results under a folder.
+
+Layout of the models folder:
+  <name>.joblib   the trained framework model (ForceModel object)
+  <name>.onnx     the exported model (docs/model-contract.md)
+  results.json    per model: hyperparameters, training info, parity, one-step and
+                  closed-loop metrics on every test recording
+  predictions/<name>.npz  test-set predictions (for the report's plots)
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import joblib
+import numpy as np
+import onnx
+
+from .data import Dataset
+from .evaluate import evaluate
+from .export import parity, provenance, save_onnx, to_contract_onnx
+from .models import ForceModel, TrainConfig, parse_spec
+
+#: The pipeline's default comparison: Table 6.2 baselines, Table 6.15 algorithms on the six
+#: features, Table 6.10 ablation, and the better-conditioned/memory alternatives.
+DEFAULT_SPECS: tuple[str, ...] = (
+    "sd_const",
+    "sd_poly1",
+    "sd_poly2",
+    "lr:six",
+    "svr:six",
+    "rf:six",
+    "dnn:six",
+    "lstm:six",
+    "rf:x",
+    "rf:x_v",
+    "rf:xva_f",
+    "dnn:xva_f",
+    "rf:memory",
+    "dnn:memory",
+    "lstm:memory",
+)
+
+
+def train_models(
+    dataset: Dataset,
+    specs: list[str],
+    cfg: TrainConfig,
+    out: Path,
+    preset: str = "default",
+    hyper: dict[str, dict] | None = None,
+) -> list[ForceModel]:
+    out.mkdir(parents=True, exist_ok=True)
+    models = []
+    for spec in specs:
+        m = parse_spec(spec, preset)
+        algo = spec.partition(":")[0]
+        if hyper and algo in hyper:
+            m.hyper.update(hyper[algo])
+            if hasattr(m, "max_rows") and "max_rows" in hyper[algo]:
+                m.max_rows = hyper[algo]["max_rows"]  # type: ignore[attr-defined]
+        t0 = time.perf_counter()
+        print(f"[train] {m.name} on {len(dataset.train)} recordings ...", flush=True)
+        m.fit(dataset.train, cfg)
+        m.train_info.setdefault("fit_seconds", round(time.perf_counter() - t0, 2))
+        joblib.dump({"model": m, "config": cfg}, out / f"{m.name}.joblib")
+        print(f"[train] {m.name}: {m.train_info}", flush=True)
+        models.append(m)
+    return models
+
+
+def load_models(
+    folder: Path, names: list[str] | None = None
+) -> list[tuple[ForceModel, TrainConfig]]:
+    paths = sorted(folder.glob("*.joblib"))
+    if names:
+        paths = [folder / f"{n}.joblib" for n in names]
+    if not paths:
+        raise FileNotFoundError(f"no trained models (*.joblib) in {folder}")
+    out = []
+    for p in paths:
+        blob = joblib.load(p)
+        out.append((blob["model"], blob["config"]))
+    return out
+
+
+def _results_path(folder: Path) -> Path:
+    return folder / "results.json"
+
+
+def load_results(folder: Path) -> dict:
+    p = _results_path(folder)
+    return json.loads(p.read_text()) if p.exists() else {}
+
+
+def export_and_evaluate(
+    models: list[tuple[ForceModel, TrainConfig]],
+    dataset: Dataset,
+    folder: Path,
+    closed_loop: bool = True,
+) -> dict:
+    """Evaluates each model (one-step + closed-loop), exports it with its metrics in the
+    provenance, checks parity, and writes results.json (merged with earlier results)."""
+    results = load_results(folder)
+    (folder / "predictions").mkdir(parents=True, exist_ok=True)
+    for model, cfg in models:
+        print(f"[evaluate] {model.name}", flush=True)
+        # Export once without metrics (closed loop runs the exported graph), then re-export
+        # with the metrics in the provenance.
+        draft = to_contract_onnx(model, provenance(model, cfg, dataset, None))
+        evals = []
+        preds = {}
+        for rec in dataset.test:
+            r, p = evaluate(model, draft, rec, cfg, closed_loop=closed_loop)
+            evals.append(r)
+            for k, v in p.items():
+                preds[f"{rec.name}:{k}"] = v.astype(np.float32)
+        metrics = {
+            e["recording"]: {"one_step": e["one_step"], "closed_loop": e.get("closed_loop")}
+            for e in evals
+        }
+        final = to_contract_onnx(model, provenance(model, cfg, dataset, metrics))
+        path = save_onnx(final, folder / f"{model.name}.onnx")
+        par = parity(model, onnx.load(str(path)), dataset.test[0])
+        np.savez_compressed(folder / "predictions" / f"{model.name}.npz", **preds)
+        results[model.name] = {
+            "algo": model.algo,
+            "feature_set": model.feature_set,
+            "features": list(model.features),
+            "kind": model.kind,
+            "hyperparameters": model.hyper,
+            "training": {**cfg.to_dict(), **model.train_info},
+            "onnx": str(path),
+            "onnx_bytes": path.stat().st_size,
+            "parity": par,
+            "test": evals,
+        }
+        e0 = evals[0]
+        print(
+            f"[evaluate] {model.name}: one-step RMSE {e0['one_step']['rmse']:.3f} N, "
+            f"closed-loop RMSE {e0.get('closed_loop', {}).get('rmse', float('nan')):.3f} N, "
+            f"parity max |diff| {par['max_abs_diff']:.2e}",
+            flush=True,
+        )
+        _results_path(folder).write_text(json.dumps(results, indent=1, default=float))
+    return results
