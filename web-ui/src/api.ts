@@ -1,0 +1,93 @@
+// Calls to infer-server's HTTP API (docs/web-protocol.md), with the bearer token the server may
+// require for mutating calls. The token is asked for once (on a 401, or up front when the status
+// says one is required) and kept in sessionStorage, so it lives as long as the tab.
+
+const TOKEN_KEY = "haptics.token";
+
+export class ApiError extends Error {
+  constructor(
+    readonly status: number,
+    message: string,
+  ) {
+    super(message);
+  }
+}
+
+export function getToken(): string | null {
+  try {
+    return sessionStorage.getItem(TOKEN_KEY);
+  } catch {
+    return null;
+  }
+}
+
+export function setToken(token: string | null): void {
+  try {
+    if (token) sessionStorage.setItem(TOKEN_KEY, token);
+    else sessionStorage.removeItem(TOKEN_KEY);
+  } catch {
+    /* storage disabled: the token then lives only until the page asks again */
+  }
+}
+
+/** Asks the person for a token; resolves to null when they cancel. Set by the page. */
+export type TokenPrompt = (reason: string) => Promise<string | null>;
+let askToken: TokenPrompt = async () => null;
+export function setTokenPrompt(p: TokenPrompt): void {
+  askToken = p;
+}
+
+async function readError(res: Response): Promise<string> {
+  const text = await res.text().catch(() => "");
+  try {
+    const o = JSON.parse(text);
+    if (o && typeof o.error === "string") return o.error;
+  } catch {
+    /* not JSON: show the text */
+  }
+  return text.trim() || `${res.status} ${res.statusText}`;
+}
+
+async function call(method: string, path: string, body?: unknown, retried = false): Promise<unknown> {
+  const headers: Record<string, string> = { Accept: "application/json" };
+  const token = getToken();
+  if (token) headers.Authorization = `Bearer ${token}`;
+  if (body !== undefined) headers["Content-Type"] = "application/json";
+  let res: Response;
+  try {
+    res = await fetch(path, { method, headers, body: body === undefined ? undefined : JSON.stringify(body), cache: "no-store" });
+  } catch (e) {
+    throw new ApiError(0, `server unreachable (${(e as Error).message})`);
+  }
+  if (res.status === 401 && !retried) {
+    const t = await askToken(token ? "The server refused the token. Enter the right one." : "This server needs a token for that.");
+    if (t === null) throw new ApiError(401, "a token is needed and none was given");
+    setToken(t);
+    return call(method, path, body, true);
+  }
+  if (!res.ok) throw new ApiError(res.status, await readError(res));
+  const text = await res.text();
+  if (!text) return {};
+  try {
+    return JSON.parse(text);
+  } catch {
+    throw new ApiError(res.status, `answer is not JSON: ${text.slice(0, 80)}`);
+  }
+}
+
+export const api = {
+  status: () => call("GET", "/api/status"),
+  models: () => call("GET", "/api/models"),
+  load: (name: string) => call("POST", `/api/models/${encodeURIComponent(name)}/load`),
+  activate: (name: string) => call("POST", `/api/models/${encodeURIComponent(name)}/activate`),
+  startExperiment: (req: ExperimentRequest) => call("POST", "/api/experiment/start", req),
+  stopExperiment: () => call("POST", "/api/experiment/stop"),
+};
+
+export interface ExperimentRequest {
+  kind: "abstraction" | "reproduction" | "shadow";
+  ramp_rate?: number;
+  cycles?: number;
+  f_max_start?: number;
+  f_max_step?: number;
+}

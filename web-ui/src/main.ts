@@ -1,0 +1,673 @@
+// The page: wires the telemetry connection, the history store, the plots, the live figures, the
+// model list and the experiment controls together. One requestAnimationFrame loop draws; the
+// WebSocket only appends to the store, so pausing the plots never stops data reception.
+import "uplot/dist/uPlot.min.css";
+import "./style.css";
+import { api, getToken, setToken, setTokenPrompt, type ExperimentRequest } from "./api";
+import { TelemetryConnection, type ConnState } from "./connection";
+import { decodeFrame, normalizeModels, normalizeStatus, SERIES, type ModelInfo, type Status } from "./protocol";
+import { readColumns, TelemetryStore, toCsv, type Columns } from "./store";
+import { TimePlot, type PlotDef } from "./timeplots";
+import { enclosedArea, XYPlot } from "./xyplot";
+
+const $ = <T extends HTMLElement = HTMLElement>(id: string): T => {
+  const el = document.getElementById(id);
+  if (!el) throw new Error(`#${id} missing`);
+  return el as T;
+};
+
+// Colours: Okabe-Ito, darkened where needed for contrast on white.
+const C = { cmd: "#111827", res: "#0072b2", pred: "#d55e00", truth: "#009e73", depth: "#7b3294", vel: "#0072b2", acc: "#a6611a" };
+
+/** Unit conversion per series for display: depth in mm, velocity in mm/s. */
+const DISPLAY_SCALE = [1, 1, 1, 1000, 1000, 1, 1];
+const S = Object.fromEntries(SERIES.map((n, i) => [n, i])) as Record<(typeof SERIES)[number], number>;
+
+const PLOTS: PlotDef[] = [
+  {
+    id: "force",
+    title: "Force",
+    yLabel: "force (N)",
+    height: 250,
+    signals: [
+      { series: S.F_ref, label: "command F_ref", unit: "N", color: C.cmd, dash: [6, 4] },
+      { series: S.rtob_force, label: "RFOB response", unit: "N", color: C.res },
+      { series: S.F_pred, label: "predicted", unit: "N", color: C.pred },
+      { series: S.F_true, label: "true (sim)", unit: "N", color: C.truth },
+    ],
+  },
+  {
+    id: "depth",
+    title: "Compression depth",
+    yLabel: "depth (mm)",
+    height: 170,
+    signals: [{ series: S.position_x, label: "depth x", unit: "mm", color: C.depth }],
+  },
+  {
+    id: "motion",
+    title: "Velocity and acceleration",
+    yLabel: "velocity (mm/s)",
+    y2Label: "acceleration (m/s²)",
+    height: 190,
+    signals: [
+      { series: S.velocity, label: "velocity", unit: "mm/s", color: C.vel },
+      { series: S.acceleration, label: "acceleration (right axis)", unit: "m/s²", color: C.acc, scale: "y2" },
+    ],
+  },
+];
+
+// ---------------------------------------------------------------------------------------------
+// State
+
+const store = new TelemetryStore(1 << 18);
+let paused = false;
+/** Frozen view [t0, t1] while paused or zoomed; null = live rolling window. */
+let frozen: [number, number] | null = null;
+let windowS = 10;
+let xyWindowS = 20;
+let dirty = true;
+let status: Status = {};
+let lastStatusAt = 0;
+let lastDataAt = 0;
+let conn: ConnState = "connecting";
+let retryAt = 0;
+let frames = 0;
+let badFrames = 0;
+let models: ModelInfo[] = [];
+const frameDeltas: number[] = [];
+const drawTimes: number[] = [];
+const FRAME_LOG = 2000;
+let lastRaf = 0;
+let dataFramesThisSecond = 0;
+let rafThisSecond = 0;
+let secondStart = performance.now();
+
+// ---------------------------------------------------------------------------------------------
+// Messages
+
+function log(text: string, kind: "ok" | "err" | "" = ""): void {
+  const li = document.createElement("li");
+  li.textContent = `${new Date().toLocaleTimeString()} ${text}`;
+  if (kind) li.className = kind;
+  const ol = $("log");
+  ol.prepend(li);
+  while (ol.children.length > 50) ol.lastElementChild?.remove();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Plots
+
+const syncKey = "haptics-time";
+const timePlots: TimePlot[] = PLOTS.map((def) => {
+  const plot = new TimePlot(def, $(`plot-${def.id}`), syncKey, {
+    onZoom: (t0, t1) => {
+      frozen = [Math.min(t0, t1), Math.max(t0, t1)];
+      setPaused(true, "zoomed");
+    },
+    onResetZoom: () => goLive(),
+  });
+  const fs = $(`toggles-${def.id}`);
+  def.signals.forEach((sig, k) => {
+    const lab = document.createElement("label");
+    lab.style.setProperty("--c", sig.color);
+    const cb = document.createElement("input");
+    cb.type = "checkbox";
+    cb.checked = plot.isVisible(k);
+    cb.id = `toggle-${def.id}-${sig.series}`;
+    cb.dataset.series = SERIES[sig.series];
+    cb.addEventListener("change", () => {
+      plot.setVisible(k, cb.checked);
+      dirty = true;
+    });
+    const sw = document.createElement("span");
+    sw.className = "sw";
+    sw.setAttribute("aria-hidden", "true");
+    if (sig.dash) sw.style.background = `repeating-linear-gradient(90deg, ${sig.color} 0 5px, transparent 5px 8px)`;
+    const txt = document.createElement("span");
+    txt.textContent = sig.label;
+    const nd = document.createElement("span");
+    nd.className = "nodata";
+    nd.id = `nodata-${SERIES[sig.series]}`;
+    lab.append(cb, sw, txt, nd);
+    fs.append(lab);
+  });
+  return plot;
+});
+
+const xy = new XYPlot($<HTMLCanvasElement>("xy"), "compression depth (mm)", "force (N)");
+let xyPoints: { x: number[]; y: number[]; pred: number[] } = { x: [], y: [], pred: [] };
+
+function layout(): void {
+  for (const p of timePlots) {
+    const host = $(`plot-${p.def.id}`);
+    p.setSize(Math.max(300, host.clientWidth));
+  }
+  const c = $("xy").parentElement as HTMLElement;
+  const w = c.clientWidth - 20;
+  xy.setSize(w, Math.min(340, Math.max(220, w * 0.78)));
+  dirty = true;
+}
+new ResizeObserver(() => layout()).observe($("plots"));
+window.addEventListener("resize", layout);
+
+function viewRange(): [number, number] | null {
+  if (frozen) return frozen;
+  const last = store.lastTime();
+  if (!Number.isFinite(last)) return null;
+  return [last - windowS, last];
+}
+
+let lastCols: Columns | null = null;
+
+function render(): void {
+  const r = viewRange();
+  if (!r) {
+    for (const p of timePlots) p.update(readColumns(store, 0, -1, 1, DISPLAY_SCALE), 0, 1);
+    xy.draw([]);
+    xyPoints = { x: [], y: [], pred: [] };
+    return;
+  }
+  const [t0, t1] = r;
+  const width = Math.max(...timePlots.map((p) => p.u.bbox.width / (window.devicePixelRatio || 1)), 300);
+  const cols = readColumns(store, t0, t1, Math.round(width), DISPLAY_SCALE);
+  lastCols = cols;
+  for (const p of timePlots) p.update(cols, t0, t1);
+  for (const name of ["F_pred", "F_true"] as const) {
+    const s = S[name];
+    const has = cols.max[s].some((v) => v !== null);
+    const nd = document.getElementById(`nodata-${name}`);
+    if (nd) nd.textContent = has ? "" : "(none)";
+  }
+  renderXY(t1);
+  $("view-info").textContent = frozen
+    ? `${paused && pauseReason === "zoomed" ? "Zoomed" : "Paused"}: ${t0.toFixed(2)}–${t1.toFixed(2)} s`
+    : `Live: last ${windowS} s`;
+}
+
+/** Force-depth points of the last xyWindowS seconds ending at t1, at most ~1500 points. */
+function renderXY(t1: number): void {
+  const i0 = store.lowerBound(t1 - xyWindowS);
+  const i1 = store.lowerBound(t1 + 1e-9);
+  const n = i1 - i0;
+  const group = Math.max(1, Math.ceil(n / 1500));
+  const x: number[] = [];
+  const y: number[] = [];
+  const pred: number[] = [];
+  const sx = S.position_x;
+  const sf = S.rtob_force;
+  const sp = S.F_pred;
+  for (let i = i0; i < i1; i += group) {
+    const e = Math.min(i1, i + group);
+    let ax = 0;
+    let af = 0;
+    let ap = 0;
+    let cnt = 0;
+    for (let j = i; j < e; j++) {
+      ax += (store.min(j, sx) + store.max(j, sx)) / 2;
+      af += (store.min(j, sf) + store.max(j, sf)) / 2;
+      ap += (store.min(j, sp) + store.max(j, sp)) / 2;
+      cnt++;
+    }
+    x.push((ax / cnt) * 1000);
+    y.push(af / cnt);
+    pred.push(ap / cnt);
+  }
+  xyPoints = { x, y, pred };
+  const traces = [{ label: "RFOB response", color: C.res, x, y }];
+  if (pred.some(Number.isFinite)) traces.push({ label: "predicted", color: C.pred, x, y: pred, dash: [5, 3] } as never);
+  xy.draw(traces);
+}
+
+function frame(now: number): void {
+  if (lastRaf) {
+    frameDeltas.push(now - lastRaf);
+    if (frameDeltas.length > FRAME_LOG) frameDeltas.splice(0, frameDeltas.length - FRAME_LOG);
+  }
+  lastRaf = now;
+  rafThisSecond++;
+  if (now - secondStart >= 1000) {
+    $("fps").textContent = `${Math.round((rafThisSecond * 1000) / (now - secondStart))} fps · ${Math.round((dataFramesThisSecond * 1000) / (now - secondStart))} data/s`;
+    rafThisSecond = 0;
+    dataFramesThisSecond = 0;
+    secondStart = now;
+    updateConnView();
+  }
+  if (dirty) {
+    dirty = false;
+    const t = performance.now();
+    render();
+    drawTimes.push(performance.now() - t);
+    if (drawTimes.length > FRAME_LOG) drawTimes.splice(0, drawTimes.length - FRAME_LOG);
+  }
+  requestAnimationFrame(frame);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Pause, zoom, window, clear, export
+
+let pauseReason: "user" | "zoomed" = "user";
+
+function setPaused(p: boolean, reason: "user" | "zoomed" = "user"): void {
+  paused = p;
+  pauseReason = reason;
+  if (p && !frozen) frozen = viewRange();
+  if (!p) frozen = null;
+  const b = $("pause");
+  b.setAttribute("aria-pressed", String(p));
+  b.textContent = p ? "Resume" : "Pause";
+  dirty = true;
+}
+
+function goLive(): void {
+  setPaused(false);
+}
+
+function setWindow(s: number): void {
+  windowS = s;
+  ($("window") as HTMLSelectElement).value = String(s);
+  if (frozen) {
+    // Keep the right edge, change the span.
+    frozen = [frozen[1] - s, frozen[1]];
+  }
+  dirty = true;
+}
+
+function stepWindow(dir: 1 | -1): void {
+  const opts = [...($("window") as HTMLSelectElement).options].map((o) => Number(o.value));
+  const i = opts.indexOf(windowS);
+  const j = Math.max(0, Math.min(opts.length - 1, (i < 0 ? 2 : i) + dir));
+  setWindow(opts[j]);
+}
+
+function pan(dir: 1 | -1): void {
+  const r = viewRange();
+  if (!r) return;
+  if (!paused) setPaused(true);
+  const span = r[1] - r[0];
+  const f = frozen ?? r;
+  frozen = [f[0] + dir * span * 0.2, f[1] + dir * span * 0.2];
+  dirty = true;
+}
+
+$("pause").addEventListener("click", () => setPaused(!paused));
+$("live").addEventListener("click", goLive);
+$("window").addEventListener("change", (e) => setWindow(Number((e.target as HTMLSelectElement).value)));
+$("xy-window").addEventListener("change", (e) => {
+  xyWindowS = Number((e.target as HTMLSelectElement).value);
+  dirty = true;
+});
+$("clear").addEventListener("click", () => {
+  store.clear();
+  frozen = paused ? null : frozen;
+  if (paused) setPaused(false);
+  dirty = true;
+  log("History cleared");
+});
+$("export").addEventListener("click", () => {
+  const r = viewRange();
+  if (!r) {
+    log("Nothing to export yet", "err");
+    return;
+  }
+  const csv = toCsv(store, r[0], r[1], SERIES);
+  const blob = new Blob([csv], { type: "text/csv" });
+  const a = document.createElement("a");
+  a.href = URL.createObjectURL(blob);
+  a.download = `haptics_${r[0].toFixed(3)}-${r[1].toFixed(3)}s.csv`;
+  document.body.append(a);
+  a.click();
+  a.remove();
+  setTimeout(() => URL.revokeObjectURL(a.href), 10_000);
+  log(`Exported ${csv.split("\n").length - 2} rows (${r[0].toFixed(2)}–${r[1].toFixed(2)} s)`, "ok");
+});
+
+document.addEventListener("keydown", (e) => {
+  const tag = (e.target as HTMLElement).tagName;
+  if (e.ctrlKey || e.metaKey || e.altKey) return;
+  if (tag === "INPUT" || tag === "SELECT" || tag === "TEXTAREA" || (e.target as HTMLElement).closest("dialog")) return;
+  if (e.key === " " && tag !== "BUTTON") {
+    e.preventDefault();
+    setPaused(!paused);
+  } else if (e.key === "Escape") goLive();
+  else if (e.key === "+" || e.key === "=") stepWindow(1);
+  else if (e.key === "-" || e.key === "_") stepWindow(-1);
+  else if (e.key === "ArrowLeft" && tag !== "BUTTON") pan(-1);
+  else if (e.key === "ArrowRight" && tag !== "BUTTON") pan(1);
+});
+
+// ---------------------------------------------------------------------------------------------
+// Connection state and live figures
+
+const fmtInt = (v: number | undefined): string => (typeof v === "number" && Number.isFinite(v) ? Math.round(v).toLocaleString("en-US") : "–");
+const fmtUs = (v: number | undefined): string => (typeof v === "number" && Number.isFinite(v) ? (v >= 100 ? v.toFixed(0) : v.toFixed(1)) : "–");
+
+function setText(id: string, text: string, cls = ""): void {
+  const el = $(id);
+  if (el.textContent !== text) el.textContent = text;
+  el.className = cls;
+}
+
+function updateFigures(): void {
+  const s = status;
+  setText("f-loop", s.loop_alive === undefined ? "–" : s.loop_alive ? `alive${s.clock ? `, ${s.clock}` : ""}` : "gone", s.loop_alive === false ? "bad" : s.loop_alive ? "ok" : "");
+  setText("f-rate", typeof s.rate_hz === "number" ? (s.rate_hz >= 1000 ? `${(s.rate_hz / 1000).toFixed(3)} kHz` : `${s.rate_hz.toFixed(1)} Hz`) : "–");
+  setText("f-steps", fmtInt(s.step));
+  const rt = s.round_trip_latency;
+  setText("f-rtt", rt ? `${fmtUs(rt.p50_us)} / ${fmtUs(rt.p99_us)} / ${fmtUs(rt.p999_us)} µs` : "–");
+  const il = s.inference_latency;
+  setText("f-inf", il ? `${fmtUs(il.p50_us)} / ${fmtUs(il.p99_us)} / ${fmtUs(il.p999_us)} µs` : "–");
+  setText("f-miss", fmtInt(s.deadline_misses), (s.deadline_misses ?? 0) > 0 ? "bad" : "");
+  setText("f-fallback", fmtInt(s.fallbacks), (s.fallbacks ?? 0) > 0 ? "bad" : "");
+  setText("f-model", s.active_model ? `${s.active_model.name}${s.active_model.kind ? ` (${s.active_model.kind})` : ""}` : s.loop_alive === undefined ? "–" : "none (fallback)");
+  setText("f-mode", s.mode ?? "–");
+  setText("f-drops", fmtInt(s.telemetry_drops));
+  const up = typeof s.uptime_s === "number" ? `up ${formatDuration(s.uptime_s)}` : "";
+  setText("f-server", [s.server_version ? `v${s.server_version}` : "", up].filter(Boolean).join(", ") || "–");
+}
+
+function formatDuration(s: number): string {
+  if (s < 120) return `${Math.round(s)} s`;
+  if (s < 7200) return `${Math.round(s / 60)} min`;
+  return `${(s / 3600).toFixed(1)} h`;
+}
+
+type ViewState = "connecting" | "live" | "loop-gone" | "server-gone" | "no-data";
+
+function viewState(now: number): ViewState {
+  if (conn === "closed") return "server-gone";
+  if (conn === "connecting") return "connecting";
+  if (status.loop_alive === false) return "loop-gone";
+  if (now - lastStatusAt > 5000 && now - lastDataAt > 2000) return "no-data";
+  if (now - lastDataAt > 2000) return "no-data";
+  return "live";
+}
+
+let shownState: ViewState | null = null;
+function updateConnView(): void {
+  const now = performance.now();
+  const st = viewState(now);
+  const el = $("conn");
+  el.dataset.state = st;
+  const banner = $("banner");
+  const retry = $("retry");
+  let text = "";
+  let bannerText = "";
+  switch (st) {
+    case "connecting":
+      text = "Connecting…";
+      break;
+    case "live":
+      text = "Live";
+      break;
+    case "loop-gone":
+      text = "Loop gone";
+      bannerText = "The real-time loop is gone: no rt-loop is attached to the server. The plots stay as they were; data resumes here when a loop attaches again.";
+      break;
+    case "no-data":
+      text = "Connected, no data";
+      bannerText = "Connected to the server, but no telemetry has arrived for over 2 s.";
+      break;
+    case "server-gone": {
+      const secs = Math.max(0, Math.ceil((retryAt - now) / 1000));
+      text = "Server gone";
+      bannerText = `The server is gone (the connection closed). Reconnecting${secs > 0 ? ` in ${secs} s` : "…"}; the page recovers by itself, no reload needed.`;
+      break;
+    }
+  }
+  setText("conn-text", text);
+  retry.hidden = st !== "server-gone";
+  banner.hidden = bannerText === "";
+  banner.dataset.kind = st;
+  if (banner.textContent !== bannerText) banner.textContent = bannerText;
+  if (st !== shownState) {
+    if (shownState !== null) log(`Connection: ${text}`, st === "live" ? "ok" : st === "connecting" ? "" : "err");
+    shownState = st;
+  }
+}
+
+function onStatus(raw: unknown): void {
+  const prevModel = status.active_model?.name;
+  status = normalizeStatus(raw);
+  lastStatusAt = performance.now();
+  updateFigures();
+  updateConnView();
+  if (status.active_model?.name !== prevModel) void refreshModels();
+  if (status.token_required && !getToken()) $("token-btn").classList.add("primary");
+}
+
+const wsUrl = `${location.protocol === "https:" ? "wss:" : "ws:"}//${location.host}/ws/telemetry?fps=60`;
+const connection = new TelemetryConnection(wsUrl, {
+  onBinary(buf) {
+    try {
+      store.append(decodeFrame(buf));
+      frames++;
+      dataFramesThisSecond++;
+      lastDataAt = performance.now();
+      if (!paused) dirty = true;
+    } catch (e) {
+      badFrames++;
+      if (badFrames <= 5 || badFrames % 1000 === 0) log(`Bad telemetry frame #${badFrames}: ${(e as Error).message}`, "err");
+    }
+  },
+  onText(text) {
+    try {
+      const o = JSON.parse(text);
+      if (o && (o.type === "status" || o.type === undefined)) onStatus(o);
+    } catch {
+      log("Unreadable text frame from the server", "err");
+    }
+  },
+  onState(st, info) {
+    conn = st;
+    if (st === "closed") retryAt = performance.now() + (info.retryInMs ?? 0);
+    if (st === "open") {
+      // Fresh after a reconnect: the status and the model list may have changed meanwhile.
+      void pollStatus();
+      void refreshModels();
+    }
+    updateConnView();
+  },
+});
+$("retry").addEventListener("click", () => connection.retryNow());
+
+async function pollStatus(): Promise<void> {
+  try {
+    onStatus(await api.status());
+  } catch {
+    /* the WebSocket state says what is wrong */
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Models
+
+async function refreshModels(): Promise<void> {
+  try {
+    models = normalizeModels(await api.models());
+    renderModels();
+  } catch (e) {
+    if (conn === "open") log(`Model list: ${(e as Error).message}`, "err");
+  }
+}
+
+function renderModels(): void {
+  const body = $("models-body");
+  body.replaceChildren();
+  if (!models.length) {
+    const tr = document.createElement("tr");
+    tr.innerHTML = `<td colspan="4" class="muted">No models in the server's model directory</td>`;
+    body.append(tr);
+    return;
+  }
+  const activeName = status.active_model?.name;
+  for (const m of models) {
+    const tr = document.createElement("tr");
+    tr.dataset.model = m.name;
+    const active = m.state === "active" || m.name === activeName;
+    const name = document.createElement("td");
+    name.className = "name";
+    name.textContent = m.name;
+    if (m.features?.length) name.title = `features: ${m.features.join(", ")}`;
+    const state = document.createElement("td");
+    state.textContent = active ? "active" : m.state;
+    state.className = `state-${active ? "active" : m.state}`;
+    if (m.error) state.title = m.error;
+    const kind = document.createElement("td");
+    kind.textContent = m.kind ?? "";
+    const act = document.createElement("td");
+    const b = document.createElement("button");
+    b.type = "button";
+    b.textContent = active ? "Active" : "Activate";
+    b.disabled = active;
+    b.setAttribute("aria-label", active ? `${m.name} is the active model` : `Activate model ${m.name}`);
+    b.addEventListener("click", () => void swapModel(m, b));
+    act.append(b);
+    tr.append(name, state, kind, act);
+    body.append(tr);
+  }
+}
+
+async function swapModel(m: ModelInfo, button: HTMLButtonElement): Promise<void> {
+  button.disabled = true;
+  button.textContent = "Swapping…";
+  try {
+    if (m.state === "available" || m.state === "failed") {
+      log(`Loading ${m.name}…`);
+      await api.load(m.name);
+    }
+    const r = (await api.activate(m.name)) as { effective_step?: number };
+    log(`Active model: ${m.name}${r && typeof r.effective_step === "number" ? ` from step ${r.effective_step}` : ""}`, "ok");
+  } catch (e) {
+    log(`Could not activate ${m.name}: ${(e as Error).message}`, "err");
+  }
+  await pollStatus();
+  await refreshModels();
+}
+$("models-refresh").addEventListener("click", () => void refreshModels());
+
+// ---------------------------------------------------------------------------------------------
+// Experiment
+
+const expKind = $<HTMLSelectElement>("exp-kind");
+function syncExpForm(): void {
+  const ramp = expKind.value !== "reproduction";
+  for (const id of ["exp-rate", "exp-cycles", "exp-fmax", "exp-fstep"]) ($(id) as HTMLInputElement).disabled = !ramp;
+}
+expKind.addEventListener("change", syncExpForm);
+syncExpForm();
+
+$("exp-form").addEventListener("submit", (e) => {
+  e.preventDefault();
+  const kind = expKind.value as ExperimentRequest["kind"];
+  const req: ExperimentRequest = { kind };
+  if (kind !== "reproduction") {
+    const num = (id: string) => Number(($(id) as HTMLInputElement).value);
+    req.ramp_rate = num("exp-rate");
+    req.cycles = Math.round(num("exp-cycles"));
+    req.f_max_start = num("exp-fmax");
+    req.f_max_step = num("exp-fstep");
+    const bad = Object.entries(req).filter(([k, v]) => k !== "kind" && !(typeof v === "number" && Number.isFinite(v) && v >= 0));
+    if (bad.length) {
+      log(`Experiment not started: ${bad.map(([k]) => k).join(", ")} must be numbers ≥ 0`, "err");
+      return;
+    }
+  }
+  void (async () => {
+    try {
+      await api.startExperiment(req);
+      log(`Experiment started: ${kind}${req.ramp_rate ? ` at ${req.ramp_rate} N/s, ${req.cycles} cycles` : ""}`, "ok");
+    } catch (err) {
+      log(`Experiment not started: ${(err as Error).message}`, "err");
+    }
+    void pollStatus();
+  })();
+});
+$("exp-stop").addEventListener("click", () => {
+  void (async () => {
+    try {
+      await api.stopExperiment();
+      log("Experiment stopped", "ok");
+    } catch (err) {
+      log(`Stop failed: ${(err as Error).message}`, "err");
+    }
+    void pollStatus();
+  })();
+});
+
+// ---------------------------------------------------------------------------------------------
+// Token prompt
+
+const dlg = $<HTMLDialogElement>("token-dialog");
+function promptToken(reason: string): Promise<string | null> {
+  $("token-reason").textContent = reason;
+  const input = $<HTMLInputElement>("token-input");
+  input.value = getToken() ?? "";
+  return new Promise((resolve) => {
+    const done = (v: string | null) => {
+      dlg.removeEventListener("close", onClose);
+      resolve(v);
+    };
+    const onClose = () => done(dlg.returnValue === "ok" && input.value ? input.value : null);
+    dlg.addEventListener("close", onClose);
+    dlg.returnValue = "";
+    dlg.showModal();
+    input.focus();
+  });
+}
+$("token-cancel").addEventListener("click", () => dlg.close("cancel"));
+setTokenPrompt(promptToken);
+$("token-btn").addEventListener("click", () => {
+  void promptToken("The token is sent with changes (model swap, experiments) and kept for this tab only.").then((t) => {
+    if (t !== null) {
+      setToken(t);
+      $("token-btn").classList.remove("primary");
+      log("Token set for this tab", "ok");
+    }
+  });
+});
+
+// ---------------------------------------------------------------------------------------------
+// Read-only test hook (used by web-ui/tests; harmless for people).
+
+const copy = (a: (number | null)[] | number[]) => Array.from(a, (v) => (v === null ? NaN : v));
+Object.defineProperty(window, "__haptics", {
+  value: Object.freeze({
+    /** What the time plots currently draw for a series: t and min/max (display units). */
+    points(name: string) {
+      const s = SERIES.indexOf(name as (typeof SERIES)[number]);
+      if (s < 0 || !lastCols) return { t: [], min: [], max: [] };
+      return { t: copy(lastCols.t), min: copy(lastCols.min[s]), max: copy(lastCols.max[s]) };
+    },
+    /** The force-depth plot's points (depth mm, RFOB force N) and their enclosed area (N·mm). */
+    xy() {
+      return { x: [...xyPoints.x], y: [...xyPoints.y], area: enclosedArea(xyPoints.x, xyPoints.y) };
+    },
+    /** requestAnimationFrame deltas (ms), the last 2000. */
+    frameTimes: () => [...frameDeltas],
+    /** Time spent drawing each frame that had new data (ms), the last 2000. */
+    drawTimes: () => [...drawTimes],
+    get paused() {
+      return paused;
+    },
+    get state() {
+      return viewState(performance.now());
+    },
+    status: () => JSON.parse(JSON.stringify(status)),
+    counts: () => ({ frames, badFrames, buckets: store.appended, held: store.length, restarts: store.restarts, lastTime: store.lastTime() }),
+  }),
+});
+
+// ---------------------------------------------------------------------------------------------
+// Start
+
+layout();
+updateFigures();
+updateConnView();
+connection.start();
+void refreshModels();
+setInterval(() => {
+  // A slow safety net beside the pushed status: keeps the model list right if it changed
+  // through gRPC (hapticctl) without a change of active model.
+  if (conn === "open") void refreshModels();
+}, 5000);
+requestAnimationFrame(frame);

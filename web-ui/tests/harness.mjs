@@ -1,0 +1,110 @@
+// Shared helpers for the browser tests: Debian's Chromium driven by playwright-core (no browser
+// download, ever), a fresh profile per run, and the page's read-only test hook.
+import { mkdtemp, rm } from "node:fs/promises";
+import { existsSync } from "node:fs";
+import { tmpdir } from "node:os";
+import { join } from "node:path";
+import { chromium } from "playwright-core";
+
+export const CHROMIUM = process.env.CHROMIUM_PATH ?? "/usr/bin/chromium";
+const ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update", "--no-first-run", "--disable-sync", "--disable-dev-shm-usage"];
+
+/**
+ * Starts Chromium with a new temporary profile. Returns { context, page, requests, close }.
+ * `requests` records every URL the page asked for, so a test can check that nothing left the
+ * server the page came from.
+ */
+export async function openBrowser({ width = 1440, height = 1000 } = {}) {
+  if (!existsSync(CHROMIUM)) throw new Error(`${CHROMIUM} not found: install Debian's chromium (apt-get install -y chromium); the tests never download a browser`);
+  const userDataDir = await mkdtemp(join(tmpdir(), "haptics-chromium-"));
+  const context = await chromium.launchPersistentContext(userDataDir, {
+    executablePath: CHROMIUM,
+    headless: true,
+    args: ARGS,
+    viewport: { width, height },
+    acceptDownloads: true,
+  });
+  const page = context.pages()[0] ?? (await context.newPage());
+  const requests = [];
+  const consoleErrors = [];
+  page.on("request", (r) => requests.push(r.url()));
+  page.on("console", (m) => {
+    if (m.type() === "error") consoleErrors.push(m.text());
+  });
+  page.on("pageerror", (e) => consoleErrors.push(String(e)));
+  return {
+    context,
+    page,
+    requests,
+    consoleErrors,
+    async close() {
+      await context.close().catch(() => {});
+      await rm(userDataDir, { recursive: true, force: true }).catch(() => {});
+    },
+  };
+}
+
+export const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+
+/** Polls `fn` until it returns a truthy value or the time is up; returns the last value. */
+export async function waitFor(fn, { timeoutMs = 10000, everyMs = 100, what = "condition" } = {}) {
+  const end = Date.now() + timeoutMs;
+  let v;
+  while (Date.now() < end) {
+    v = await fn();
+    if (v) return v;
+    await sleep(everyMs);
+  }
+  throw new Error(`timed out after ${timeoutMs} ms waiting for ${what} (last value: ${JSON.stringify(v)?.slice(0, 300)})`);
+}
+
+export const hook = {
+  points: (page, name) => page.evaluate((n) => window.__haptics.points(n), name),
+  xy: (page) => page.evaluate(() => window.__haptics.xy()),
+  frameTimes: (page) => page.evaluate(() => window.__haptics.frameTimes()),
+  drawTimes: (page) => page.evaluate(() => window.__haptics.drawTimes()),
+  paused: (page) => page.evaluate(() => window.__haptics.paused),
+  state: (page) => page.evaluate(() => window.__haptics.state),
+  status: (page) => page.evaluate(() => window.__haptics.status()),
+  counts: (page) => page.evaluate(() => window.__haptics.counts()),
+};
+
+export function percentiles(xs, qs = [0.5, 0.9, 0.99]) {
+  const s = [...xs].sort((a, b) => a - b);
+  return Object.fromEntries(qs.map((q) => [`p${Math.round(q * 1000) / 10}`, s.length ? s[Math.min(s.length - 1, Math.floor(q * s.length))] : NaN]));
+}
+
+/** Finite values of a points() series (gaps are NaN). */
+export const finite = (xs) => xs.filter(Number.isFinite);
+
+/** Area enclosed by a path (shoelace, closed from last to first point). */
+export function enclosedArea(x, y) {
+  let a = 0;
+  for (let i = 0; i < x.length; i++) {
+    const j = (i + 1) % x.length;
+    a += x[i] * y[j] - x[j] * y[i];
+  }
+  return a / 2;
+}
+
+/** The frame-time figures every browser test prints: rAF deltas and draw times over a period. */
+export async function measureFrames(page, ms = 5000) {
+  const before = (await hook.frameTimes(page)).length;
+  const beforeDraw = (await hook.drawTimes(page)).length;
+  const c0 = await hook.counts(page);
+  await sleep(ms);
+  const ft = await hook.frameTimes(page);
+  const dt = await hook.drawTimes(page);
+  const c1 = await hook.counts(page);
+  const fr = ft.slice(Math.max(0, ft.length - (ft.length - before)));
+  const dr = dt.slice(Math.max(0, dt.length - (dt.length - beforeDraw)));
+  return {
+    frames: fr.length,
+    fps: (fr.length * 1000) / ms,
+    frameDelta: percentiles(fr),
+    draws: dr.length,
+    drawMs: percentiles(dr),
+    dataFrames: c1.frames - c0.frames,
+    buckets: c1.buckets - c0.buckets,
+  };
+}
