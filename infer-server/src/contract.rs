@@ -1,0 +1,181 @@
+//! The model contract (DESIGN.md "Models", docs/model-contract.md): what an `.onnx` file must
+//! say about itself and look like to be served.
+
+use std::fmt;
+
+/// Metadata key: comma-separated feature names in the model's input order.
+pub const META_FEATURES: &str = "haptics.features";
+/// Metadata key: `stateless` or `stateful`.
+pub const META_KIND: &str = "haptics.kind";
+/// Metadata key: the unit of the output force (the loop renders newtons).
+pub const META_UNITS: &str = "haptics.units";
+/// Metadata key: JSON object describing how the model was trained.
+pub const META_PROVENANCE: &str = "haptics.provenance";
+
+/// Metadata key (stateful models): the hidden size H, as a decimal integer.
+pub const META_STATE_SIZE: &str = "haptics.state_size";
+/// Metadata key (optional): what "previous" means for the previous-force features (`step`).
+pub const META_PREVIOUS_FORCE: &str = "haptics.previous_force";
+
+/// Input and output names fixed by the contract.
+pub const INPUT_FEATURES: &str = "features";
+pub const INPUT_H: &str = "h_in";
+pub const INPUT_C: &str = "c_in";
+pub const OUTPUT_FORCE: &str = "force";
+pub const OUTPUT_H: &str = "h_out";
+pub const OUTPUT_C: &str = "c_out";
+
+/// The nine features of thesis Table 3.1, in that order (docs/recording-format.md). A model uses
+/// any subset of these, in any order.
+pub const FEATURE_NAMES: [&str; 9] = [
+    "position_x",
+    "velocity",
+    "acceleration",
+    "f_previous_x",
+    "f_previous_v",
+    "f_previous_a",
+    "cycle_no",
+    "deformation",
+    "area_fx",
+];
+
+/// How the server steps a model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ModelKind {
+    /// One feature vector in, one force out; no memory between steps.
+    Stateless,
+    /// A recurrent model stepped one sample at a time; the server carries `h`/`c` between steps
+    /// and resets them to zero when a new run starts.
+    Stateful,
+}
+
+impl ModelKind {
+    pub fn parse(s: &str) -> Option<Self> {
+        match s.trim() {
+            "stateless" => Some(Self::Stateless),
+            "stateful" => Some(Self::Stateful),
+            _ => None,
+        }
+    }
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Stateless => "stateless",
+            Self::Stateful => "stateful",
+        }
+    }
+}
+
+impl fmt::Display for ModelKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// The features a producer (the shared-memory segment, a recording) offers, in its slot order.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct FeatureSchema {
+    names: Vec<String>,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SchemaError {
+    #[error("the feature schema is empty")]
+    Empty,
+    #[error("the feature schema names {0:?} twice")]
+    Duplicate(String),
+    #[error("the feature schema has an empty name (schema {0:?})")]
+    EmptyName(String),
+}
+
+impl FeatureSchema {
+    /// The nine features in the order of thesis Table 3.1.
+    pub fn standard() -> Self {
+        Self {
+            names: FEATURE_NAMES.iter().map(|s| s.to_string()).collect(),
+        }
+    }
+
+    pub fn new<I, S>(names: I) -> Result<Self, SchemaError>
+    where
+        I: IntoIterator<Item = S>,
+        S: Into<String>,
+    {
+        let names: Vec<String> = names.into_iter().map(Into::into).collect();
+        if names.is_empty() {
+            return Err(SchemaError::Empty);
+        }
+        for (i, n) in names.iter().enumerate() {
+            if n.is_empty() {
+                return Err(SchemaError::EmptyName(names.join(",")));
+            }
+            if names[..i].contains(n) {
+                return Err(SchemaError::Duplicate(n.clone()));
+            }
+        }
+        Ok(Self { names })
+    }
+
+    /// Parses `a,b,c` (spaces around names are ignored).
+    pub fn parse(list: &str) -> Result<Self, SchemaError> {
+        if list.trim().is_empty() {
+            return Err(SchemaError::Empty);
+        }
+        Self::new(list.split(',').map(|s| s.trim().to_string()))
+    }
+
+    pub fn names(&self) -> &[String] {
+        &self.names
+    }
+
+    pub fn len(&self) -> usize {
+        self.names.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.names.is_empty()
+    }
+
+    pub fn index_of(&self, name: &str) -> Option<usize> {
+        self.names.iter().position(|n| n == name)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn schema_parsing_refuses_duplicates_and_blanks() {
+        assert_eq!(FeatureSchema::parse("").unwrap_err(), SchemaError::Empty);
+        assert_eq!(
+            FeatureSchema::parse("position_x, velocity,position_x").unwrap_err(),
+            SchemaError::Duplicate("position_x".into())
+        );
+        assert!(matches!(
+            FeatureSchema::parse("a,,b").unwrap_err(),
+            SchemaError::EmptyName(_)
+        ));
+        let s = FeatureSchema::parse(" velocity , position_x").unwrap();
+        assert_eq!(s.names(), ["velocity", "position_x"]);
+        assert_eq!(s.index_of("position_x"), Some(1));
+        assert_eq!(s.index_of("cycle_no"), None);
+    }
+
+    #[test]
+    fn standard_schema_is_table_3_1_order() {
+        let s = FeatureSchema::standard();
+        assert_eq!(s.len(), 9);
+        assert_eq!(s.names()[0], "position_x");
+        assert_eq!(s.names()[8], "area_fx");
+    }
+
+    #[test]
+    fn kind_round_trips() {
+        for k in [ModelKind::Stateless, ModelKind::Stateful] {
+            assert_eq!(ModelKind::parse(k.as_str()), Some(k));
+        }
+        assert_eq!(ModelKind::parse("recurrent"), None);
+    }
+}

@@ -1,0 +1,464 @@
+//! The per-step engine: one validated model, its preallocated input and output tensors, and the
+//! recurrent state it carries between steps.
+//!
+//! Hot path ([`StepEngine::step`]): gather the model's features from the schema-ordered vector
+//! into the preallocated input buffer, call ONNX Runtime's C `Run` with the input and output
+//! values created at load time, read the force from the preallocated output, and (stateful
+//! models) copy `h_out`/`c_out` into `h_in`/`c_in`. The Rust side allocates nothing and takes no
+//! lock: the name and value pointer arrays are built once here, and `ort`'s safe `run`
+//! (which builds `SmallVec`s, C strings and a `SessionOutputs` map on every call) is bypassed.
+//! What ONNX Runtime does inside `Run` is its own business; `benches/step_latency.rs` counts the
+//! `malloc` calls it makes per step (see docs/infer-server.md for the figures).
+
+use std::ffi::{c_char, CStr, CString};
+use std::path::Path;
+use std::ptr;
+
+use ort::session::Session;
+use ort::sys::{OrtStatus, OrtValue};
+use ort::value::Tensor;
+use ort::AsPointer;
+
+use crate::contract::{
+    FeatureSchema, ModelKind, INPUT_C, INPUT_FEATURES, INPUT_H, OUTPUT_C, OUTPUT_FORCE, OUTPUT_H,
+};
+use crate::model::{self, ModelError, ModelInfo, SessionConfig};
+use crate::runtime::Runtime;
+
+/// A feature value as it arrives from a producer (recordings are f64; models take f32).
+pub trait FeatureValue: Copy {
+    fn to_f32(self) -> f32;
+}
+
+impl FeatureValue for f32 {
+    #[inline(always)]
+    fn to_f32(self) -> f32 {
+        self
+    }
+}
+
+impl FeatureValue for f64 {
+    #[inline(always)]
+    fn to_f32(self) -> f32 {
+        self as f32
+    }
+}
+
+/// A failed step. Small and `Copy` so the hot loop's error path allocates nothing; ONNX
+/// Runtime's message for the last failure is kept in the engine
+/// ([`StepEngine::last_error_message`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StepError {
+    /// The vector handed in is shorter than the schema the model was validated against.
+    SchemaLength { expected: usize, got: usize },
+    /// ONNX Runtime's `Run` failed with this error code.
+    Run { code: i32 },
+}
+
+impl std::fmt::Display for StepError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            StepError::SchemaLength { expected, got } => write!(
+                f,
+                "feature vector has {got} values, the schema has {expected}"
+            ),
+            StepError::Run { code } => write!(f, "ONNX Runtime Run failed (code {code})"),
+        }
+    }
+}
+
+impl std::error::Error for StepError {}
+
+/// ONNX Runtime's message for the last failed `Run`, copied into a fixed buffer.
+struct ErrorText {
+    buf: [u8; 256],
+    len: usize,
+}
+
+impl ErrorText {
+    /// Takes ownership of `status` (non-null), copies its message and releases it.
+    fn take_status(&mut self, status: *mut OrtStatus) -> StepError {
+        let api = ort::api();
+        // SAFETY: `status` is a non-null status just returned by ONNX Runtime; its message is a
+        // NUL-terminated string owned by the status, copied out before the status is released.
+        unsafe {
+            let code = (api.GetErrorCode)(status) as i32;
+            let text = CStr::from_ptr((api.GetErrorMessage)(status)).to_bytes();
+            self.len = text.len().min(self.buf.len());
+            self.buf[..self.len].copy_from_slice(&text[..self.len]);
+            (api.ReleaseStatus)(status);
+            StepError::Run { code }
+        }
+    }
+
+    fn as_str(&self) -> &str {
+        let bytes = &self.buf[..self.len];
+        // The buffer may have cut a UTF-8 sequence; show what decodes.
+        match std::str::from_utf8(bytes) {
+            Ok(s) => s,
+            Err(e) => std::str::from_utf8(&bytes[..e.valid_up_to()]).unwrap_or(""),
+        }
+    }
+}
+
+/// Raw pointers into the recurrent-state tensors owned by the engine.
+struct StateBuffers {
+    h_in: *mut f32,
+    c_in: *mut f32,
+    h_out: *const f32,
+    c_out: *const f32,
+    len: usize,
+}
+
+/// One loaded, validated, warmed-up model, ready to be stepped by exactly one thread.
+pub struct StepEngine {
+    info: ModelInfo,
+    session: Session,
+    // The tensors below own the memory the raw pointers point into. `Value`s keep their data on
+    // the heap, so moving the engine (e.g. handing it to the inference thread) moves nothing the
+    // pointers see. They are never replaced after construction.
+    _inputs: Vec<Tensor<f32>>,
+    _outputs: Vec<Tensor<f32>>,
+    _names: Vec<CString>,
+    in_names: Box<[*const c_char]>,
+    in_values: Box<[*const OrtValue]>,
+    out_names: Box<[*const c_char]>,
+    out_values: Box<[*mut OrtValue]>,
+    features: *mut f32,
+    force: *const f32,
+    state: Option<StateBuffers>,
+    input_map: Box<[usize]>,
+    schema_len: usize,
+    last_error: ErrorText,
+}
+
+impl std::fmt::Debug for StepEngine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StepEngine")
+            .field("info", &self.info)
+            .finish_non_exhaustive()
+    }
+}
+
+// SAFETY: every raw pointer points into tensors (or C strings) owned by this struct, and the
+// engine is only ever used through `&mut self` by one thread at a time. ONNX Runtime sessions may
+// be moved between threads (`ort::Session` is `Send`).
+unsafe impl Send for StepEngine {}
+
+fn zeros(shape: &[i64]) -> Result<Tensor<f32>, ModelError> {
+    let len: i64 = shape.iter().product();
+    Tensor::from_array((shape.to_vec(), vec![0f32; len as usize].into_boxed_slice())).map_err(|e| {
+        ModelError::Session {
+            reason: format!("cannot allocate a tensor of shape {shape:?}: {e}"),
+        }
+    })
+}
+
+fn data_mut(t: &mut Tensor<f32>) -> *mut f32 {
+    t.data_ptr_mut().cast::<f32>()
+}
+
+impl StepEngine {
+    /// Loads `path`, checks it against the contract and `schema`, preallocates its buffers and
+    /// runs the warm-up. Off the hot path: allocates, may take a while for large models.
+    pub fn load(
+        rt: &Runtime,
+        path: &Path,
+        schema: &FeatureSchema,
+        cfg: &SessionConfig,
+    ) -> Result<Self, ModelError> {
+        let mut session = model::open_session(rt, path, cfg)?;
+        let meta = model::read_metadata(&session)?;
+        let input_map = model::map_features(&meta.features, schema)?;
+        let sig = model::check_signature(&session, &meta)?;
+
+        let mut info = ModelInfo {
+            path: path.to_path_buf(),
+            kind: meta.kind,
+            previous_force: meta.previous_force,
+            features: meta.features,
+            units: meta.units,
+            provenance: meta.provenance,
+            input_map,
+            schema: schema.names().to_vec(),
+            features_shape: sig.features_shape.clone(),
+            state_shape: sig.state_shape.clone(),
+            force_shape: Vec::new(),
+        };
+
+        // Inputs, in the contract's order.
+        let mut inputs = vec![zeros(&sig.features_shape)?];
+        let mut in_name_list = vec![INPUT_FEATURES];
+        if let Some(s) = &sig.state_shape {
+            inputs.push(zeros(s)?);
+            inputs.push(zeros(s)?);
+            in_name_list.extend([INPUT_H, INPUT_C]);
+        }
+
+        let mut out_name_list = vec![OUTPUT_FORCE];
+        if sig.state_shape.is_some() {
+            out_name_list.extend([OUTPUT_H, OUTPUT_C]);
+        }
+
+        // One run through ort's safe API with outputs left to ONNX Runtime tells the actual
+        // output shapes (declared ones may be dynamic), which the preallocated outputs must match.
+        let probe = probe_outputs(&mut session, &in_name_list, &inputs, &out_name_list)?;
+        let force_shape = probe[0].0.clone();
+        let force_len: i64 = force_shape.iter().product();
+        if force_len != 1 {
+            return Err(ModelError::BadShape {
+                name: OUTPUT_FORCE.to_string(),
+                detail: format!(
+                    "produced shape {force_shape:?} for one sample; one value expected"
+                ),
+            });
+        }
+        info.force_shape = force_shape.clone();
+        let mut outputs = vec![zeros(&force_shape)?];
+        if let Some(s) = &sig.state_shape {
+            for (i, name) in [(1usize, OUTPUT_H), (2, OUTPUT_C)] {
+                if probe[i].0 != *s {
+                    return Err(ModelError::BadShape {
+                        name: name.to_string(),
+                        detail: format!("produced shape {:?}, h_in/c_in have {s:?}", probe[i].0),
+                    });
+                }
+                outputs.push(zeros(s)?);
+            }
+        }
+        check_finite(&probe, &out_name_list, &vec![0.0; info.features.len()])?;
+
+        let names: Vec<CString> = in_name_list
+            .iter()
+            .chain(out_name_list.iter())
+            .map(|n| CString::new(*n).expect("contract names have no NUL"))
+            .collect();
+        let in_names: Box<[*const c_char]> = names[..in_name_list.len()]
+            .iter()
+            .map(|c| c.as_ptr())
+            .collect();
+        let out_names: Box<[*const c_char]> = names[in_name_list.len()..]
+            .iter()
+            .map(|c| c.as_ptr())
+            .collect();
+        let in_values: Box<[*const OrtValue]> = inputs.iter().map(|t| t.ptr()).collect();
+        let out_values: Box<[*mut OrtValue]> = outputs.iter_mut().map(|t| t.ptr_mut()).collect();
+        let features = data_mut(&mut inputs[0]);
+        let force = data_mut(&mut outputs[0]).cast_const();
+        let state = sig.state_shape.as_ref().map(|s| StateBuffers {
+            h_in: data_mut(&mut inputs[1]),
+            c_in: data_mut(&mut inputs[2]),
+            h_out: data_mut(&mut outputs[1]).cast_const(),
+            c_out: data_mut(&mut outputs[2]).cast_const(),
+            len: s.iter().product::<i64>() as usize,
+        });
+
+        let mut engine = StepEngine {
+            input_map: info.input_map.clone().into_boxed_slice(),
+            schema_len: schema.len(),
+            info,
+            session,
+            _inputs: inputs,
+            _outputs: outputs,
+            _names: names,
+            in_names,
+            in_values,
+            out_names,
+            out_values,
+            features,
+            force,
+            state,
+            last_error: ErrorText {
+                buf: [0; 256],
+                len: 0,
+            },
+        };
+        engine.warm_up(cfg.warmup_runs.max(1))?;
+        Ok(engine)
+    }
+
+    pub fn info(&self) -> &ModelInfo {
+        &self.info
+    }
+
+    pub fn kind(&self) -> ModelKind {
+        self.info.kind
+    }
+
+    /// Runs one step on a schema-ordered feature vector and returns the model's force, as the
+    /// model computed it (possibly NaN: the caller decides what to do with a non-finite value).
+    ///
+    /// Real-time path: no allocation, no lock, no I/O on the Rust side (see the module comment
+    /// for what ONNX Runtime does inside `Run`).
+    #[inline]
+    pub fn step<T: FeatureValue>(&mut self, schema_values: &[T]) -> Result<f32, StepError> {
+        if schema_values.len() < self.schema_len {
+            return Err(StepError::SchemaLength {
+                expected: self.schema_len,
+                got: schema_values.len(),
+            });
+        }
+        // SAFETY: `features` points at the feature tensor's `input_map.len()` floats; every index
+        // in `input_map` is < schema_len <= schema_values.len() (checked above and at load).
+        unsafe {
+            for (i, &src) in self.input_map.iter().enumerate() {
+                *self.features.add(i) = schema_values.get_unchecked(src).to_f32();
+            }
+        }
+        self.run_raw()?;
+        // SAFETY: `force` points at the one float of the preallocated force output.
+        let force = unsafe { *self.force };
+        if let Some(s) = &self.state {
+            // SAFETY: the four state buffers hold `len` floats each and never overlap.
+            unsafe {
+                ptr::copy_nonoverlapping(s.h_out, s.h_in, s.len);
+                ptr::copy_nonoverlapping(s.c_out, s.c_in, s.len);
+            }
+        }
+        Ok(force)
+    }
+
+    /// ONNX Runtime's message for the last failed step (empty if none failed).
+    pub fn last_error_message(&self) -> &str {
+        self.last_error.as_str()
+    }
+
+    /// Zeroes the recurrent state (a new run starts). No-op for stateless models.
+    pub fn reset(&mut self) {
+        if let Some(s) = &self.state {
+            // SAFETY: see `step`.
+            unsafe {
+                ptr::write_bytes(s.h_in, 0, s.len);
+                ptr::write_bytes(s.c_in, 0, s.len);
+            }
+        }
+    }
+
+    /// The current hidden state `h` (empty for stateless models). For tests and diagnostics.
+    pub fn hidden_state(&self) -> &[f32] {
+        match &self.state {
+            // SAFETY: `h_in` holds `len` floats owned by self; the borrow ties them to &self.
+            Some(s) => unsafe { std::slice::from_raw_parts(s.h_in, s.len) },
+            None => &[],
+        }
+    }
+
+    #[inline]
+    fn run_raw(&mut self) -> Result<(), StepError> {
+        // SAFETY: the session is alive for self's lifetime; the name and value arrays point at
+        // C strings and OrtValues owned by self; `&mut self` guarantees no concurrent Run on
+        // this session. Passing non-null outputs makes ONNX Runtime write into our buffers.
+        let status = unsafe {
+            (ort::api().Run)(
+                self.session.ptr().cast_mut(),
+                ptr::null(),
+                self.in_names.as_ptr(),
+                self.in_values.as_ptr(),
+                self.in_values.len(),
+                self.out_names.as_ptr(),
+                self.out_names.len(),
+                self.out_values.as_mut_ptr(),
+            )
+        };
+        if status.0.is_null() {
+            Ok(())
+        } else {
+            Err(self.last_error.take_status(status.0))
+        }
+    }
+
+    /// Warm-up: primes ONNX Runtime's arena and memory plan and checks the outputs (force and
+    /// state) stay finite for a few deterministic inputs. Leaves the state reset.
+    fn warm_up(&mut self, runs: usize) -> Result<(), ModelError> {
+        let n = self.input_map.len();
+        let mut input = vec![0f32; self.schema_len];
+        for r in 0..runs {
+            // zeros, ones, then a deterministic spread of small and unit-scale values.
+            for (j, v) in input.iter_mut().enumerate() {
+                *v = match r {
+                    0 => 0.0,
+                    1 => 1.0,
+                    _ => (((r * 7 + j * 13) % 17) as f32 - 8.0) / 8.0,
+                };
+            }
+            let force = self.step(&input).map_err(|e| ModelError::RunFailed {
+                reason: format!("{e}: {}", self.last_error_message()),
+            })?;
+            let model_input: Vec<f32> = self.input_map.iter().map(|&i| input[i]).collect();
+            if !force.is_finite() {
+                return Err(ModelError::NonFinite {
+                    output: OUTPUT_FORCE.to_string(),
+                    value: force,
+                    input: model_input,
+                });
+            }
+            if let Some(s) = &self.state {
+                // SAFETY: see `step`; h_in/c_in now hold the copied h_out/c_out.
+                let (h, c) = unsafe {
+                    (
+                        std::slice::from_raw_parts(s.h_in, s.len),
+                        std::slice::from_raw_parts(s.c_in, s.len),
+                    )
+                };
+                for (name, buf) in [(OUTPUT_H, h), (OUTPUT_C, c)] {
+                    if let Some(v) = buf.iter().find(|v| !v.is_finite()) {
+                        return Err(ModelError::NonFinite {
+                            output: name.to_string(),
+                            value: *v,
+                            input: model_input,
+                        });
+                    }
+                }
+            }
+            debug_assert_eq!(model_input.len(), n);
+        }
+        self.reset();
+        Ok(())
+    }
+}
+
+/// An output's shape and values.
+type ProbedOutput = (Vec<i64>, Vec<f32>);
+
+/// Runs the model once through `ort`'s safe API (letting ONNX Runtime allocate the outputs) and
+/// returns each output's shape and data, in the order of `out_names`.
+fn probe_outputs(
+    session: &mut Session,
+    in_names: &[&str],
+    inputs: &[Tensor<f32>],
+    out_names: &[&str],
+) -> Result<Vec<ProbedOutput>, ModelError> {
+    let feed: Vec<(&str, &Tensor<f32>)> = in_names.iter().copied().zip(inputs.iter()).collect();
+    let outputs = session.run(feed).map_err(|e| ModelError::RunFailed {
+        reason: e.to_string(),
+    })?;
+    out_names
+        .iter()
+        .map(|name| {
+            let value = outputs.get(name).ok_or_else(|| ModelError::RunFailed {
+                reason: format!("the run returned no `{name}` output"),
+            })?;
+            let (shape, data) =
+                value
+                    .try_extract_tensor::<f32>()
+                    .map_err(|e| ModelError::BadShape {
+                        name: name.to_string(),
+                        detail: format!("cannot be read as a float32 tensor: {e}"),
+                    })?;
+            Ok((shape.to_vec(), data.to_vec()))
+        })
+        .collect()
+}
+
+fn check_finite(outputs: &[ProbedOutput], names: &[&str], input: &[f32]) -> Result<(), ModelError> {
+    for ((_, data), name) in outputs.iter().zip(names) {
+        if let Some(v) = data.iter().find(|v| !v.is_finite()) {
+            return Err(ModelError::NonFinite {
+                output: name.to_string(),
+                value: *v,
+                input: input.to_vec(),
+            });
+        }
+    }
+    Ok(())
+}

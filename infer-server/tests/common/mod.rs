@@ -1,0 +1,99 @@
+//! Shared by the integration tests: ONNX Runtime and the fixture models.
+//!
+//! The fixtures are written by `tests/fixtures/make_models.py` with the project's venv
+//! (`bash scripts/setup.sh` creates it). Without the venv the tests fail and say so; set
+//! `HAPTICS_SKIP_PY=1` to skip them explicitly instead (each skipped test prints a line).
+
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+use infer_server::Runtime;
+
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .canonicalize()
+        .expect("manifest dir")
+        .parent()
+        .expect("crate lives in the workspace")
+        .to_path_buf()
+}
+
+/// The venv's Python: `$HAPTICS_PYTHON` (scripts/env.sh sets it), else `<repo>/.venv/bin/python`.
+pub fn python() -> PathBuf {
+    std::env::var_os("HAPTICS_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| repo_root().join(".venv/bin/python"))
+}
+
+/// True when the caller asked to skip the Python-generated fixtures.
+pub fn skip_python() -> bool {
+    std::env::var("HAPTICS_SKIP_PY").is_ok_and(|v| v == "1")
+}
+
+/// Returns the loaded runtime, or panics with the message that says what to run.
+pub fn runtime() -> &'static Runtime {
+    match Runtime::init(None) {
+        Ok(rt) => rt,
+        Err(e) => panic!("{e}"),
+    }
+}
+
+/// Runs a Python generator script once per test binary into `dir` (under target/).
+pub fn generate(script: &Path, dir: &Path, extra: &[&str]) {
+    let py = python();
+    assert!(
+        py.exists(),
+        "the tests build their ONNX models with the project's Python venv, and {} does not exist. \
+         Run `bash scripts/setup.sh` from the repository root (or set HAPTICS_SKIP_PY=1 to skip \
+         these tests explicitly).",
+        py.display()
+    );
+    std::fs::create_dir_all(dir).expect("create fixture dir");
+    let out = Command::new(&py)
+        .arg(script)
+        .arg(dir)
+        .args(extra)
+        .output()
+        .expect("run the fixture generator");
+    assert!(
+        out.status.success(),
+        "{} {} failed:\n{}\n{}",
+        py.display(),
+        script.display(),
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// The fixture directory, generated on first use. `None` only when HAPTICS_SKIP_PY=1.
+pub fn fixtures() -> Option<&'static Path> {
+    static DIR: OnceLock<Option<PathBuf>> = OnceLock::new();
+    DIR.get_or_init(|| {
+        if skip_python() {
+            eprintln!("HAPTICS_SKIP_PY=1: skipping a test that needs the Python-built fixtures");
+            return None;
+        }
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("infer-server-fixtures");
+        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/make_models.py");
+        generate(&script, &dir, &[]);
+        Some(dir)
+    })
+    .as_deref()
+}
+
+/// `fixtures()` joined with `name.onnx`, or return from the test when skipping.
+#[macro_export]
+macro_rules! model_or_skip {
+    ($name:expr) => {
+        match common::fixtures() {
+            Some(dir) => dir.join(format!("{}.onnx", $name)),
+            None => {
+                eprintln!("skipped (HAPTICS_SKIP_PY=1)");
+                return;
+            }
+        }
+    };
+}
