@@ -1,3 +1,62 @@
 //! Lock-free shared-memory rings between `rt-loop` and `infer-server`.
 //!
-//! See `../shared/DESIGN.md`, section "Shared memory"; filled in by the shm-ring issue.
+//! One segment per loop instance (`/haptics-<instance>`, mode 0600) holds a validated header
+//! and four single-producer single-consumer channels: features (loop to server), forces
+//! (server to loop), telemetry (loop to server, overwrites the oldest) and a command mailbox
+//! (server to loop). Every byte of the segment is accessed only through atomics, so two
+//! processes racing on it is defined behaviour, not luck. See `docs/shm-ring.md`.
+//!
+//! ```no_run
+//! use shm_ring::{Config, Segment, SegmentName, FeatureMsg, ForceMsg};
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let name = SegmentName::for_instance("default")?;
+//! // rt-loop:
+//! let mut lp = Segment::create(&name, &Config::default())?.loop_side()?;
+//! lp.features_tx.try_send(FeatureMsg { seq: 1, ..Default::default() })?;
+//! // infer-server (another process):
+//! let mut sv = Segment::attach(&name)?.server_side()?;
+//! let f = sv.features_rx.recv()?;
+//! sv.forces_tx.send(ForceMsg { seq: f.seq, force: 1.5, ..Default::default() })?;
+//! # Ok(()) }
+//! ```
+
+mod fixed_str;
+mod message;
+mod messages;
+mod overwrite;
+#[doc(hidden)]
+pub mod pattern;
+mod ring_mem;
+mod spsc;
+mod sync;
+mod wait;
+
+#[cfg(not(loom))]
+mod endpoints;
+#[cfg(not(loom))]
+mod error;
+#[cfg(not(loom))]
+mod header;
+#[cfg(not(loom))]
+mod os;
+#[cfg(not(loom))]
+mod segment;
+
+pub use fixed_str::{FixedStr, FixedStrError, FIXED_STR_BYTES};
+pub use message::{layout_id, DecodeError, Message, MAX_WORDS};
+pub use messages::{Command, CommandKind, FeatureMsg, ForceMsg, TelemetryRow, COMMAND_VALUES, MAX_FEATURES};
+pub use overwrite::{heap_overwrite_channel, OverwriteConsumer, OverwriteProducer};
+pub use ring_mem::slot_words;
+pub use spsc::{heap_channel, Consumer, CorruptRing, Producer, RecvError, SendError};
+pub use wait::WaitStrategy;
+
+#[cfg(not(loom))]
+pub use endpoints::{LoopSide, ServerSide};
+#[cfg(not(loom))]
+pub use error::Error;
+#[cfg(not(loom))]
+pub use header::{Channel, LAYOUT_VERSION, MAGIC};
+#[cfg(not(loom))]
+pub use segment::{
+    Config, Link, Role, Segment, SegmentInfo, SegmentName, StaleSegment, MAX_CAPACITY, THESIS_FEATURES,
+};

@@ -1,0 +1,97 @@
+//! The two sides' endpoint bundles: what rt-loop and infer-server actually hold.
+
+use std::sync::Arc;
+
+use crate::header::Channel;
+use crate::messages::{Command, FeatureMsg, ForceMsg, TelemetryRow};
+use crate::overwrite::{OverwriteConsumer, OverwriteProducer};
+use crate::segment::{Link, Shared};
+use crate::spsc::{Consumer, Producer};
+
+/// rt-loop's ends of the segment. Fields are public so the loop can hand each end to the
+/// thread that uses it; every end keeps the mapping alive on its own.
+///
+/// Real-time rules: `features_tx.try_send`, `telemetry_tx.send`, `forces_rx.try_recv`,
+/// `commands_rx.try_recv` and `link.heartbeat` never block, allocate or make a syscall (except
+/// one `FUTEX_WAKE` when the server is parked). `forces_rx.recv_deadline` waits at most until
+/// its deadline: the loop never blocks on the server.
+pub struct LoopSide {
+    /// Feature vectors to the server. Full ring: `try_send` hands the message back
+    /// (`SendError::Full`) and counts it; nothing is dropped silently.
+    pub features_tx: Producer<FeatureMsg>,
+    /// Predicted forces from the server, tagged with the step they answer.
+    pub forces_rx: Consumer<ForceMsg>,
+    /// Every step's state for plots; overwrites the oldest row when the server lags.
+    pub telemetry_tx: OverwriteProducer<TelemetryRow>,
+    /// Commands from the server (start/stop experiment, set parameter).
+    pub commands_rx: Consumer<Command>,
+    /// Liveness, heartbeats, schema.
+    pub link: Link,
+}
+
+impl LoopSide {
+    pub(crate) fn new(shared: Arc<Shared>) -> LoopSide {
+        let link = Link { shared };
+        LoopSide {
+            features_tx: Producer::new(link.ring(Channel::Features), link.probe()),
+            forces_rx: Consumer::new(link.ring(Channel::Forces), link.probe()),
+            telemetry_tx: OverwriteProducer::new(link.ring(Channel::Telemetry)),
+            commands_rx: Consumer::new(link.ring(Channel::Commands), link.probe()),
+            link,
+        }
+    }
+
+    /// Whether a server process is attached and alive (one syscall; not per step).
+    pub fn peer_alive(&self) -> bool {
+        self.link.peer_alive()
+    }
+
+    /// Bumps the loop's heartbeat (one atomic store).
+    pub fn heartbeat(&self) {
+        self.link.heartbeat()
+    }
+}
+
+/// infer-server's ends of the segment.
+pub struct ServerSide {
+    /// Feature vectors from the loop, in step order.
+    pub features_rx: Consumer<FeatureMsg>,
+    /// Answers to the loop.
+    pub forces_tx: Producer<ForceMsg>,
+    /// The loop's per-step state; `dropped()` counts rows lost because we lagged.
+    pub telemetry_rx: OverwriteConsumer<TelemetryRow>,
+    /// Commands to the loop.
+    pub commands_tx: Producer<Command>,
+    /// Liveness, heartbeats, schema.
+    pub link: Link,
+    /// Feature messages that were waiting when we attached and were skipped: they were
+    /// requests to a previous server, already rendered by the loop's fallback.
+    pub skipped_on_attach: u64,
+}
+
+impl ServerSide {
+    pub(crate) fn new(shared: Arc<Shared>) -> ServerSide {
+        let link = Link { shared };
+        let mut features_rx = Consumer::new(link.ring(Channel::Features), link.probe());
+        let skipped_on_attach = features_rx.skip_pending();
+        ServerSide {
+            features_rx,
+            forces_tx: Producer::new(link.ring(Channel::Forces), link.probe()),
+            telemetry_rx: OverwriteConsumer::new(link.ring(Channel::Telemetry), link.probe()),
+            commands_tx: Producer::new(link.ring(Channel::Commands), link.probe()),
+            link,
+            skipped_on_attach,
+        }
+    }
+
+    /// Whether the loop process that created this segment is alive (one syscall).
+    /// When it is not, drop this side and re-attach with `Segment::attach_timeout`.
+    pub fn peer_alive(&self) -> bool {
+        self.link.peer_alive()
+    }
+
+    /// Bumps the server's heartbeat (one atomic store).
+    pub fn heartbeat(&self) {
+        self.link.heartbeat()
+    }
+}

@@ -1,0 +1,170 @@
+//! The segment header: a `#[repr(C)]` struct made only of atomics, written by the creator
+//! before it publishes `magic` (release) and validated by every attacher (acquire).
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use crate::fixed_str::{FixedStr, FIXED_STR_WORDS};
+use crate::message::Message;
+use crate::messages::{Command, FeatureMsg, ForceMsg, TelemetryRow, MAX_FEATURES};
+use crate::ring_mem::{slot_words, Padded, RingControl};
+
+/// "HAPTSHM1" little-endian: the first word of every segment.
+pub const MAGIC: u64 = u64::from_le_bytes(*b"HAPTSHM1");
+/// Bumped whenever the header or ring protocol changes incompatibly.
+pub const LAYOUT_VERSION: u64 = 1;
+
+/// The four channels, in header order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Channel {
+    Features = 0,
+    Forces = 1,
+    Telemetry = 2,
+    Commands = 3,
+}
+
+impl Channel {
+    pub const ALL: [Channel; 4] = [Channel::Features, Channel::Forces, Channel::Telemetry, Channel::Commands];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Channel::Features => "features",
+            Channel::Forces => "forces",
+            Channel::Telemetry => "telemetry",
+            Channel::Commands => "commands",
+        }
+    }
+
+    /// Payload words and layout fingerprint of the channel's message type in this build.
+    pub(crate) fn message_shape(self) -> (usize, u64) {
+        match self {
+            Channel::Features => (FeatureMsg::WORDS, FeatureMsg::LAYOUT_ID),
+            Channel::Forces => (ForceMsg::WORDS, ForceMsg::LAYOUT_ID),
+            Channel::Telemetry => (TelemetryRow::WORDS, TelemetryRow::LAYOUT_ID),
+            Channel::Commands => (Command::WORDS, Command::LAYOUT_ID),
+        }
+    }
+}
+
+/// Per-channel description in the header.
+#[repr(C)]
+pub(crate) struct ChannelDesc {
+    pub(crate) capacity: AtomicU64,
+    pub(crate) payload_words: AtomicU64,
+    pub(crate) slot_bytes: AtomicU64,
+    pub(crate) slot_align: AtomicU64,
+    pub(crate) layout_id: AtomicU64,
+    pub(crate) control_offset: AtomicU64,
+    pub(crate) slots_offset: AtomicU64,
+}
+
+/// The header at offset 0 of the segment.
+#[repr(C)]
+pub(crate) struct Header {
+    pub(crate) magic: AtomicU64,
+    pub(crate) layout_version: AtomicU64,
+    pub(crate) header_size: AtomicU64,
+    pub(crate) control_size: AtomicU64,
+    pub(crate) control_align: AtomicU64,
+    pub(crate) total_size: AtomicU64,
+    pub(crate) creator_pid: AtomicU64,
+    pub(crate) creator_start_ticks: AtomicU64,
+    pub(crate) created_unix_ns: AtomicU64,
+    pub(crate) server_pid: AtomicU64,
+    /// How many times a server attached; the loop sees a new server come as a change.
+    pub(crate) server_attachments: AtomicU64,
+    pub(crate) schema_len: AtomicU64,
+    pub(crate) schema: [[AtomicU64; FIXED_STR_WORDS]; MAX_FEATURES],
+    pub(crate) channels: [ChannelDesc; 4],
+    pub(crate) loop_heartbeat: Padded<AtomicU64>,
+    pub(crate) server_heartbeat: Padded<AtomicU64>,
+}
+
+/// Where everything sits in a segment of given capacities.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) struct Layout {
+    pub(crate) control_offsets: [usize; 4],
+    pub(crate) slots_offsets: [usize; 4],
+    pub(crate) total: usize,
+}
+
+const fn align_up(x: usize, a: usize) -> usize {
+    x.div_ceil(a) * a
+}
+
+/// Slots start on 128-byte boundaries (a slot is a whole number of 64-byte lines).
+pub(crate) const SLOT_ALIGN: usize = 128;
+
+impl Layout {
+    pub(crate) fn compute(capacities: [usize; 4]) -> Layout {
+        let mut at = align_up(std::mem::size_of::<Header>(), RingControl::ALIGN);
+        let mut control_offsets = [0; 4];
+        for off in &mut control_offsets {
+            *off = at;
+            at += RingControl::SIZE;
+        }
+        let mut slots_offsets = [0; 4];
+        for (i, channel) in Channel::ALL.iter().enumerate() {
+            at = align_up(at, SLOT_ALIGN);
+            slots_offsets[i] = at;
+            at += capacities[i] * slot_words(channel.message_shape().0) * 8;
+        }
+        Layout { control_offsets, slots_offsets, total: align_up(at, 4096) }
+    }
+}
+
+impl Header {
+    /// Writes every field but `magic`, for a freshly zeroed segment.
+    pub(crate) fn init(&self, capacities: [usize; 4], schema: &[FixedStr], layout: &Layout, created_unix_ns: u64) {
+        let r = Ordering::Relaxed;
+        self.layout_version.store(LAYOUT_VERSION, r);
+        self.header_size.store(std::mem::size_of::<Header>() as u64, r);
+        self.control_size.store(RingControl::SIZE as u64, r);
+        self.control_align.store(RingControl::ALIGN as u64, r);
+        self.total_size.store(layout.total as u64, r);
+        let pid = crate::os::pid();
+        self.creator_pid.store(pid as u64, r);
+        self.creator_start_ticks.store(crate::os::process_start_ticks(pid).unwrap_or(0), r);
+        self.created_unix_ns.store(created_unix_ns, r);
+        self.schema_len.store(schema.len() as u64, r);
+        for (cells, name) in self.schema.iter().zip(schema) {
+            for (cell, word) in cells.iter().zip(name.to_words()) {
+                cell.store(word, r);
+            }
+        }
+        for (i, channel) in Channel::ALL.iter().enumerate() {
+            let (words, id) = channel.message_shape();
+            let desc = &self.channels[i];
+            desc.capacity.store(capacities[i] as u64, r);
+            desc.payload_words.store(words as u64, r);
+            desc.slot_bytes.store(slot_words(words) as u64 * 8, r);
+            desc.slot_align.store(SLOT_ALIGN as u64, r);
+            desc.layout_id.store(id, r);
+            desc.control_offset.store(layout.control_offsets[i] as u64, r);
+            desc.slots_offset.store(layout.slots_offsets[i] as u64, r);
+        }
+    }
+
+    pub(crate) fn capacities(&self) -> [usize; 4] {
+        let mut caps = [0; 4];
+        for (cap, desc) in caps.iter_mut().zip(&self.channels) {
+            *cap = desc.capacity.load(Ordering::Relaxed) as usize;
+        }
+        caps
+    }
+
+    pub(crate) fn schema(&self) -> Option<Vec<String>> {
+        let len = self.schema_len.load(Ordering::Relaxed) as usize;
+        if len > MAX_FEATURES {
+            return None;
+        }
+        let mut names = Vec::with_capacity(len);
+        for cells in &self.schema[..len] {
+            let mut words = [0u64; FIXED_STR_WORDS];
+            for (w, c) in words.iter_mut().zip(cells) {
+                *w = c.load(Ordering::Relaxed);
+            }
+            names.push(FixedStr::from_words(&words)?.as_str().to_owned());
+        }
+        Some(names)
+    }
+}

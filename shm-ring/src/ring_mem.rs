@@ -1,0 +1,162 @@
+//! Where a ring's memory lives: the control block (head, tail, wake signals, counters) and the
+//! slot words. The protocol in `spsc` and `overwrite` only sees a [`RingMem`], so the same code
+//! runs on heap memory (unit tests, loom, Miri) and inside a shared-memory segment.
+
+use std::any::Any;
+use std::ptr::NonNull;
+use std::sync::Arc;
+
+use crate::sync::{AtomicU32, AtomicU64};
+
+/// Cache-line padding: 128 bytes, because Intel's adjacent-line prefetcher pulls lines in
+/// pairs, so two hot words 64 bytes apart still ping-pong between cores.
+#[repr(C, align(128))]
+pub(crate) struct Padded<T>(pub(crate) T);
+
+/// A futex-backed event count that one side parks on and the other side bumps.
+#[repr(C)]
+pub(crate) struct Signal {
+    /// Bumped by the notifier before a wake; the futex word the waiter sleeps on.
+    pub(crate) epoch: AtomicU32,
+    /// Number of parked (or about to park) waiters; the notifier skips the syscall when 0.
+    pub(crate) waiters: AtomicU32,
+}
+
+/// The shared control block of one ring. `#[repr(C)]` and made only of atomics, so its
+/// layout is fixed across builds and every access to it is an atomic access.
+#[repr(C)]
+pub(crate) struct RingControl {
+    /// Next position the producer writes (only the producer stores it).
+    pub(crate) tail: Padded<AtomicU64>,
+    /// Next position the consumer reads (only the consumer stores it).
+    pub(crate) head: Padded<AtomicU64>,
+    /// The consumer parks here waiting for data; the producer notifies.
+    pub(crate) data: Padded<Signal>,
+    /// The producer parks here waiting for space; the consumer notifies.
+    pub(crate) space: Padded<Signal>,
+    /// Producer-owned counter: pushes refused because the ring was full.
+    pub(crate) full: Padded<AtomicU64>,
+    /// Consumer-owned counter: messages lost to overwriting (overwrite rings only).
+    pub(crate) dropped: Padded<AtomicU64>,
+}
+
+impl RingControl {
+    #[cfg(not(loom))]
+    pub(crate) const SIZE: usize = std::mem::size_of::<RingControl>();
+    #[cfg(not(loom))]
+    pub(crate) const ALIGN: usize = std::mem::align_of::<RingControl>();
+
+    fn new_zeroed() -> Self {
+        let signal = || Signal { epoch: AtomicU32::new(0), waiters: AtomicU32::new(0) };
+        RingControl {
+            tail: Padded(AtomicU64::new(0)),
+            head: Padded(AtomicU64::new(0)),
+            data: Padded(signal()),
+            space: Padded(signal()),
+            full: Padded(AtomicU64::new(0)),
+            dropped: Padded(AtomicU64::new(0)),
+        }
+    }
+}
+
+/// Words per slot for a message of `payload_words`: one sequence word plus the payload,
+/// rounded up to whole 64-byte lines so neighbouring slots never share a cache line.
+pub const fn slot_words(payload_words: usize) -> usize {
+    (1 + payload_words).div_ceil(8) * 8
+}
+
+/// A view of one ring's memory plus whatever keeps that memory alive.
+///
+/// Invariant: `ctrl` points to a valid `RingControl` and `slots` to `capacity * stride` valid
+/// `AtomicU64`s for as long as `_owner` is alive; both are only accessed through `&` (atomics).
+pub(crate) struct RingMem {
+    ctrl: NonNull<RingControl>,
+    slots: NonNull<AtomicU64>,
+    capacity: u64,
+    mask: u64,
+    stride: usize,
+    _owner: Arc<dyn Any + Send + Sync>,
+}
+
+// SAFETY: the pointed-to memory is made only of atomics (Sync) and kept alive by `_owner`
+// (Send + Sync), so the view may move to and be shared with other threads.
+unsafe impl Send for RingMem {}
+unsafe impl Sync for RingMem {}
+
+/// Heap storage for a ring: what the unit tests, loom and Miri run on.
+struct HeapStorage {
+    ctrl: Box<RingControl>,
+    slots: Box<[AtomicU64]>,
+}
+
+impl RingMem {
+    /// Allocates a zeroed ring on the heap. `capacity` must be a power of two.
+    pub(crate) fn heap(capacity: usize, payload_words: usize) -> RingMem {
+        assert!(capacity.is_power_of_two(), "ring capacity must be a power of two");
+        let stride = slot_words(payload_words);
+        let slots: Box<[AtomicU64]> = (0..capacity * stride).map(|_| AtomicU64::new(0)).collect();
+        let storage = Arc::new(HeapStorage { ctrl: Box::new(RingControl::new_zeroed()), slots });
+        let ctrl = NonNull::from(&*storage.ctrl);
+        // From the whole slice, so the pointer's provenance covers every slot (Miri-clean).
+        let slots = NonNull::from(&storage.slots[..]).cast::<AtomicU64>();
+        RingMem {
+            ctrl,
+            slots,
+            capacity: capacity as u64,
+            mask: capacity as u64 - 1,
+            stride,
+            _owner: storage,
+        }
+    }
+
+    /// A view of a ring placed in foreign memory (the shared segment).
+    ///
+    /// # Safety
+    /// `ctrl` must point to a `RingControl` and `slots` to `capacity * slot_words(payload)`
+    /// `AtomicU64`s, both properly aligned, that stay mapped while `owner` lives and that are
+    /// only ever accessed atomically (by this process or any other).
+    #[cfg(not(loom))]
+    pub(crate) unsafe fn foreign(
+        ctrl: NonNull<RingControl>,
+        slots: NonNull<AtomicU64>,
+        capacity: usize,
+        payload_words: usize,
+        owner: Arc<dyn Any + Send + Sync>,
+    ) -> RingMem {
+        debug_assert!(capacity.is_power_of_two());
+        RingMem {
+            ctrl,
+            slots,
+            capacity: capacity as u64,
+            mask: capacity as u64 - 1,
+            stride: slot_words(payload_words),
+            _owner: owner,
+        }
+    }
+
+    /// A second view of the same ring (for the other end), sharing the owner.
+    pub(crate) fn twin(&self) -> RingMem {
+        RingMem { _owner: Arc::clone(&self._owner), ..*self }
+    }
+
+    #[inline]
+    pub(crate) fn ctrl(&self) -> &RingControl {
+        // SAFETY: valid while `_owner` lives (struct invariant), shared access only.
+        unsafe { self.ctrl.as_ref() }
+    }
+
+    /// The words of the slot that holds position `pos` (sequence word first).
+    #[inline]
+    pub(crate) fn slot(&self, pos: u64) -> &[AtomicU64] {
+        let index = (pos & self.mask) as usize;
+        // SAFETY: index < capacity, so the range lies inside the slot array (invariant).
+        unsafe {
+            std::slice::from_raw_parts(self.slots.as_ptr().add(index * self.stride), self.stride)
+        }
+    }
+
+    #[inline]
+    pub(crate) fn capacity(&self) -> u64 {
+        self.capacity
+    }
+}

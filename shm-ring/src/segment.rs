@@ -1,0 +1,589 @@
+//! Creating, replacing, attaching and validating the shared-memory segment.
+//!
+//! Segment = `shm_open` object `/haptics-<instance>` (mode 0600) = header + four ring control
+//! blocks + four slot arrays, mapped whole in both processes. Plain `libc::shm_open` + `mmap`
+//! is used instead of the `shared_memory` crate because liveness needs OFD locks on the
+//! segment's own descriptor, and that crate neither exposes the descriptor nor lets the
+//! creator decide when a stale segment is unlinked (it unlinks on the owner's drop).
+//!
+//! Locks (see `os`): the loop holds an instance lock file `/dev/shm/.shm-ring.<name>.lock`
+//! (serialises creators, so a replaced segment can never be unlinked by a second creator) and
+//! byte 0 of the segment; the server holds byte 1. "Peer alive" = the peer's byte is locked.
+
+use std::os::fd::OwnedFd;
+use std::path::PathBuf;
+use std::ptr::NonNull;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use crate::error::Error;
+use crate::fixed_str::FixedStr;
+use crate::header::{Channel, Header, Layout, LAYOUT_VERSION, MAGIC, SLOT_ALIGN};
+use crate::messages::MAX_FEATURES;
+use crate::os::{self, Mapping};
+use crate::ring_mem::{slot_words, RingControl, RingMem};
+
+const LOOP_LOCK_BYTE: u64 = 0;
+const SERVER_LOCK_BYTE: u64 = 1;
+/// Largest ring capacity accepted (slots), to keep a typo from mapping gigabytes.
+pub const MAX_CAPACITY: usize = 1 << 20;
+
+/// The nine feature names of thesis Table 3.1, in order (docs/recording-format.md).
+pub const THESIS_FEATURES: [&str; 9] = [
+    "position_x",
+    "velocity",
+    "acceleration",
+    "f_previous_x",
+    "f_previous_v",
+    "f_previous_a",
+    "cycle_no",
+    "deformation",
+    "area_fx",
+];
+
+/// A validated POSIX shared-memory name: `/` then 1..=200 of `[A-Za-z0-9._-]`.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub struct SegmentName(String);
+
+impl SegmentName {
+    /// The segment of loop instance `instance`: `/haptics-<instance>`.
+    pub fn for_instance(instance: &str) -> Result<SegmentName, Error> {
+        SegmentName::new(&format!("/haptics-{instance}"))
+    }
+
+    /// An explicit name (must start with `/`).
+    pub fn new(name: &str) -> Result<SegmentName, Error> {
+        let bad = |reason| Err(Error::InvalidName { name: name.to_owned(), reason });
+        let Some(rest) = name.strip_prefix('/') else { return bad("must start with `/`") };
+        if rest.is_empty() || rest.len() > 200 {
+            return bad("must have 1 to 200 characters after `/`");
+        }
+        if !rest.bytes().all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'_' | b'-')) {
+            return bad("only letters, digits, `.`, `_` and `-` are allowed after `/`");
+        }
+        if rest.starts_with('.') {
+            return bad("must not start with `.` after `/`");
+        }
+        Ok(SegmentName(name.to_owned()))
+    }
+
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+
+    /// The creator's instance lock file (a dot file, so it never collides with a segment).
+    pub fn lock_path(&self) -> PathBuf {
+        let dir = if std::path::Path::new("/dev/shm").is_dir() { PathBuf::from("/dev/shm") } else { std::env::temp_dir() };
+        dir.join(format!(".shm-ring.{}.lock", &self.0[1..]))
+    }
+}
+
+impl std::fmt::Display for SegmentName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+/// What the creator puts in a new segment.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Config {
+    /// Feature names in the order `FeatureMsg::values` carries them (at most 16).
+    pub feature_names: Vec<String>,
+    /// Slots per ring; each a power of two in 2..=2^20.
+    pub features_capacity: usize,
+    pub forces_capacity: usize,
+    pub telemetry_capacity: usize,
+    pub commands_capacity: usize,
+}
+
+impl Default for Config {
+    /// The thesis's nine features; 1024 requests/answers in flight (a second at 1 kHz),
+    /// 8192 telemetry rows (8 s of plots at 1 kHz), 64 commands.
+    fn default() -> Self {
+        Config {
+            feature_names: THESIS_FEATURES.iter().map(|s| s.to_string()).collect(),
+            features_capacity: 1024,
+            forces_capacity: 1024,
+            telemetry_capacity: 8192,
+            commands_capacity: 64,
+        }
+    }
+}
+
+impl Config {
+    fn capacities(&self) -> [usize; 4] {
+        [self.features_capacity, self.forces_capacity, self.telemetry_capacity, self.commands_capacity]
+    }
+
+    fn validate(&self) -> Result<Vec<FixedStr>, Error> {
+        for (channel, cap) in Channel::ALL.iter().zip(self.capacities()) {
+            if !cap.is_power_of_two() || !(2..=MAX_CAPACITY).contains(&cap) {
+                return Err(Error::InvalidConfig(format!(
+                    "{} capacity {cap} must be a power of two in 2..={MAX_CAPACITY}",
+                    channel.name()
+                )));
+            }
+        }
+        if self.feature_names.len() > MAX_FEATURES {
+            return Err(Error::InvalidConfig(format!(
+                "{} feature names, at most {MAX_FEATURES} fit a FeatureMsg",
+                self.feature_names.len()
+            )));
+        }
+        let mut names = Vec::with_capacity(self.feature_names.len());
+        for (i, name) in self.feature_names.iter().enumerate() {
+            if name.is_empty() {
+                return Err(Error::InvalidConfig(format!("feature name #{i} is empty")));
+            }
+            if self.feature_names[..i].contains(name) {
+                return Err(Error::InvalidConfig(format!("feature name `{name}` appears twice")));
+            }
+            names.push(FixedStr::new(name).map_err(|e| Error::InvalidConfig(format!("feature name: {e}")))?);
+        }
+        Ok(names)
+    }
+}
+
+/// Which side a handle is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Role {
+    /// rt-loop: created the segment.
+    Loop,
+    /// infer-server: attached to it.
+    Server,
+}
+
+impl Role {
+    fn name(self) -> &'static str {
+        match self {
+            Role::Loop => "loop",
+            Role::Server => "server",
+        }
+    }
+}
+
+/// What the header says about a segment.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SegmentInfo {
+    pub name: String,
+    pub layout_version: u64,
+    pub total_size: u64,
+    pub creator_pid: u32,
+    pub creator_start_ticks: u64,
+    pub created_unix_ns: u64,
+    pub server_pid: u32,
+    pub server_attachments: u64,
+    pub feature_names: Vec<String>,
+    /// Capacities of features, forces, telemetry, commands.
+    pub capacities: [usize; 4],
+}
+
+impl SegmentInfo {
+    /// Whether the creator process (pid plus start time, so a reused pid does not count)
+    /// still runs. Diagnostic only: liveness proper is the lock (`Link::peer_alive`).
+    pub fn creator_process_alive(&self) -> bool {
+        os::process_alive(self.creator_pid, self.creator_start_ticks)
+    }
+}
+
+/// A stale segment that `create` found and replaced.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StaleSegment {
+    pub creator_pid: u32,
+}
+
+/// The mapping plus the descriptor whose OFD locks carry liveness. Shared (via `Arc`) by every
+/// endpoint of one handle, so the memory stays mapped until the last endpoint is dropped.
+pub(crate) struct Shared {
+    mapping: Mapping,
+    fd: OwnedFd,
+    name: SegmentName,
+    role: Role,
+    layout: Layout,
+    /// The creator's instance lock; kept open (locked) for the loop's lifetime.
+    _instance_lock: Option<std::fs::File>,
+}
+
+impl Shared {
+    pub(crate) fn header(&self) -> &Header {
+        // SAFETY: the mapping is at least `size_of::<Header>()` bytes (checked before this
+        // struct is built), page-aligned, and only accessed through the header's atomics.
+        unsafe { self.mapping.base().cast::<Header>().as_ref() }
+    }
+
+    fn ring(self: &Arc<Self>, channel: Channel) -> RingMem {
+        let i = channel as usize;
+        let base = self.mapping.base().as_ptr();
+        let capacity = self.header().channels[i].capacity.load(Ordering::Relaxed) as usize;
+        let (payload, _) = channel.message_shape();
+        // SAFETY: offsets come from `Layout::compute` for these capacities and were checked to
+        // lie inside the mapping (total size); control blocks are aligned to RingControl::ALIGN
+        // and slots to SLOT_ALIGN; the memory is only used through atomics and stays mapped
+        // while the `Arc<Shared>` owner passed along lives.
+        unsafe {
+            let ctrl = NonNull::new_unchecked(base.add(self.layout.control_offsets[i])).cast::<RingControl>();
+            let slots = NonNull::new_unchecked(base.add(self.layout.slots_offsets[i])).cast::<AtomicU64>();
+            RingMem::foreign(ctrl, slots, capacity, payload, self.clone())
+        }
+    }
+
+    fn peer_byte(&self) -> u64 {
+        match self.role {
+            Role::Loop => SERVER_LOCK_BYTE,
+            Role::Server => LOOP_LOCK_BYTE,
+        }
+    }
+
+    /// Whether the other side's process holds its liveness lock on this segment.
+    /// One `fcntl` syscall: call it from the slow path, not every real-time step.
+    pub(crate) fn peer_alive(&self) -> bool {
+        // An error here (it cannot happen on a valid fd) reads as "not alive": the safe side.
+        os::byte_is_locked(&self.fd, self.peer_byte()).unwrap_or(false)
+    }
+
+    fn own_heartbeat(&self) -> &AtomicU64 {
+        match self.role {
+            Role::Loop => &self.header().loop_heartbeat.0,
+            Role::Server => &self.header().server_heartbeat.0,
+        }
+    }
+
+    fn peer_heartbeat(&self) -> &AtomicU64 {
+        match self.role {
+            Role::Loop => &self.header().server_heartbeat.0,
+            Role::Server => &self.header().loop_heartbeat.0,
+        }
+    }
+}
+
+impl Drop for Shared {
+    fn drop(&mut self) {
+        // A clean loop exit removes its segment; it still holds the instance lock here, so the
+        // name cannot belong to anyone else. A server that stays mapped keeps its memory and
+        // sees the loop's lock released.
+        if self.role == Role::Loop {
+            let _ = os::shm_unlink(self.name.as_str());
+        }
+    }
+}
+
+/// A mapped segment, as created by the loop or attached by the server.
+pub struct Segment {
+    shared: Arc<Shared>,
+    replaced: Option<StaleSegment>,
+}
+
+fn os_err<'a>(op: &'static str, name: &'a SegmentName) -> impl FnOnce(std::io::Error) -> Error + 'a {
+    move |source| Error::Os { op, name: name.to_string(), source }
+}
+
+impl Segment {
+    /// Creates the segment (the loop's side). Replaces a segment left by a dead loop; refuses
+    /// with [`Error::InstanceInUse`] if a live loop owns the name.
+    pub fn create(name: &SegmentName, config: &Config) -> Result<Segment, Error> {
+        let schema = config.validate()?;
+        let capacities = config.capacities();
+
+        // 1. The instance lock: one creator per name at a time, for the creator's lifetime.
+        let lock = os::open_lock_file(&name.lock_path()).map_err(os_err("open instance lock", name))?;
+        if !os::try_lock_byte(&lock, 0).map_err(os_err("lock instance", name))? {
+            return Err(Error::InstanceInUse { name: name.to_string(), pid: peek_creator_pid(name).unwrap_or(0) });
+        }
+
+        // 2. Create exclusively; a leftover is stale by construction (its creator released the
+        //    instance lock, i.e. died) unless its loop byte is still locked (defensive check).
+        let mut replaced = None;
+        let fd = match os::shm_open(name.as_str(), true) {
+            Ok(fd) => fd,
+            Err(e) if e.raw_os_error() == Some(libc::EEXIST) => {
+                let old = os::shm_open(name.as_str(), false).map_err(os_err("open stale segment", name))?;
+                let pid = peek_creator_pid(name).unwrap_or(0);
+                if os::byte_is_locked(&old, LOOP_LOCK_BYTE).map_err(os_err("probe stale segment", name))? {
+                    return Err(Error::InstanceInUse { name: name.to_string(), pid });
+                }
+                drop(old);
+                os::shm_unlink(name.as_str()).map_err(os_err("unlink stale segment", name))?;
+                replaced = Some(StaleSegment { creator_pid: pid });
+                os::shm_open(name.as_str(), true).map_err(os_err("shm_open", name))?
+            }
+            Err(e) => return Err(os_err("shm_open", name)(e)),
+        };
+        os::set_mode_0600(&fd).map_err(os_err("fchmod", name))?;
+        if !os::try_lock_byte(&fd, LOOP_LOCK_BYTE).map_err(os_err("lock loop byte", name))? {
+            return Err(Error::InstanceInUse { name: name.to_string(), pid: 0 });
+        }
+
+        // 3. Size, map (zero-filled by the kernel), write the header, publish the magic last.
+        let layout = Layout::compute(capacities);
+        os::ftruncate(&fd, layout.total as u64).map_err(os_err("ftruncate", name))?;
+        let mapping = Mapping::map(&fd, layout.total).map_err(os_err("mmap", name))?;
+        let shared = Arc::new(Shared {
+            mapping,
+            fd,
+            name: name.clone(),
+            role: Role::Loop,
+            layout: layout.clone(),
+            _instance_lock: Some(lock),
+        });
+        let now_ns = SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(0);
+        shared.header().init(capacities, &schema, &layout, now_ns);
+        shared.header().magic.store(MAGIC, Ordering::Release);
+        Ok(Segment { shared, replaced })
+    }
+
+    /// Attaches to a live loop's segment (the server's side), validating the header.
+    pub fn attach(name: &SegmentName) -> Result<Segment, Error> {
+        let fd = match os::shm_open(name.as_str(), false) {
+            Ok(fd) => fd,
+            Err(e) if e.raw_os_error() == Some(libc::ENOENT) => {
+                return Err(Error::NotFound { name: name.to_string() })
+            }
+            Err(e) => return Err(os_err("shm_open", name)(e)),
+        };
+        let stat = os::fstat(&fd).map_err(os_err("fstat", name))?;
+        if stat.uid != os::euid() {
+            return Err(Error::ForeignOwner { name: name.to_string(), uid: stat.uid });
+        }
+        if stat.mode & 0o077 != 0 {
+            return Err(Error::InsecureMode { name: name.to_string(), mode: stat.mode });
+        }
+        let loop_alive = || os::byte_is_locked(&fd, LOOP_LOCK_BYTE).unwrap_or(false);
+        let header_size = std::mem::size_of::<Header>() as u64;
+        if stat.size < header_size {
+            // Either mid-creation (loop byte locked) or a creator that died right away.
+            return Err(if loop_alive() {
+                Error::Initializing { name: name.to_string() }
+            } else {
+                Error::CreatorDead { name: name.to_string(), pid: 0 }
+            });
+        }
+        let mapping = Mapping::map(&fd, stat.size as usize).map_err(os_err("mmap", name))?;
+        // SAFETY: the mapping holds at least a header (checked above); atomics only.
+        let header = unsafe { mapping.base().cast::<Header>().as_ref() };
+        let magic = header.magic.load(Ordering::Acquire);
+        if magic == 0 {
+            return Err(if loop_alive() {
+                Error::Initializing { name: name.to_string() }
+            } else {
+                Error::CreatorDead { name: name.to_string(), pid: 0 }
+            });
+        }
+        let layout = validate(header, name, stat.size)?;
+        let creator_pid = header.creator_pid.load(Ordering::Relaxed) as u32;
+        if !loop_alive() {
+            return Err(Error::CreatorDead { name: name.to_string(), pid: creator_pid });
+        }
+        if !os::try_lock_byte(&fd, SERVER_LOCK_BYTE).map_err(os_err("lock server byte", name))? {
+            let pid = header.server_pid.load(Ordering::Relaxed) as u32;
+            return Err(Error::ServerAlreadyAttached { name: name.to_string(), pid });
+        }
+        header.server_pid.store(os::pid() as u64, Ordering::Relaxed);
+        header.server_attachments.fetch_add(1, Ordering::AcqRel);
+        let shared = Arc::new(Shared { mapping, fd, name: name.clone(), role: Role::Server, layout, _instance_lock: None });
+        Ok(Segment { shared, replaced: None })
+    }
+
+    /// [`Segment::attach`], retrying transient failures (no segment yet, a dead loop's
+    /// segment not yet replaced, initialisation in progress) until `timeout`.
+    pub fn attach_timeout(name: &SegmentName, timeout: Duration) -> Result<Segment, Error> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            match Segment::attach(name) {
+                Err(e) if e.is_transient() && Instant::now() < deadline => {
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+                other => return other,
+            }
+        }
+    }
+
+    /// Whether this handle is the loop's (creator) or the server's.
+    pub fn role(&self) -> Role {
+        self.shared.role
+    }
+
+    /// The stale segment `create` replaced, if it did.
+    pub fn replaced_stale(&self) -> Option<&StaleSegment> {
+        self.replaced.as_ref()
+    }
+
+    /// What the header says.
+    pub fn info(&self) -> SegmentInfo {
+        info_of(self.shared.header(), &self.shared.name)
+    }
+
+    /// Whether the other side's process is alive (holds its lock on this segment).
+    pub fn peer_alive(&self) -> bool {
+        self.shared.peer_alive()
+    }
+
+    /// The loop's endpoints. Fails if this handle was attached (the server's).
+    pub fn loop_side(self) -> Result<crate::endpoints::LoopSide, Error> {
+        if self.shared.role != Role::Loop {
+            return Err(Error::WrongRole { actual: self.shared.role.name(), wanted: "loop" });
+        }
+        Ok(crate::endpoints::LoopSide::new(self.shared))
+    }
+
+    /// The server's endpoints. Fails if this handle created the segment (the loop's).
+    pub fn server_side(self) -> Result<crate::endpoints::ServerSide, Error> {
+        if self.shared.role != Role::Server {
+            return Err(Error::WrongRole { actual: self.shared.role.name(), wanted: "server" });
+        }
+        Ok(crate::endpoints::ServerSide::new(self.shared))
+    }
+}
+
+/// Checks everything in the header against this build; returns the layout to use.
+fn validate(header: &Header, name: &SegmentName, file_size: u64) -> Result<Layout, Error> {
+    let r = Ordering::Relaxed;
+    let name_s = || name.to_string();
+    let magic = header.magic.load(r);
+    if magic != MAGIC {
+        return Err(Error::BadMagic { name: name_s(), found: magic });
+    }
+    let version = header.layout_version.load(r);
+    if version != LAYOUT_VERSION {
+        return Err(Error::VersionMismatch { name: name_s(), found: version, expected: LAYOUT_VERSION });
+    }
+    let mismatch = |what: String, found: u64, expected: u64| -> Result<(), Error> {
+        if found == expected {
+            Ok(())
+        } else {
+            Err(Error::LayoutMismatch { name: name_s(), what, found, expected })
+        }
+    };
+    mismatch("header size".into(), header.header_size.load(r), std::mem::size_of::<Header>() as u64)?;
+    mismatch("ring control size".into(), header.control_size.load(r), RingControl::SIZE as u64)?;
+    mismatch("ring control alignment".into(), header.control_align.load(r), RingControl::ALIGN as u64)?;
+    let capacities = header.capacities();
+    for (i, channel) in Channel::ALL.iter().enumerate() {
+        let desc = &header.channels[i];
+        let (words, id) = channel.message_shape();
+        let ch = channel.name();
+        mismatch(format!("{ch} message layout id"), desc.layout_id.load(r), id)?;
+        mismatch(format!("{ch} payload words"), desc.payload_words.load(r), words as u64)?;
+        mismatch(format!("{ch} slot bytes"), desc.slot_bytes.load(r), slot_words(words) as u64 * 8)?;
+        mismatch(format!("{ch} slot alignment"), desc.slot_align.load(r), SLOT_ALIGN as u64)?;
+        let cap = capacities[i];
+        if !cap.is_power_of_two() || cap > MAX_CAPACITY {
+            return Err(Error::LayoutMismatch {
+                name: name_s(),
+                what: format!("{ch} capacity (not a power of two <= {MAX_CAPACITY})"),
+                found: cap as u64,
+                expected: 0,
+            });
+        }
+    }
+    let layout = Layout::compute(capacities);
+    for (i, channel) in Channel::ALL.iter().enumerate() {
+        let desc = &header.channels[i];
+        let ch = channel.name();
+        mismatch(format!("{ch} control offset"), desc.control_offset.load(r), layout.control_offsets[i] as u64)?;
+        mismatch(format!("{ch} slots offset"), desc.slots_offset.load(r), layout.slots_offsets[i] as u64)?;
+    }
+    mismatch("total size".into(), header.total_size.load(r), layout.total as u64)?;
+    mismatch("file size".into(), file_size, layout.total as u64)?;
+    if header.schema().is_none() {
+        return Err(Error::LayoutMismatch {
+            name: name_s(),
+            what: "feature schema (bad length or names)".into(),
+            found: header.schema_len.load(r),
+            expected: MAX_FEATURES as u64,
+        });
+    }
+    Ok(layout)
+}
+
+fn info_of(header: &Header, name: &SegmentName) -> SegmentInfo {
+    let r = Ordering::Relaxed;
+    SegmentInfo {
+        name: name.to_string(),
+        layout_version: header.layout_version.load(r),
+        total_size: header.total_size.load(r),
+        creator_pid: header.creator_pid.load(r) as u32,
+        creator_start_ticks: header.creator_start_ticks.load(r),
+        created_unix_ns: header.created_unix_ns.load(r),
+        server_pid: header.server_pid.load(r) as u32,
+        server_attachments: header.server_attachments.load(Ordering::Acquire),
+        feature_names: header.schema().unwrap_or_default(),
+        capacities: header.capacities(),
+    }
+}
+
+/// Best effort: the pid recorded in an existing segment's header, for error messages.
+fn peek_creator_pid(name: &SegmentName) -> Option<u32> {
+    let fd = os::shm_open(name.as_str(), false).ok()?;
+    let stat = os::fstat(&fd).ok()?;
+    if stat.size < std::mem::size_of::<Header>() as u64 {
+        return None;
+    }
+    let mapping = Mapping::map(&fd, std::mem::size_of::<Header>()).ok()?;
+    // SAFETY: mapped at least a header; atomics only.
+    let header = unsafe { mapping.base().cast::<Header>().as_ref() };
+    (header.magic.load(Ordering::Acquire) == MAGIC).then(|| header.creator_pid.load(Ordering::Relaxed) as u32)
+}
+
+/// Liveness and identity shared by all endpoints of one side. Cheap to clone.
+#[derive(Clone)]
+pub struct Link {
+    pub(crate) shared: Arc<Shared>,
+}
+
+impl Link {
+    /// Whether the other side's process is alive. One syscall: not for every real-time step
+    /// (use [`Link::peer_heartbeat`] there, a plain atomic load).
+    pub fn peer_alive(&self) -> bool {
+        self.shared.peer_alive()
+    }
+
+    /// Bumps this side's heartbeat counter (one atomic store; only this side writes it).
+    #[inline]
+    pub fn heartbeat(&self) {
+        let hb = self.shared.own_heartbeat();
+        hb.store(hb.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed);
+    }
+
+    /// This side's heartbeat counter.
+    pub fn own_heartbeat(&self) -> u64 {
+        self.shared.own_heartbeat().load(Ordering::Relaxed)
+    }
+
+    /// The other side's heartbeat counter: if it stops moving while `peer_alive`, the peer is
+    /// alive but stuck.
+    #[inline]
+    pub fn peer_heartbeat(&self) -> u64 {
+        self.shared.peer_heartbeat().load(Ordering::Relaxed)
+    }
+
+    /// How many times a server attached to this segment; a change means a new server came.
+    #[inline]
+    pub fn server_attachments(&self) -> u64 {
+        self.shared.header().server_attachments.load(Ordering::Acquire)
+    }
+
+    /// The feature schema (names in `FeatureMsg::values` order).
+    pub fn feature_names(&self) -> Vec<String> {
+        self.shared.header().schema().unwrap_or_default()
+    }
+
+    /// What the header says.
+    pub fn info(&self) -> SegmentInfo {
+        info_of(self.shared.header(), &self.shared.name)
+    }
+
+    /// The segment's name.
+    pub fn name(&self) -> &SegmentName {
+        &self.shared.name
+    }
+
+    pub(crate) fn ring(&self, channel: Channel) -> RingMem {
+        self.shared.ring(channel)
+    }
+
+    pub(crate) fn probe(&self) -> crate::spsc::PeerProbe {
+        let shared = Arc::clone(&self.shared);
+        Some(Arc::new(move || shared.peer_alive()))
+    }
+}

@@ -1,0 +1,189 @@
+//! Wait strategies and the futex event count that parking uses.
+//!
+//! A side that waits (for data, or for space) first re-checks its ring; if it decides to park,
+//! it registers in `Signal::waiters` and sleeps on the futex word `Signal::epoch`. The other
+//! side, after publishing, checks `waiters` and only then pays for `FUTEX_WAKE`, so when
+//! nobody parks the data path stays free of syscalls. The futex is the shared (non-private)
+//! kind, so it works across processes on the segment.
+//!
+//! No lost wake-up (the classic store-buffer pattern, both sides fenced `SeqCst`):
+//! waiter: `waiters += 1; fence; re-check ring`; notifier: `publish; fence; load waiters`.
+//! At least one of them sees the other's write, so either the waiter finds the data, or the
+//! notifier sees the waiter, bumps `epoch` and wakes it; a bump between the waiter's read of
+//! `epoch` and its `FUTEX_WAIT` makes the wait return at once (the kernel compares the value).
+
+use crate::ring_mem::Signal;
+use crate::sync::{fence, Ordering};
+
+/// How a side waits when its ring is empty (receiver) or full (sender).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WaitStrategy {
+    /// Busy-poll. Lowest latency; burns a core. Use only where a core is dedicated to it
+    /// (never on both sides of a 2-core machine, except in the benchmark).
+    Spin,
+    /// Busy-poll `spins` times, then park on the futex.
+    SpinThenPark { spins: u32 },
+    /// Park on the futex right away (after one re-check). Costs a wake-up syscall per wait.
+    Park,
+}
+
+impl WaitStrategy {
+    /// Spin-then-park with a spin budget of roughly a few microseconds.
+    pub const DEFAULT_SPIN_THEN_PARK: WaitStrategy = WaitStrategy::SpinThenPark { spins: 2000 };
+
+    fn spins(self) -> u32 {
+        match self {
+            WaitStrategy::Spin => u32::MAX,
+            WaitStrategy::SpinThenPark { spins } => spins,
+            WaitStrategy::Park => 0,
+        }
+    }
+}
+
+impl Default for WaitStrategy {
+    fn default() -> Self {
+        WaitStrategy::DEFAULT_SPIN_THEN_PARK
+    }
+}
+
+/// Wakes whoever parks on `signal`, if anyone does. Called right after publishing.
+/// Cost when nobody waits: one `SeqCst` fence and one load; no syscall.
+#[inline]
+pub(crate) fn notify(signal: &Signal) {
+    fence(Ordering::SeqCst);
+    if signal.waiters.load(Ordering::Relaxed) != 0 {
+        signal.epoch.fetch_add(1, Ordering::Release);
+        #[cfg(not(loom))]
+        futex::wake_all(&signal.epoch);
+    }
+}
+
+/// Why a wait ended without a result.
+#[cfg(not(loom))]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum WaitEnd {
+    Timeout,
+    PeerGone,
+}
+
+/// Longest single park: a parked side wakes at least this often to re-check its deadline and
+/// whether the peer process is still alive.
+#[cfg(not(loom))]
+pub(crate) const PARK_SLICE: std::time::Duration = std::time::Duration::from_millis(10);
+
+/// Spins between liveness checks in pure spin mode (a check is a syscall).
+#[cfg(not(loom))]
+const SPINS_PER_CHECK: u32 = 1 << 14;
+
+/// Runs `attempt` until it yields a value, the deadline passes, or `peer_alive` says no.
+#[cfg(not(loom))]
+pub(crate) fn wait_for<T>(
+    signal: &Signal,
+    strategy: WaitStrategy,
+    deadline: Option<std::time::Instant>,
+    peer_alive: Option<&(dyn Fn() -> bool + Send + Sync)>,
+    mut attempt: impl FnMut() -> Option<T>,
+) -> Result<T, WaitEnd> {
+    use std::time::Instant;
+    let gone = || peer_alive.is_some_and(|alive| !alive());
+    let past = |deadline: Option<Instant>| deadline.is_some_and(|d| Instant::now() >= d);
+
+    // Spin phase.
+    let spins = strategy.spins();
+    let mut spun: u32 = 0;
+    while spun < spins {
+        if let Some(value) = attempt() {
+            return Ok(value);
+        }
+        crate::sync::spin_hint();
+        spun += 1;
+        if spun % SPINS_PER_CHECK == 0 {
+            if past(deadline) {
+                return Err(WaitEnd::Timeout);
+            }
+            if gone() {
+                return Err(WaitEnd::PeerGone);
+            }
+        }
+        if deadline.is_some() && spun % 64 == 0 && past(deadline) {
+            return Err(WaitEnd::Timeout);
+        }
+    }
+
+    // Park phase.
+    loop {
+        let epoch = signal.epoch.load(Ordering::Acquire);
+        signal.waiters.fetch_add(1, Ordering::SeqCst);
+        fence(Ordering::SeqCst);
+        if let Some(value) = attempt() {
+            signal.waiters.fetch_sub(1, Ordering::Relaxed);
+            return Ok(value);
+        }
+        let mut slice = PARK_SLICE;
+        if let Some(d) = deadline {
+            let now = Instant::now();
+            if now >= d {
+                signal.waiters.fetch_sub(1, Ordering::Relaxed);
+                return Err(WaitEnd::Timeout);
+            }
+            slice = slice.min(d - now);
+        }
+        let woken = futex::wait(&signal.epoch, epoch, slice);
+        signal.waiters.fetch_sub(1, Ordering::Relaxed);
+        if let Some(value) = attempt() {
+            return Ok(value);
+        }
+        if past(deadline) {
+            return Err(WaitEnd::Timeout);
+        }
+        // Only a timed-out park (no wake-up for a whole slice) pays for a liveness check.
+        if !woken && gone() {
+            return Err(WaitEnd::PeerGone);
+        }
+    }
+}
+
+#[cfg(not(loom))]
+mod futex {
+    use std::sync::atomic::AtomicU32;
+    use std::time::Duration;
+
+    /// Sleeps while `*word == expected`, at most `timeout`. Returns false on timeout.
+    /// Shared (not `FUTEX_PRIVATE_FLAG`): the word may live in memory mapped by two processes.
+    pub(super) fn wait(word: &AtomicU32, expected: u32, timeout: Duration) -> bool {
+        let ts = libc::timespec {
+            tv_sec: timeout.as_secs() as libc::time_t,
+            tv_nsec: timeout.subsec_nanos() as libc::c_long,
+        };
+        // SAFETY: `word` is a valid, aligned u32 for the duration of the call; the kernel
+        // only reads it. A spurious or early return is harmless: callers re-check.
+        let rc = unsafe {
+            libc::syscall(
+                libc::SYS_futex,
+                word.as_ptr(),
+                libc::FUTEX_WAIT,
+                expected,
+                &ts as *const libc::timespec,
+                std::ptr::null::<u32>(),
+                0u32,
+            )
+        };
+        !(rc == -1 && std::io::Error::last_os_error().raw_os_error() == Some(libc::ETIMEDOUT))
+    }
+
+    /// Wakes every waiter parked on `word`.
+    pub(super) fn wake_all(word: &AtomicU32) {
+        // SAFETY: as above; FUTEX_WAKE does not access user memory beyond the address key.
+        unsafe {
+            libc::syscall(
+                libc::SYS_futex,
+                word.as_ptr(),
+                libc::FUTEX_WAKE,
+                i32::MAX,
+                std::ptr::null::<libc::timespec>(),
+                std::ptr::null::<u32>(),
+                0u32,
+            );
+        }
+    }
+}
