@@ -1,2 +1,26 @@
-//! The real-time loop: board, DOB/RFOB observers, force and position control, experiments,
-//! online features and the recorder. Filled in by the rt-loop issue.
+//! The real-time haptics loop (SPEC sections 2-7): board abstraction with a physics-simulated
+//! sponge bench and a replay board, the DOB/RFOB force-control loop, the experiments, the nine
+//! online features, the lossless recorder and the two clocks.
+//!
+//! Layout: [`board`] (trait + `sim` + `replay`), [`sponge`]/[`material`]/[`hand`] (the
+//! simulated world), [`filters`] (pseudo-derivatives, observers), [`rig`] (the step),
+//! [`experiment`], [`features`], [`model`] (the force-model hook), [`record`], [`clock`],
+//! [`config`], [`run`], [`import`] (the `features` subcommand).
+
+pub mod board;
+pub mod clock;
+pub mod config;
+pub mod dac;
+pub mod experiment;
+pub mod features;
+pub mod filters;
+pub mod hand;
+pub mod import;
+pub mod material;
+pub mod model;
+pub mod params;
+pub mod record;
+pub mod rig;
+pub mod rng;
+pub mod run;
+pub mod sponge;

@@ -1,4 +1,323 @@
-fn main() {
-    eprintln!("rt-loop: not built yet");
-    std::process::exit(2);
+//! `rt-loop`: run an experiment on a board (`run`), import a measured series into the
+//! recording format (`features`), or fit the spring-damper fallback (`fit`).
+
+use clap::{Args, Parser, Subcommand};
+use rt_loop::config::{BoardKind, ClockKind, ExperimentKind, RunConfig};
+use rt_loop::features::FeatureParams;
+use rt_loop::import::{ForceUnit, ImportSpec, PositionUnit, TimeUnit};
+use rt_loop::record::Format;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(
+    name = "rt-loop",
+    version,
+    about = "Haptics real-time loop: DOB/RFOB force control on a (simulated) bench"
+)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Run an experiment (flags override the --config file).
+    Run(RunArgs),
+    /// Import a time/position/force series and write it in the recording format with the
+    /// loop's velocity/acceleration filters and the nine features.
+    Features(FeaturesArgs),
+    /// Fit the spring-damper fallback (F = k1 x + k2 x^2 + b v) to a recording; prints TOML.
+    Fit(FitArgs),
+}
+
+#[derive(Args)]
+struct RunArgs {
+    #[arg(long)]
+    config: Option<PathBuf>,
+    #[arg(long, value_enum)]
+    experiment: Option<ExperimentKind>,
+    #[arg(long, value_enum)]
+    clock: Option<ClockKind>,
+    #[arg(long, value_enum)]
+    board: Option<BoardKind>,
+    /// Recording the replay board plays back.
+    #[arg(long)]
+    replay: Option<PathBuf>,
+    #[arg(long)]
+    rate_hz: Option<f64>,
+    #[arg(long)]
+    seed: Option<u64>,
+    #[arg(long)]
+    material: Option<PathBuf>,
+    /// Force ramp rate, N/s.
+    #[arg(long)]
+    ramp_rate: Option<f64>,
+    #[arg(long)]
+    cycles: Option<u32>,
+    #[arg(long)]
+    f_max_start: Option<f64>,
+    #[arg(long)]
+    f_max_step: Option<f64>,
+    #[arg(long)]
+    f_max_limit: Option<f64>,
+    /// Hold at 0 N before each ramp, s.
+    #[arg(long)]
+    hold_zero: Option<f64>,
+    /// Hold at F_max, s.
+    #[arg(long)]
+    hold_max: Option<f64>,
+    /// Record to this file (.parquet, or .csv).
+    #[arg(long)]
+    record: Option<PathBuf>,
+    #[arg(long, value_enum)]
+    format: Option<FormatArg>,
+    /// Record every N-th step only.
+    #[arg(long)]
+    decimate: Option<u32>,
+    /// Recorded trajectory (its time and position_x) for position replay.
+    #[arg(long)]
+    trajectory: Option<PathBuf>,
+    /// Stop after this much loop time, s.
+    #[arg(long)]
+    duration: Option<f64>,
+    /// Fit the reproduction fallback/built-in model to this recording first.
+    #[arg(long)]
+    fit_fallback: Option<PathBuf>,
+    /// Write the summary as JSON here as well.
+    #[arg(long)]
+    summary_json: Option<PathBuf>,
+    #[arg(long)]
+    no_progress: bool,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum FormatArg {
+    Parquet,
+    Csv,
+}
+
+#[derive(Args)]
+struct FeaturesArgs {
+    #[arg(long)]
+    input: PathBuf,
+    #[arg(long)]
+    time_col: String,
+    #[arg(long)]
+    position_col: String,
+    #[arg(long)]
+    force_col: String,
+    #[arg(long, value_enum, default_value = "s")]
+    time_unit: TimeUnit,
+    #[arg(long, value_enum, default_value = "m")]
+    position_unit: PositionUnit,
+    #[arg(long, value_enum, default_value = "N")]
+    force_unit: ForceUnit,
+    /// Output recording (.parquet, or .csv).
+    #[arg(long)]
+    out: PathBuf,
+    #[arg(long, default_value_t = 30.0)]
+    g_v: f64,
+    #[arg(long, default_value_t = 100.0)]
+    g_a: f64,
+}
+
+#[derive(Args)]
+struct FitArgs {
+    #[arg(long)]
+    input: PathBuf,
+    #[arg(long, default_value = "rtob_force")]
+    force_col: String,
+}
+
+struct Bar(indicatif::ProgressBar);
+
+impl rt_loop::run::Progress for Bar {
+    fn update(&mut self, t: f64) {
+        self.0.set_position((t * 1000.0) as u64);
+    }
+    fn finish(&mut self) {
+        self.0.finish_and_clear();
+    }
+}
+
+fn resolve(a: &RunArgs) -> anyhow::Result<RunConfig> {
+    let mut c = match &a.config {
+        Some(p) => RunConfig::load(p)?,
+        None => RunConfig::default(),
+    };
+    macro_rules! set {
+        ($field:expr, $v:expr) => {
+            if let Some(v) = $v.clone() {
+                $field = v;
+            }
+        };
+    }
+    set!(c.experiment, a.experiment);
+    set!(c.clock, a.clock);
+    set!(c.board, a.board);
+    set!(c.rate_hz, a.rate_hz);
+    set!(c.seed, a.seed);
+    set!(c.material, a.material);
+    set!(c.ramp.ramp_rate, a.ramp_rate);
+    set!(c.ramp.cycles, a.cycles);
+    set!(c.ramp.f_max_start, a.f_max_start);
+    set!(c.ramp.f_max_step, a.f_max_step);
+    set!(c.ramp.f_max_limit, a.f_max_limit);
+    set!(c.ramp.hold_zero_s, a.hold_zero);
+    set!(c.ramp.hold_max_s, a.hold_max);
+    set!(c.decimate, a.decimate);
+    if a.replay.is_some() {
+        c.replay = a.replay.clone();
+        if a.board.is_none() {
+            c.board = BoardKind::Replay;
+        }
+    }
+    if a.record.is_some() {
+        c.record = a.record.clone();
+    }
+    if a.trajectory.is_some() {
+        c.trajectory = a.trajectory.clone();
+    }
+    if a.duration.is_some() {
+        c.max_duration_s = a.duration;
+    }
+    if let Some(f) = a.format {
+        c.format = Some(match f {
+            FormatArg::Parquet => Format::Parquet,
+            FormatArg::Csv => Format::Csv,
+        });
+    }
+    if let Some(p) = &a.fit_fallback {
+        c.reproduction.fallback = fit(p, "rtob_force")?;
+        eprintln!("rt-loop: fallback fitted: {:?}", c.reproduction.fallback);
+    }
+    Ok(c)
+}
+
+fn fit(path: &std::path::Path, force_col: &str) -> anyhow::Result<rt_loop::model::SpringDamper> {
+    let cols = rt_loop::record::read::read_columns(path, &["position_x", "velocity", force_col])?;
+    rt_loop::model::SpringDamper::fit(&cols[0], &cols[1], &cols[2])
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+fn cmd_run(a: &RunArgs) -> anyhow::Result<ExitCode> {
+    let cfg = resolve(a)?;
+    cfg.validate().map_err(|e| anyhow::anyhow!(e))?;
+    let show = !a.no_progress && cfg.clock == ClockKind::Lockstep;
+    let mut bar = None;
+    if show {
+        let total = match rt_loop::run::build_experiment(&cfg, None) {
+            Ok(e) => e.duration(),
+            Err(_) => 0.0,
+        };
+        let pb = indicatif::ProgressBar::with_draw_target(
+            Some((total * 1000.0) as u64),
+            indicatif::ProgressDrawTarget::stderr(),
+        );
+        pb.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{spinner} {elapsed_precise} [{bar:40}] {percent}% loop time {msg}",
+            )
+            .expect("valid template"),
+        );
+        bar = Some(Bar(pb));
+    }
+    let summary = rt_loop::run::run(
+        &cfg,
+        None,
+        bar.as_mut().map(|b| b as &mut dyn rt_loop::run::Progress),
+    )?;
+    print_summary(&summary);
+    if let Some(p) = &a.summary_json {
+        std::fs::write(p, serde_json::to_string_pretty(&summary)?)?;
+    }
+    Ok(if summary.ok() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
+
+fn print_summary(s: &rt_loop::run::RunSummary) {
+    eprintln!(
+        "rt-loop: {} ({} clock): {} steps, {:.3} s loop time in {:.2} s wall ({:.0} steps/s), stop: {}",
+        s.experiment, s.clock, s.steps, s.loop_time_s, s.wall_s, s.steps_per_s, s.stop
+    );
+    if let Some(r) = &s.recorder {
+        eprintln!(
+            "rt-loop: recorder: {} rows pushed, {} received, {} written, {} dropped, {} bytes -> {}",
+            s.rows_pushed,
+            r.rows_received,
+            r.rows_written,
+            s.drops,
+            r.bytes,
+            r.path.as_ref().map_or("-".into(), |p| p.display().to_string())
+        );
+        if let Some(e) = &r.error {
+            eprintln!("rt-loop: RECORDER ERROR: {e}");
+        }
+    }
+    if let Some(m) = &s.model {
+        eprintln!(
+            "rt-loop: model: {} served, {} fallbacks",
+            m.served, m.fallbacks
+        );
+    }
+    if let Some(j) = &s.jitter {
+        eprintln!(
+            "rt-loop: realtime: period {} us, overruns {}, period jitter p50 {:.1} us p99 {:.1} us p99.9 {:.1} us max {:.1} us; wake latency p50 {:.1} p99 {:.1} max {:.1} us",
+            j.period_us,
+            j.overruns,
+            j.period_jitter.p50_us,
+            j.period_jitter.p99_us,
+            j.period_jitter.p999_us,
+            j.period_jitter.max_us,
+            j.wake_latency.p50_us,
+            j.wake_latency.p99_us,
+            j.wake_latency.max_us
+        );
+    }
+}
+
+fn cmd_features(a: &FeaturesArgs) -> anyhow::Result<ExitCode> {
+    let spec = ImportSpec {
+        input: a.input.clone(),
+        time_col: a.time_col.clone(),
+        position_col: a.position_col.clone(),
+        force_col: a.force_col.clone(),
+        time_unit: a.time_unit,
+        position_unit: a.position_unit,
+        force_unit: a.force_unit,
+        out: a.out.clone(),
+        g_v: a.g_v,
+        g_a: a.g_a,
+        meters_per_count: 5e-6,
+        features: FeatureParams::default(),
+    };
+    let n = rt_loop::import::import(&spec)?;
+    eprintln!("rt-loop: wrote {n} rows to {}", a.out.display());
+    Ok(ExitCode::SUCCESS)
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let r = match &cli.cmd {
+        Cmd::Run(a) => cmd_run(a),
+        Cmd::Features(a) => cmd_features(a),
+        Cmd::Fit(a) => fit(&a.input, &a.force_col).map(|sd| {
+            println!(
+                "[reproduction.fallback]\nk1 = {}\nk2 = {}\nb = {}",
+                sd.k1, sd.k2, sd.b
+            );
+            ExitCode::SUCCESS
+        }),
+    };
+    match r {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("rt-loop: error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
 }

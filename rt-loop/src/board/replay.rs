@@ -1,0 +1,75 @@
+//! The replay board: feeds a recording's encoder counts and timestamps back through the loop,
+//! so a recording can be reprocessed offline with other observer settings. The DAC words the
+//! loop writes are ignored (the recorded motion already happened); the recorded F_true is
+//! passed through.
+
+use super::{Board, BoardStop, Snapshot};
+
+pub struct ReplayBoard {
+    counts: Vec<i32>,
+    timestamps: Vec<u32>,
+    f_true: Vec<f64>,
+    next: usize,
+    current: usize,
+}
+
+impl ReplayBoard {
+    pub fn new(counts: Vec<i32>, timestamps: Vec<u32>, f_true: Vec<f64>) -> Result<Self, String> {
+        if counts.len() != timestamps.len() || (!f_true.is_empty() && f_true.len() != counts.len())
+        {
+            return Err("replay columns have different lengths".into());
+        }
+        if counts.is_empty() {
+            return Err("replay recording has no rows".into());
+        }
+        Ok(ReplayBoard {
+            counts,
+            timestamps,
+            f_true,
+            next: 0,
+            current: 0,
+        })
+    }
+
+    /// Loads `counts`, `timestamp` and (if present) `F_true` from a recording.
+    pub fn from_recording(path: &std::path::Path) -> anyhow::Result<Self> {
+        let cols = crate::record::read::read_columns(path, &["counts", "timestamp"])?;
+        let f_true = crate::record::read::read_columns(path, &["F_true"])
+            .map(|mut c| c.remove(0))
+            .unwrap_or_default();
+        let counts = cols[0].iter().map(|&c| c as i32).collect();
+        let ts = cols[1].iter().map(|&t| t as u32).collect();
+        ReplayBoard::new(counts, ts, f_true).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    }
+
+    pub fn len(&self) -> usize {
+        self.counts.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.counts.is_empty()
+    }
+}
+
+impl Board for ReplayBoard {
+    fn snapshot(&mut self) -> Result<Snapshot, BoardStop> {
+        if self.next >= self.counts.len() {
+            return Err(BoardStop::EndOfData);
+        }
+        self.current = self.next;
+        self.next += 1;
+        Ok(Snapshot {
+            counts: self.counts[self.current],
+            timestamp_us: self.timestamps[self.current],
+        })
+    }
+    fn write_dac(&mut self, _word: u16) {}
+    fn arm_watchdog(&mut self, _timeout_us: u32) {}
+    fn kick_watchdog(&mut self) {}
+    fn true_force(&self) -> f64 {
+        self.f_true.get(self.current).copied().unwrap_or(f64::NAN)
+    }
+    fn name(&self) -> &'static str {
+        "replay"
+    }
+}

@@ -1,0 +1,148 @@
+//! The run configuration: a TOML file (`--config`) whose every field has a default; command
+//! line flags override it. The whole resolved configuration goes into the run metadata.
+
+use crate::board::sim::SimConfig;
+use crate::clock::RealtimeConfig;
+use crate::experiment::{RampConfig, ReproductionConfig};
+use crate::features::FeatureParams;
+use crate::hand::HandConfig;
+use crate::params::LoopParams;
+use crate::record::Format;
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum ExperimentKind {
+    Abstraction,
+    PositionReplay,
+    Reproduction,
+    Shadow,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum ClockKind {
+    Lockstep,
+    Realtime,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum BoardKind {
+    Sim,
+    Replay,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RunConfig {
+    pub experiment: ExperimentKind,
+    pub board: BoardKind,
+    /// Recording the replay board plays back.
+    pub replay: Option<PathBuf>,
+    pub clock: ClockKind,
+    pub rate_hz: f64,
+    pub seed: u64,
+    pub material: PathBuf,
+    /// Where to record (none: run without recording).
+    pub record: Option<PathBuf>,
+    /// Parquet unless set (or the record path ends in .csv).
+    pub format: Option<Format>,
+    /// Record every N-th step (1 = every step, lossless).
+    pub decimate: u32,
+    /// Rows the loop-to-recorder ring holds.
+    pub queue_capacity: usize,
+    /// Stop after this much loop time, s.
+    pub max_duration_s: Option<f64>,
+    /// Recorded trajectory for position replay.
+    pub trajectory: Option<PathBuf>,
+    pub ramp: RampConfig,
+    pub params: LoopParams,
+    pub sim: SimConfig,
+    pub hand: HandConfig,
+    pub features: FeatureParams,
+    pub reproduction: ReproductionConfig,
+    pub realtime: RealtimeConfig,
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        RunConfig {
+            experiment: ExperimentKind::Abstraction,
+            board: BoardKind::Sim,
+            replay: None,
+            clock: ClockKind::Lockstep,
+            rate_hz: 10_000.0,
+            seed: 1,
+            material: PathBuf::from("materials/sponge.toml"),
+            record: None,
+            format: None,
+            decimate: 1,
+            queue_capacity: 1 << 16,
+            max_duration_s: None,
+            trajectory: None,
+            ramp: RampConfig::default(),
+            params: LoopParams::default(),
+            sim: SimConfig::default(),
+            hand: HandConfig::default(),
+            features: FeatureParams::default(),
+            reproduction: ReproductionConfig::default(),
+            realtime: RealtimeConfig::default(),
+        }
+    }
+}
+
+impl RunConfig {
+    pub fn from_toml(text: &str) -> anyhow::Result<RunConfig> {
+        Ok(toml::from_str(text)?)
+    }
+
+    pub fn load(path: &std::path::Path) -> anyhow::Result<RunConfig> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| anyhow::anyhow!("cannot read config {}: {e}", path.display()))?;
+        RunConfig::from_toml(&text).map_err(|e| anyhow::anyhow!("config {}: {e}", path.display()))
+    }
+
+    pub fn format(&self) -> Format {
+        self.format.unwrap_or_else(|| {
+            self.record
+                .as_deref()
+                .map_or(Format::Parquet, Format::from_path)
+        })
+    }
+
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.rate_hz.is_finite() && self.rate_hz >= 10.0 && self.rate_hz <= 100_000.0) {
+            return Err(format!(
+                "rate must be within 10..100000 Hz (got {})",
+                self.rate_hz
+            ));
+        }
+        if self.decimate == 0 {
+            return Err("decimate must be >= 1".into());
+        }
+        if let Some(d) = self.max_duration_s {
+            if !(d.is_finite() && d > 0.0) {
+                return Err("max_duration_s must be > 0".into());
+            }
+        }
+        if self.board == BoardKind::Replay && self.replay.is_none() {
+            return Err("the replay board needs a recording (--replay PATH)".into());
+        }
+        if self.experiment == ExperimentKind::PositionReplay && self.trajectory.is_none() {
+            return Err("position replay needs a trajectory (--trajectory RECORDING)".into());
+        }
+        if self.params.meters_per_count != self.sim.meters_per_count
+            || self.params.dac_full_scale != self.sim.dac_full_scale
+        {
+            return Err("params and sim disagree on the encoder or DAC scale".into());
+        }
+        self.params.validate()?;
+        self.ramp.validate()?;
+        self.sim.validate()?;
+        self.hand.validate()?;
+        self.features.validate()?;
+        Ok(())
+    }
+}

@@ -1,0 +1,446 @@
+//! The experiments of SPEC section 4: abstraction ramp cycles, position-control replay of a
+//! recorded trajectory, reproduction against a simulated hand (and its shadow variant).
+//! Schedules are built before the run; looking them up in the step allocates nothing.
+
+use crate::features::Features;
+use crate::filters::{Estimate, PseudoDerivative};
+use crate::model::{ForceModel, SpringDamper};
+use crate::params::LoopParams;
+use serde::{Deserialize, Serialize};
+
+/// The `phase` column.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Phase {
+    HoldZero = 0,
+    RampUp = 1,
+    HoldMax = 2,
+    RampDown = 3,
+    Position = 4,
+    Reproduction = 5,
+    Done = 6,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RampConfig {
+    /// N/s, both up and down.
+    pub ramp_rate: f64,
+    pub cycles: u32,
+    pub f_max_start: f64,
+    pub f_max_step: f64,
+    /// F_max never exceeds this, N.
+    pub f_max_limit: f64,
+    /// Hold at 0 N before each cycle's ramp, s.
+    pub hold_zero_s: f64,
+    /// Hold at F_max, s.
+    pub hold_max_s: f64,
+    /// Hold at 0 N after the last cycle, s.
+    pub final_hold_s: f64,
+}
+
+impl Default for RampConfig {
+    fn default() -> Self {
+        RampConfig {
+            ramp_rate: 0.8,
+            cycles: 14,
+            f_max_start: 1.0,
+            f_max_step: 1.0,
+            f_max_limit: 14.0,
+            hold_zero_s: 1.5,
+            hold_max_s: 1.0,
+            final_hold_s: 1.5,
+        }
+    }
+}
+
+impl RampConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.ramp_rate.is_finite() && self.ramp_rate > 0.0) {
+            return Err(format!(
+                "ramp rate must be > 0 N/s (got {})",
+                self.ramp_rate
+            ));
+        }
+        if self.cycles == 0 {
+            return Err("cycles must be >= 1".into());
+        }
+        for (n, v) in [
+            ("f_max_start", self.f_max_start),
+            ("f_max_step", self.f_max_step),
+            ("f_max_limit", self.f_max_limit),
+            ("hold_zero_s", self.hold_zero_s),
+            ("hold_max_s", self.hold_max_s),
+            ("final_hold_s", self.final_hold_s),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("{n} must be >= 0 (got {v})"));
+            }
+        }
+        if self.f_max_limit > 15.0 {
+            return Err("f_max_limit above 15 N exceeds the motor's continuous force".into());
+        }
+        Ok(())
+    }
+
+    pub fn f_max(&self, cycle: u32) -> f64 {
+        (self.f_max_start + self.f_max_step * cycle as f64).min(self.f_max_limit)
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Segment {
+    t0: f64,
+    t1: f64,
+    f0: f64,
+    f1: f64,
+    phase: Phase,
+}
+
+/// The piecewise-linear force command of the abstraction phase.
+#[derive(Clone, Debug)]
+pub struct RampSchedule {
+    segs: Vec<Segment>,
+    cursor: usize,
+}
+
+impl RampSchedule {
+    pub fn new(c: &RampConfig) -> Self {
+        let mut segs = Vec::new();
+        let mut t = 0.0;
+        let mut push = |segs: &mut Vec<Segment>, len: f64, f0: f64, f1: f64, phase| {
+            segs.push(Segment {
+                t0: t,
+                t1: t + len,
+                f0,
+                f1,
+                phase,
+            });
+            t += len;
+        };
+        for k in 0..c.cycles {
+            let fm = c.f_max(k);
+            push(&mut segs, c.hold_zero_s, 0.0, 0.0, Phase::HoldZero);
+            push(&mut segs, fm / c.ramp_rate, 0.0, fm, Phase::RampUp);
+            push(&mut segs, c.hold_max_s, fm, fm, Phase::HoldMax);
+            push(&mut segs, fm / c.ramp_rate, fm, 0.0, Phase::RampDown);
+        }
+        push(&mut segs, c.final_hold_s, 0.0, 0.0, Phase::HoldZero);
+        RampSchedule { segs, cursor: 0 }
+    }
+
+    pub fn duration(&self) -> f64 {
+        self.segs.last().map_or(0.0, |s| s.t1)
+    }
+
+    /// Command at time `t` (s since the run started); times only move forward, so the lookup
+    /// walks a cursor.
+    #[inline]
+    pub fn at(&mut self, t: f64) -> (Phase, f64) {
+        while self.cursor < self.segs.len() && t >= self.segs[self.cursor].t1 {
+            self.cursor += 1;
+        }
+        match self.segs.get(self.cursor) {
+            None => (Phase::Done, 0.0),
+            Some(s) => {
+                let u = if s.t1 > s.t0 {
+                    (t - s.t0) / (s.t1 - s.t0)
+                } else {
+                    1.0
+                };
+                (s.phase, s.f0 + (s.f1 - s.f0) * u.clamp(0.0, 1.0))
+            }
+        }
+    }
+}
+
+/// A recorded position trajectory x(t), linearly interpolated.
+#[derive(Clone, Debug)]
+pub struct Trajectory {
+    t: Vec<f64>,
+    x: Vec<f64>,
+    cursor: usize,
+}
+
+impl Trajectory {
+    pub fn new(t: Vec<f64>, x: Vec<f64>) -> Result<Self, String> {
+        if t.len() != x.len() || t.len() < 2 {
+            return Err("a trajectory needs at least two (time, position) samples".into());
+        }
+        if t.windows(2).any(|w| !(w[1] >= w[0])) || x.iter().any(|v| !v.is_finite()) {
+            return Err("trajectory time must be non-decreasing and positions finite".into());
+        }
+        Ok(Trajectory { t, x, cursor: 0 })
+    }
+
+    /// Loads `time` and `position_x` from a recording.
+    pub fn from_recording(path: &std::path::Path) -> anyhow::Result<Self> {
+        let mut cols = crate::record::read::read_columns(path, &["time", "position_x"])?;
+        let x = cols.pop().unwrap_or_default();
+        let t = cols.pop().unwrap_or_default();
+        Trajectory::new(t, x).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    }
+
+    pub fn duration(&self) -> f64 {
+        self.t.last().copied().unwrap_or(0.0) - self.t[0]
+    }
+
+    pub fn max_abs(&self) -> f64 {
+        self.x.iter().fold(0.0, |m, v| m.max(v.abs()))
+    }
+
+    /// Position at `t` seconds after the trajectory's start; `None` past its end.
+    #[inline]
+    pub fn at(&mut self, t: f64) -> Option<f64> {
+        let t = t + self.t[0];
+        let last = self.t.len() - 1;
+        if t > self.t[last] {
+            return None;
+        }
+        while self.cursor + 1 < last && self.t[self.cursor + 1] <= t {
+            self.cursor += 1;
+        }
+        let (t0, t1) = (self.t[self.cursor], self.t[self.cursor + 1]);
+        let (x0, x1) = (self.x[self.cursor], self.x[self.cursor + 1]);
+        if t1 > t0 {
+            Some(x0 + (x1 - x0) * ((t - t0) / (t1 - t0)).clamp(0.0, 1.0))
+        } else {
+            Some(x1)
+        }
+    }
+}
+
+/// Position PID of the thesis's validation (current = PID * M_n / K_fn, plus the DOB's
+/// disturbance estimate when `pid_dob`).
+#[derive(Clone, Debug)]
+pub struct PositionPid {
+    ref_vel: PseudoDerivative,
+    integ: f64,
+}
+
+impl PositionPid {
+    pub fn new(p: &LoopParams) -> Self {
+        PositionPid {
+            ref_vel: PseudoDerivative::new(p.g_v),
+            integ: 0.0,
+        }
+    }
+
+    /// Current before the clamp.
+    #[inline]
+    pub fn current(&mut self, x_ref: f64, dt: f64, est: &Estimate, p: &LoopParams) -> f64 {
+        let e = x_ref - est.x;
+        // Reference velocity through the same pseudo-derivative as the measured one, so the D
+        // term compares like with like.
+        let v_ref = self.ref_vel.update(x_ref, dt);
+        self.integ += e * dt;
+        let acc = p.pid_p * e + p.pid_d * (v_ref - est.v) + p.pid_i * self.integ;
+        let dob = if p.pid_dob { est.f_dis / p.k_fn } else { 0.0 };
+        acc * p.m_n / p.k_fn + dob
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ReproductionConfig {
+    /// Predictions outside [-max_force_n, max_force_n] are rejected (fallback used), N.
+    pub max_force_n: f64,
+    /// The fallback law (and the built-in model).
+    pub fallback: SpringDamper,
+}
+
+impl Default for ReproductionConfig {
+    fn default() -> Self {
+        ReproductionConfig {
+            max_force_n: 20.0,
+            fallback: SpringDamper::default(),
+        }
+    }
+}
+
+/// Counters of the model hook.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct ModelStats {
+    pub served: u64,
+    pub fallbacks: u64,
+}
+
+/// What the loop should do this step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Command {
+    /// Force control toward F_cmd (N).
+    Force(f64),
+    /// Position control toward x_ref (m).
+    Position(f64),
+    /// The experiment is over.
+    Done,
+}
+
+/// The output of an experiment for one step.
+#[derive(Clone, Copy, Debug)]
+pub struct Decision {
+    pub phase: Phase,
+    pub command: Command,
+    pub f_pred: f64,
+    pub fallback: bool,
+    /// The force the features take as "the step's force" (F_res, or F_pred in reproduction).
+    pub feature_force: f64,
+}
+
+pub enum Experiment {
+    Abstraction(RampSchedule),
+    PositionReplay {
+        trajectory: Trajectory,
+        pid: PositionPid,
+    },
+    /// Reproduction (`shadow = false`): no object, the motor renders F_cmd = -F_pred against
+    /// the hand. Shadow (`shadow = true`): the hand presses the real (simulated) sponge through
+    /// a transparent motor (F_cmd = 0) while the model predicts alongside.
+    Reproduction {
+        model: Box<dyn ForceModel>,
+        cfg: ReproductionConfig,
+        duration: f64,
+        shadow: bool,
+        stats: ModelStats,
+    },
+}
+
+impl Experiment {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Experiment::Abstraction(_) => "abstraction",
+            Experiment::PositionReplay { .. } => "position-replay",
+            Experiment::Reproduction { shadow: false, .. } => "reproduction",
+            Experiment::Reproduction { shadow: true, .. } => "shadow",
+        }
+    }
+
+    pub fn duration(&self) -> f64 {
+        match self {
+            Experiment::Abstraction(s) => s.duration(),
+            Experiment::PositionReplay { trajectory, .. } => trajectory.duration(),
+            Experiment::Reproduction { duration, .. } => *duration,
+        }
+    }
+
+    pub fn model_stats(&self) -> Option<ModelStats> {
+        match self {
+            Experiment::Reproduction { stats, .. } => Some(*stats),
+            _ => None,
+        }
+    }
+
+    /// Decides the step. Runs on the loop thread: no allocation (the model hook is required
+    /// to allocate nothing either).
+    #[inline]
+    pub fn decide(&mut self, step: u64, time: f64, est: &Estimate, feats: &Features) -> Decision {
+        match self {
+            Experiment::Abstraction(s) => {
+                let (phase, f) = s.at(time);
+                Decision {
+                    phase,
+                    command: if phase == Phase::Done {
+                        Command::Done
+                    } else {
+                        Command::Force(f)
+                    },
+                    f_pred: f64::NAN,
+                    fallback: false,
+                    feature_force: est.f_ext,
+                }
+            }
+            Experiment::PositionReplay { trajectory, .. } => {
+                let (phase, command) = match trajectory.at(time) {
+                    Some(x) => (Phase::Position, Command::Position(x)),
+                    None => (Phase::Done, Command::Done),
+                };
+                Decision {
+                    phase,
+                    command,
+                    f_pred: f64::NAN,
+                    fallback: false,
+                    feature_force: est.f_ext,
+                }
+            }
+            Experiment::Reproduction {
+                model,
+                cfg,
+                duration,
+                shadow,
+                stats,
+            } => {
+                if time >= *duration {
+                    return Decision {
+                        phase: Phase::Done,
+                        command: Command::Done,
+                        f_pred: f64::NAN,
+                        fallback: false,
+                        feature_force: 0.0,
+                    };
+                }
+                let served = model.predict(step, feats);
+                let (f_pred, fallback) = match served {
+                    Some(f) if f.is_finite() && f.abs() <= cfg.max_force_n => (f, false),
+                    _ => (cfg.fallback.eval(feats.position_x, feats.velocity), true),
+                };
+                if fallback {
+                    stats.fallbacks += 1;
+                } else {
+                    stats.served += 1;
+                }
+                Decision {
+                    phase: Phase::Reproduction,
+                    command: Command::Force(if *shadow { 0.0 } else { -f_pred }),
+                    f_pred,
+                    fallback,
+                    feature_force: f_pred,
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ramp_schedule_shape() {
+        let c = RampConfig {
+            ramp_rate: 2.0,
+            cycles: 3,
+            f_max_start: 1.0,
+            f_max_step: 1.0,
+            f_max_limit: 14.0,
+            hold_zero_s: 1.0,
+            hold_max_s: 0.5,
+            final_hold_s: 1.0,
+        };
+        let mut s = RampSchedule::new(&c);
+        // 3 cycles: holds 3*1 + 3*0.5 + ramps 2*(1+2+3)/2 = 6 + final 1
+        assert!((s.duration() - (3.0 + 1.5 + 6.0 + 1.0)).abs() < 1e-12);
+        assert_eq!(s.at(0.5), (Phase::HoldZero, 0.0));
+        let (p, f) = s.at(1.25);
+        assert_eq!(p, Phase::RampUp);
+        assert!((f - 0.5).abs() < 1e-12);
+        assert_eq!(s.at(1.6).0, Phase::HoldMax);
+        let (p, f) = s.at(2.25);
+        assert_eq!(p, Phase::RampDown);
+        assert!((f - 0.5).abs() < 1e-12);
+        // cycle 2 peaks at 2 N
+        let (p, f) = s.at(3.0 + 1.0 + 1.0);
+        assert_eq!(p, Phase::RampUp);
+        assert!((f - 2.0).abs() < 1e-9);
+        assert_eq!(s.at(100.0).0, Phase::Done);
+    }
+
+    #[test]
+    fn trajectory_interpolates_and_ends() {
+        let mut t = Trajectory::new(vec![10.0, 11.0, 12.0], vec![0.0, 0.01, 0.0]).unwrap();
+        assert_eq!(t.at(0.0), Some(0.0));
+        assert!((t.at(0.5).unwrap() - 0.005).abs() < 1e-12);
+        assert!((t.at(1.5).unwrap() - 0.005).abs() < 1e-12);
+        assert_eq!(t.at(2.5), None);
+        assert!(Trajectory::new(vec![1.0, 0.0], vec![0.0, 0.0]).is_err());
+    }
+}

@@ -1,0 +1,285 @@
+//! The nine features of SPEC section 5 (thesis Table 3.1), computed the same way online (one
+//! call pair per loop step, no allocation) and offline (over a recording or an imported series,
+//! by the very same code).
+//!
+//! Per step t: `begin(x, v, a)` gives the feature vector from the current kinematics and the
+//! force committed at t-1; `commit(x, F)` then hands it the step's force (F_res, or the model's
+//! own prediction in reproduction), which drives the ratios of the next step and the cycle
+//! segmentation.
+//!
+//! Rules:
+//! - `f_previous_*` = F(t-1) / divisor; on a divisor exactly 0 the ratio keeps its previous
+//!   value (thesis code); before the first committed force all three are 0.
+//! - Cycle segmentation uses the force with hysteresis thresholds: a cycle becomes "loaded"
+//!   when F rises above `contact_on_n` and ends on the step F falls below `contact_off_n`. At
+//!   that step the cycle's F-x loop area (trapezoid integral of F dx since the previous cycle
+//!   end: positive for a dissipative loop) and its permanent deformation (x at the release
+//!   crossing: where the object stops pushing back) become the `area_fx` / `deformation`
+//!   features, and `cycle_no` counts up. Cycle 1 has deformation 0 and area 0.
+
+use serde::{Deserialize, Serialize};
+
+/// The feature names in the order of thesis Table 3.1 (and of [`Features::as_array`]).
+pub const FEATURE_NAMES: [&str; 9] = [
+    "position_x",
+    "velocity",
+    "acceleration",
+    "f_previous_x",
+    "f_previous_v",
+    "f_previous_a",
+    "cycle_no",
+    "deformation",
+    "area_fx",
+];
+
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[repr(C)]
+pub struct Features {
+    pub position_x: f64,
+    pub velocity: f64,
+    pub acceleration: f64,
+    pub f_previous_x: f64,
+    pub f_previous_v: f64,
+    pub f_previous_a: f64,
+    pub cycle_no: u32,
+    pub deformation: f64,
+    pub area_fx: f64,
+}
+
+impl Features {
+    /// The nine values as f64 in [`FEATURE_NAMES`] order (what a model client copies into its
+    /// input slot).
+    #[inline]
+    pub fn as_array(&self) -> [f64; 9] {
+        [
+            self.position_x,
+            self.velocity,
+            self.acceleration,
+            self.f_previous_x,
+            self.f_previous_v,
+            self.f_previous_a,
+            self.cycle_no as f64,
+            self.deformation,
+            self.area_fx,
+        ]
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FeatureParams {
+    /// Force above which a cycle counts as loaded, N.
+    pub contact_on_n: f64,
+    /// Force below which a loaded cycle ends, N.
+    pub contact_off_n: f64,
+}
+
+impl Default for FeatureParams {
+    fn default() -> Self {
+        FeatureParams {
+            contact_on_n: 0.5,
+            contact_off_n: 0.25,
+        }
+    }
+}
+
+impl FeatureParams {
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.contact_off_n.is_finite()
+            && self.contact_on_n.is_finite()
+            && self.contact_off_n < self.contact_on_n)
+        {
+            return Err("features.contact_off_n must be below features.contact_on_n".into());
+        }
+        Ok(())
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct FeatureExtractor {
+    p: FeatureParams,
+    prev_force: f64,
+    has_prev: bool,
+    f_px: f64,
+    f_pv: f64,
+    f_pa: f64,
+    cycle_no: u32,
+    deformation: f64,
+    area: f64,
+    loaded: bool,
+    area_acc: f64,
+    seg_x: f64,
+    seg_f: f64,
+}
+
+impl FeatureExtractor {
+    pub fn new(p: FeatureParams) -> Self {
+        FeatureExtractor {
+            p,
+            prev_force: 0.0,
+            has_prev: false,
+            f_px: 0.0,
+            f_pv: 0.0,
+            f_pa: 0.0,
+            cycle_no: 1,
+            deformation: 0.0,
+            area: 0.0,
+            loaded: false,
+            area_acc: 0.0,
+            seg_x: 0.0,
+            seg_f: 0.0,
+        }
+    }
+
+    /// Features of this step from its kinematics and the force committed last step.
+    #[inline]
+    pub fn begin(&mut self, x: f64, v: f64, a: f64) -> Features {
+        if self.has_prev {
+            let f = self.prev_force;
+            if x != 0.0 {
+                self.f_px = f / x;
+            }
+            if v != 0.0 {
+                self.f_pv = f / v;
+            }
+            if a != 0.0 {
+                self.f_pa = f / a;
+            }
+        }
+        Features {
+            position_x: x,
+            velocity: v,
+            acceleration: a,
+            f_previous_x: self.f_px,
+            f_previous_v: self.f_pv,
+            f_previous_a: self.f_pa,
+            cycle_no: self.cycle_no,
+            deformation: self.deformation,
+            area_fx: self.area,
+        }
+    }
+
+    /// Hands over this step's force (at position `x`).
+    #[inline]
+    pub fn commit(&mut self, x: f64, force: f64) {
+        // A NaN force (e.g. an imported gap) must not poison the loop area for good.
+        let f = if force.is_finite() { force } else { 0.0 };
+        if self.has_prev {
+            self.area_acc += 0.5 * (f + self.seg_f) * (x - self.seg_x);
+        }
+        if !self.loaded && f > self.p.contact_on_n {
+            self.loaded = true;
+        } else if self.loaded && f < self.p.contact_off_n {
+            self.loaded = false;
+            self.area = self.area_acc;
+            self.deformation = x;
+            self.area_acc = 0.0;
+            self.cycle_no += 1;
+        }
+        self.seg_x = x;
+        self.seg_f = f;
+        self.prev_force = force;
+        self.has_prev = true;
+    }
+
+    pub fn cycle_no(&self) -> u32 {
+        self.cycle_no
+    }
+}
+
+/// One row of offline kinematics and features.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct OfflineRow {
+    pub velocity: f64,
+    pub acceleration: f64,
+    pub features: Features,
+}
+
+/// Offline computation over a whole series (position m, period s, force N), with the same
+/// pseudo-derivative filters and feature code as the loop. `dt[0]` is ignored (the loop's
+/// first step has no period).
+pub fn compute_offline(
+    x: &[f64],
+    dt: &[f64],
+    force: &[f64],
+    g_v: f64,
+    g_a: f64,
+    p: &FeatureParams,
+) -> Vec<OfflineRow> {
+    let mut kin = crate::filters::Kinematics::new(g_v, g_a);
+    let mut fx = FeatureExtractor::new(p.clone());
+    let mut out = Vec::with_capacity(x.len());
+    for i in 0..x.len() {
+        let d = if i == 0 { 0.0 } else { dt[i] };
+        let (v, a) = kin.update(x[i], d);
+        let features = fx.begin(x[i], v, a);
+        fx.commit(x[i], force[i]);
+        out.push(OfflineRow {
+            velocity: v,
+            acceleration: a,
+            features,
+        });
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ratios_hold_last_value_on_zero_divisors() {
+        let mut fx = FeatureExtractor::new(FeatureParams::default());
+        let f0 = fx.begin(0.0, 0.0, 0.0);
+        assert_eq!(
+            (f0.f_previous_x, f0.f_previous_v, f0.f_previous_a),
+            (0.0, 0.0, 0.0)
+        );
+        fx.commit(0.0, 2.0);
+        let f1 = fx.begin(0.01, 0.5, 4.0);
+        assert_eq!(f1.f_previous_x, 2.0 / 0.01);
+        assert_eq!(f1.f_previous_v, 2.0 / 0.5);
+        assert_eq!(f1.f_previous_a, 2.0 / 4.0);
+        fx.commit(0.01, 3.0);
+        let f2 = fx.begin(0.0, 0.0, -2.0);
+        assert_eq!(f2.f_previous_x, 200.0, "held");
+        assert_eq!(f2.f_previous_v, 4.0, "held");
+        assert_eq!(f2.f_previous_a, 3.0 / -2.0, "updated");
+    }
+
+    /// A synthetic loop: load along F = k x, unload along F = k (x - d) (a set d). The area
+    /// is the exact parallelogram-ish region, the deformation is d, the cycle counts up.
+    #[test]
+    fn cycle_area_and_deformation_of_a_known_loop() {
+        let mut fx = FeatureExtractor::new(FeatureParams::default());
+        let (k, xm, d) = (500.0, 0.02, 0.004);
+        let n = 10_000;
+        let mut feed = |x: f64, f: f64| {
+            let feats = fx.begin(x, 0.0, 0.0);
+            fx.commit(x, f);
+            feats
+        };
+        for i in 0..=n {
+            let x = xm * i as f64 / n as f64;
+            feed(x, k * x);
+        }
+        for i in 0..=n {
+            let x = xm - (xm - d) * i as f64 / n as f64;
+            feed(x, (k * (x - d)).max(0.0));
+        }
+        let after = feed(d, 0.0);
+        assert_eq!(after.cycle_no, 2);
+        // area = 1/2 k xm^2 - 1/2 k (xm - d)^2 (loading work minus returned work)
+        // ... up to the release crossing at x = d + 0.25 / k, where the cycle closes
+        let tail = 0.25 / k;
+        let exact = 0.5 * k * xm * xm - 0.5 * k * (xm - d) * (xm - d) + 0.5 * k * tail * tail;
+        assert!(
+            (after.area_fx - exact).abs() < 1e-3 * exact,
+            "{} vs {exact}",
+            after.area_fx
+        );
+        // the cycle ends where F drops under 0.25 N: x = d + 0.25 / k
+        assert!((after.deformation - (d + 0.25 / k)).abs() < 1e-5);
+        assert!(after.area_fx > 0.0);
+    }
+}

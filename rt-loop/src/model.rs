@@ -1,0 +1,159 @@
+//! The force model hook of reproduction (SPEC section 4): each step the loop asks a
+//! [`ForceModel`] for F_pred from the step's features and renders `F_cmd = -F_pred`.
+//!
+//! The built-in model is a fitted second-order spring-damper law ([`SpringDamper`]), which is
+//! also the fallback the loop uses whenever a served prediction is missing, late, NaN/Inf or
+//! out of range (DESIGN.md: "the loop never trusts the server").
+//!
+//! Plugging in the inference server (issue 4): implement `ForceModel` for a shared-memory
+//! client that, in `predict`, writes `features.as_array()` with the step number into the
+//! features ring and waits (spin or spin-then-park, bounded by its own deadline) for the slot
+//! tagged with the same step in the force ring; it returns `None` on timeout or a stale tag.
+//! Nothing else in the loop changes. `predict` runs on the loop thread, so an implementation
+//! must not allocate, lock or do I/O, and must bound its wait.
+
+use crate::features::Features;
+use serde::{Deserialize, Serialize};
+
+pub trait ForceModel: Send {
+    /// Short name for the run metadata and the summary.
+    fn name(&self) -> &str;
+    /// Predicted reaction force (N, positive = the virtual object pushes back) for step
+    /// `step` from its features; `None` when no prediction is available in time.
+    fn predict(&mut self, step: u64, features: &Features) -> Option<f64>;
+}
+
+/// `F = k1 x + k2 x^2 + b v` while in contact (x > 0), never pulling (F >= 0).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpringDamper {
+    pub k1: f64,
+    pub k2: f64,
+    pub b: f64,
+}
+
+impl Default for SpringDamper {
+    /// Fitted to a 1.8 N/s abstraction recording of `materials/sponge.toml` with
+    /// `rt-loop fit` (see docs/rt-loop.md).
+    fn default() -> Self {
+        SpringDamper {
+            k1: 120.0,
+            k2: 12_000.0,
+            b: 20.0,
+        }
+    }
+}
+
+impl SpringDamper {
+    #[inline]
+    pub fn eval(&self, x: f64, v: f64) -> f64 {
+        if x <= 0.0 {
+            return 0.0;
+        }
+        (self.k1 * x + self.k2 * x * x + self.b * v).max(0.0)
+    }
+
+    /// Least-squares fit of (k1, k2, b) on the samples in contact (x > 0, finite force).
+    pub fn fit(x: &[f64], v: &[f64], f: &[f64]) -> Result<SpringDamper, String> {
+        let mut ata = [[0.0f64; 3]; 3];
+        let mut atb = [0.0f64; 3];
+        let mut n = 0usize;
+        for i in 0..x.len().min(v.len()).min(f.len()) {
+            if !(x[i] > 0.0 && f[i].is_finite() && v[i].is_finite()) {
+                continue;
+            }
+            let row = [x[i], x[i] * x[i], v[i]];
+            for r in 0..3 {
+                for c in 0..3 {
+                    ata[r][c] += row[r] * row[c];
+                }
+                atb[r] += row[r] * f[i];
+            }
+            n += 1;
+        }
+        if n < 10 {
+            return Err(format!(
+                "only {n} samples in contact: cannot fit a spring-damper"
+            ));
+        }
+        let sol = solve3(ata, atb).ok_or("singular fit (no motion in the data?)")?;
+        Ok(SpringDamper {
+            k1: sol[0],
+            k2: sol[1],
+            b: sol[2],
+        })
+    }
+}
+
+fn solve3(mut a: [[f64; 3]; 3], mut b: [f64; 3]) -> Option<[f64; 3]> {
+    // Column-scaled Gaussian elimination with partial pivoting.
+    for col in 0..3 {
+        let piv = (col..3).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
+        if a[piv][col].abs() < 1e-300 {
+            return None;
+        }
+        a.swap(col, piv);
+        b.swap(col, piv);
+        for r in col + 1..3 {
+            let k = a[r][col] / a[col][col];
+            for c in col..3 {
+                a[r][c] -= k * a[col][c];
+            }
+            b[r] -= k * b[col];
+        }
+    }
+    let mut x = [0.0; 3];
+    for r in (0..3).rev() {
+        let mut s = b[r];
+        for c in r + 1..3 {
+            s -= a[r][c] * x[c];
+        }
+        x[r] = s / a[r][r];
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+/// The built-in model as a served model: the spring-damper law on the features.
+#[derive(Clone, Debug)]
+pub struct SpringDamperModel(pub SpringDamper);
+
+impl ForceModel for SpringDamperModel {
+    fn name(&self) -> &str {
+        "spring-damper"
+    }
+    #[inline]
+    fn predict(&mut self, _step: u64, f: &Features) -> Option<f64> {
+        Some(self.0.eval(f.position_x, f.velocity))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fit_recovers_known_coefficients() {
+        let truth = SpringDamper {
+            k1: 150.0,
+            k2: 9000.0,
+            b: 12.0,
+        };
+        let mut x = vec![];
+        let mut v = vec![];
+        let mut f = vec![];
+        for i in 0..2000 {
+            let t = i as f64 * 0.01;
+            let xi = 0.015 + 0.012 * (t * 0.7).sin();
+            let vi = 0.012 * 0.7 * (t * 0.7).cos();
+            x.push(xi);
+            v.push(vi);
+            f.push(truth.eval(xi, vi));
+        }
+        let fit = SpringDamper::fit(&x, &v, &f).unwrap();
+        assert!((fit.k1 - truth.k1).abs() < 1e-6 * truth.k1.abs() + 1e-6);
+        assert!((fit.k2 - truth.k2).abs() < 1e-6 * truth.k2);
+        assert!((fit.b - truth.b).abs() < 1e-6 * truth.b);
+        assert!(SpringDamper::fit(&[0.0; 5], &[0.0; 5], &[0.0; 5]).is_err());
+        assert_eq!(truth.eval(-0.01, 1.0), 0.0);
+    }
+}

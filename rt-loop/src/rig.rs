@@ -1,0 +1,169 @@
+//! The loop step of SPEC section 3, exactly as the thesis code runs it, plus the experiment's
+//! command, the online features and the safety checks.
+//!
+//! REAL-TIME PATH: [`Rig::step`] allocates nothing, takes no lock and does no I/O (beyond the
+//! board's own register access). Everything it touches is built in [`Rig::new`]. A test binary
+//! with a counting global allocator (tests/alloc_free_step.rs) holds it to that.
+
+use crate::board::{Board, BoardStop};
+use crate::dac;
+use crate::experiment::{Command, Experiment, Phase};
+use crate::features::{FeatureExtractor, FeatureParams};
+use crate::filters::Estimator;
+use crate::params::LoopParams;
+use crate::record::row::Row;
+
+/// Why the loop stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stop {
+    /// The experiment (or the replayed data) ended.
+    Finished,
+    /// |x| reached the position limit: current set to 0, run aborted.
+    PositionLimit,
+    /// The board reported a fault: current set to 0, run aborted.
+    BoardFault(&'static str),
+    /// The watchdog fired (the loop was not kicking it in time).
+    Watchdog,
+}
+
+pub struct Rig<B: Board> {
+    pub board: B,
+    pub params: LoopParams,
+    pub experiment: Experiment,
+    est: Estimator,
+    features: FeatureExtractor,
+    step: u64,
+    t_prev_us: u32,
+    time: f64,
+    i_motor: f64,
+    started: bool,
+}
+
+impl<B: Board> Rig<B> {
+    pub fn new(
+        mut board: B,
+        params: LoopParams,
+        experiment: Experiment,
+        feature_params: FeatureParams,
+    ) -> Self {
+        board.write_dac(32768);
+        board.arm_watchdog(params.watchdog_us);
+        Rig {
+            est: Estimator::new(&params),
+            features: FeatureExtractor::new(feature_params),
+            board,
+            params,
+            experiment,
+            step: 0,
+            t_prev_us: 0,
+            time: 0.0,
+            i_motor: 0.0,
+            started: false,
+        }
+    }
+
+    pub fn steps(&self) -> u64 {
+        self.step
+    }
+
+    /// Commands zero current (used on every stop).
+    pub fn safe_stop(&mut self) {
+        self.board.write_dac(32768);
+        self.i_motor = 0.0;
+    }
+
+    /// One control step. On `Err` the current has already been set to zero.
+    #[inline]
+    pub fn step(&mut self) -> Result<Row, Stop> {
+        let snap = match self.board.snapshot() {
+            Ok(s) => s,
+            Err(BoardStop::EndOfData) => {
+                self.safe_stop();
+                return Err(Stop::Finished);
+            }
+            Err(BoardStop::Fault(m)) => {
+                self.safe_stop();
+                return Err(Stop::BoardFault(m));
+            }
+        };
+        if self.board.watchdog_tripped() {
+            self.safe_stop();
+            return Err(Stop::Watchdog);
+        }
+        let p = &self.params;
+        // dt from the wrapping 32-bit microsecond counter: wrapping_sub is right across a wrap.
+        let dt = if self.started {
+            snap.timestamp_us.wrapping_sub(self.t_prev_us) as f64 * 1e-6
+        } else {
+            0.0
+        };
+        self.started = true;
+        self.t_prev_us = snap.timestamp_us;
+        self.time += dt;
+        let x = snap.counts as f64 * p.meters_per_count;
+        // Observers use the current applied during the period that just ended.
+        let est = self.est.update(x, dt, self.i_motor);
+        let feats = self.features.begin(est.x, est.v, est.a);
+        if x.abs() >= p.position_limit {
+            self.safe_stop();
+            return Err(Stop::PositionLimit);
+        }
+        let d = self.experiment.decide(self.step, self.time, &est, &feats);
+        let (f_ref, i_ref) = match d.command {
+            Command::Force(f_cmd) => {
+                let i_ref = p.k_p * (f_cmd - est.f_ext) * p.m_n / p.k_fn;
+                (f_cmd, i_ref + est.f_dis / p.k_fn)
+            }
+            Command::Position(x_ref) => match &mut self.experiment {
+                Experiment::PositionReplay { pid, .. } => {
+                    (f64::NAN, pid.current(x_ref, dt, &est, p))
+                }
+                _ => (f64::NAN, 0.0),
+            },
+            Command::Done => {
+                self.safe_stop();
+                return Err(Stop::Finished);
+            }
+        };
+        // Never beyond the clamp; a NaN command becomes 0 A.
+        let i_cmd = if i_ref.is_nan() {
+            0.0
+        } else {
+            i_ref.clamp(-p.current_limit, p.current_limit)
+        };
+        let word = dac::current_to_word(i_cmd, p.dac_full_scale);
+        self.i_motor = dac::word_to_current(word, p.dac_full_scale);
+        self.board.write_dac(word);
+        self.board.kick_watchdog();
+        self.features.commit(est.x, d.feature_force);
+        let row = Row {
+            step: self.step,
+            timestamp: snap.timestamp_us,
+            time: self.time,
+            dt,
+            f_ref,
+            rtob_force: est.f_ext,
+            dob_force: est.f_dis,
+            counts: snap.counts,
+            position_x: x,
+            velocity: est.v,
+            acceleration: est.a,
+            i_a_ref: i_ref,
+            i_motor: self.i_motor,
+            analog_out_motor: word,
+            phase: d.phase as u8,
+            f_true: self.board.true_force(),
+            f_pred: d.f_pred,
+            fallback: d.fallback,
+            cycle_no: feats.cycle_no,
+            f_previous_x: feats.f_previous_x,
+            f_previous_v: feats.f_previous_v,
+            f_previous_a: feats.f_previous_a,
+            deformation: feats.deformation,
+            area_fx: feats.area_fx,
+        };
+        debug_assert!(d.phase != Phase::Done);
+        self.step += 1;
+        Ok(row)
+    }
+}

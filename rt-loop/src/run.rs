@@ -1,0 +1,248 @@
+//! Puts a run together from its configuration: board, experiment, loop, clock, recorder,
+//! and reports what happened.
+
+use crate::board::replay::ReplayBoard;
+use crate::board::sim::{SimBoard, SimTime, SimWorld};
+use crate::board::Board;
+use crate::clock::{make_thread_realtime, JitterStats, RealtimeClock};
+use crate::config::{BoardKind, ClockKind, ExperimentKind, RunConfig};
+use crate::experiment::{Experiment, ModelStats, PositionPid, RampSchedule, Trajectory};
+use crate::material::Material;
+use crate::model::{ForceModel, SpringDamperModel};
+use crate::record::{RecorderHandle, RecorderReport, Target};
+use crate::rig::{Rig, Stop};
+use anyhow::{anyhow, Result};
+use serde::Serialize;
+use std::time::Instant;
+
+#[derive(Clone, Debug, Serialize)]
+pub struct RunSummary {
+    pub experiment: String,
+    pub clock: String,
+    pub steps: u64,
+    /// How the run ended: finished, position-limit, board-fault: ..., watchdog,
+    /// recorder-failed, time-limit.
+    pub stop: String,
+    pub loop_time_s: f64,
+    pub wall_s: f64,
+    pub steps_per_s: f64,
+    pub rows_pushed: u64,
+    pub drops: u64,
+    pub recorder: Option<RecorderReport>,
+    pub jitter: Option<JitterStats>,
+    pub model: Option<ModelStats>,
+    pub warnings: Vec<String>,
+}
+
+impl RunSummary {
+    /// True when the run ended as planned and every row reached the file.
+    pub fn ok(&self) -> bool {
+        let rec_ok = self.recorder.as_ref().is_none_or(|r| {
+            r.error.is_none() && r.rows_written == r.rows_received && self.drops == 0
+        });
+        (self.stop == "finished" || self.stop == "time-limit") && rec_ok
+    }
+}
+
+/// The run's metadata JSON (`haptics.run`).
+pub fn metadata_json(cfg: &RunConfig, material_text: &str, model_name: &str) -> String {
+    serde_json::json!({
+        "experiment": cfg.experiment,
+        "board": cfg.board,
+        "material_file": cfg.material,
+        "material": material_text,
+        "seed": cfg.seed,
+        "clock": cfg.clock,
+        "rate_hz": cfg.rate_hz,
+        "ramp_rate": cfg.ramp.ramp_rate,
+        "f_max_schedule": (0..cfg.ramp.cycles).map(|c| cfg.ramp.f_max(c)).collect::<Vec<_>>(),
+        "decimate": cfg.decimate,
+        "model": model_name,
+        "config": cfg,
+        "rt_loop_version": env!("CARGO_PKG_VERSION"),
+        "columns": crate::record::COLUMNS,
+        "feature_names": crate::features::FEATURE_NAMES,
+    })
+    .to_string()
+}
+
+/// Builds the experiment (loads trajectories; allocation happens here, before the loop).
+pub fn build_experiment(cfg: &RunConfig, model: Option<Box<dyn ForceModel>>) -> Result<Experiment> {
+    Ok(match cfg.experiment {
+        ExperimentKind::Abstraction => Experiment::Abstraction(RampSchedule::new(&cfg.ramp)),
+        ExperimentKind::PositionReplay => {
+            let path = cfg
+                .trajectory
+                .as_ref()
+                .ok_or_else(|| anyhow!("position replay needs --trajectory"))?;
+            let trajectory = Trajectory::from_recording(path)?;
+            if trajectory.max_abs() >= cfg.params.position_limit {
+                anyhow::bail!(
+                    "trajectory {} reaches {:.4} m, beyond the position limit {} m",
+                    path.display(),
+                    trajectory.max_abs(),
+                    cfg.params.position_limit
+                );
+            }
+            Experiment::PositionReplay {
+                trajectory,
+                pid: PositionPid::new(&cfg.params),
+            }
+        }
+        ExperimentKind::Reproduction | ExperimentKind::Shadow => Experiment::Reproduction {
+            model: model.unwrap_or_else(|| Box::new(SpringDamperModel(cfg.reproduction.fallback))),
+            cfg: cfg.reproduction.clone(),
+            duration: cfg.hand.duration(),
+            shadow: cfg.experiment == ExperimentKind::Shadow,
+            stats: ModelStats::default(),
+        },
+    })
+}
+
+/// Builds the board for the configuration.
+pub fn build_board(cfg: &RunConfig, material: Option<&Material>) -> Result<Box<dyn Board>> {
+    Ok(match cfg.board {
+        BoardKind::Replay => {
+            let p = cfg
+                .replay
+                .as_ref()
+                .ok_or_else(|| anyhow!("--replay PATH missing"))?;
+            Box::new(ReplayBoard::from_recording(p)?)
+        }
+        BoardKind::Sim => {
+            let world = match cfg.experiment {
+                ExperimentKind::Abstraction | ExperimentKind::PositionReplay => SimWorld {
+                    sponge: material.cloned(),
+                    hand: None,
+                },
+                ExperimentKind::Reproduction => SimWorld {
+                    sponge: None,
+                    hand: Some(cfg.hand.clone()),
+                },
+                ExperimentKind::Shadow => SimWorld {
+                    sponge: material.cloned(),
+                    hand: Some(cfg.hand.clone()),
+                },
+            };
+            let time = match cfg.clock {
+                ClockKind::Lockstep => SimTime::Virtual {
+                    period_s: 1.0 / cfg.rate_hz,
+                },
+                ClockKind::Realtime => SimTime::Wall,
+            };
+            Box::new(SimBoard::new(cfg.sim.clone(), world, time, cfg.seed))
+        }
+    })
+}
+
+/// Progress reporting for long lockstep runs (called off the step, every few thousand steps).
+pub trait Progress {
+    fn update(&mut self, loop_time_s: f64);
+    fn finish(&mut self) {}
+}
+
+/// Runs a configured experiment to its end.
+pub fn run(
+    cfg: &RunConfig,
+    model: Option<Box<dyn ForceModel>>,
+    mut progress: Option<&mut dyn Progress>,
+) -> Result<RunSummary> {
+    cfg.validate().map_err(|e| anyhow!(e))?;
+    let (material, material_text) = Material::load(&cfg.material)?;
+    let experiment = build_experiment(cfg, model)?;
+    let model_name = match &experiment {
+        Experiment::Reproduction { model, .. } => model.name().to_string(),
+        _ => "none".to_string(),
+    };
+    let board = build_board(cfg, Some(&material))?;
+    let mut recorder = match &cfg.record {
+        Some(p) => Some(RecorderHandle::start(
+            Target::File(p.clone()),
+            cfg.format(),
+            metadata_json(cfg, &material_text, &model_name),
+            cfg.queue_capacity,
+        )?),
+        None => None,
+    };
+    let mut rig = Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone());
+    let decimate = cfg.decimate as u64;
+    let max_time = cfg.max_duration_s.unwrap_or(f64::INFINITY);
+    let mut warnings = Vec::new();
+    let mut clock = None;
+    if cfg.clock == ClockKind::Realtime {
+        warnings = make_thread_realtime(&cfg.realtime);
+        for w in &warnings {
+            eprintln!("rt-loop: warning: {w} (continuing without it)");
+        }
+        let mut c = RealtimeClock::new(cfg.rate_hz);
+        c.start();
+        clock = Some(c);
+    }
+    let lockstep = cfg.clock == ClockKind::Lockstep;
+    let wall = Instant::now();
+    let mut last_time = 0.0;
+    let stop: String = loop {
+        if let Some(c) = clock.as_mut() {
+            c.wait();
+        }
+        match rig.step() {
+            Ok(row) => {
+                last_time = row.time;
+                if let Some(r) = recorder.as_mut() {
+                    if row.step % decimate == 0 {
+                        if lockstep {
+                            r.push_wait(row);
+                        } else {
+                            r.push_or_drop(row);
+                        }
+                    }
+                    if r.failed() {
+                        // Nothing more can be recorded: end the run with the motor at 0 A.
+                        rig.safe_stop();
+                        break "recorder-failed".into();
+                    }
+                }
+                if row.time >= max_time {
+                    rig.safe_stop();
+                    break "time-limit".into();
+                }
+                if lockstep && row.step & 0x3FFF == 0 {
+                    if let Some(p) = progress.as_deref_mut() {
+                        p.update(row.time);
+                    }
+                }
+            }
+            Err(Stop::Finished) => break "finished".into(),
+            Err(Stop::PositionLimit) => break "position-limit".into(),
+            Err(Stop::Watchdog) => break "watchdog".into(),
+            Err(Stop::BoardFault(m)) => break format!("board-fault: {m}"),
+        }
+    };
+    if let Some(p) = progress.as_deref_mut() {
+        p.finish();
+    }
+    let wall_s = wall.elapsed().as_secs_f64();
+    let steps = rig.steps();
+    let (rows_pushed, drops, report) = match recorder {
+        Some(r) => {
+            let (p, d) = (r.pushed(), r.dropped());
+            (p, d, Some(r.finish()))
+        }
+        None => (0, 0, None),
+    };
+    Ok(RunSummary {
+        experiment: rig.experiment.name().into(),
+        clock: format!("{:?}", cfg.clock).to_lowercase(),
+        steps,
+        stop,
+        loop_time_s: last_time,
+        wall_s,
+        steps_per_s: steps as f64 / wall_s.max(1e-9),
+        rows_pushed,
+        drops,
+        recorder: report,
+        jitter: clock.map(|c| c.stats()),
+        model: rig.experiment.model_stats(),
+        warnings,
+    })
+}
