@@ -134,7 +134,7 @@ export class FakeBench {
     this.aInt += this.a * dt;
     this.a = 100 * (this.v - this.aInt);
     let Fres = Ftrue + 0.9 * Math.tanh(xdot / 2e-4) * 0.1 + 0.03 * this.r.n();
-    if (this.r.u() < 1 / 25000) Fres += 2.5; // a one-step spike, about every 2.5 s
+    if (this.step % 25000 === 12345) Fres += 2.5; // a one-step spike every 2.5 s (what min/max buckets must keep)
     let Fpred = NaN;
     if (model) Fpred = model.predict(xq, this.v, Ftrue, this.r);
     this.t += dt;

@@ -138,13 +138,20 @@ const xy = new XYPlot($<HTMLCanvasElement>("xy"), "compression depth (mm)", "for
 let xyPoints: { x: number[]; y: number[]; pred: number[] } = { x: [], y: [], pred: [] };
 
 function layout(): void {
+  // The time plots share the height left in the window (in their default proportions), so the
+  // page needs no scrolling to see all three; below a minimum they keep their default heights.
+  const top = $("plots").getBoundingClientRect().top + window.scrollY;
+  const chrome = timePlots.length * 52 + 16;
+  const avail = window.innerHeight - top - chrome;
+  const total = PLOTS.reduce((a, d) => a + d.height, 0);
+  const k = Math.max(1, avail / total);
   for (const p of timePlots) {
     const host = $(`plot-${p.def.id}`);
-    p.setSize(Math.max(300, host.clientWidth));
+    p.setSize(Math.max(300, host.clientWidth), Math.round(p.def.height * k));
   }
   const c = $("xy").parentElement as HTMLElement;
   const w = c.clientWidth - 20;
-  xy.setSize(w, Math.min(340, Math.max(220, w * 0.78)));
+  xy.setSize(w, Math.min(420, Math.max(220, w * 0.95)));
   dirty = true;
 }
 new ResizeObserver(() => layout()).observe($("plots"));
@@ -653,6 +660,10 @@ Object.defineProperty(window, "__haptics", {
       return viewState(performance.now());
     },
     status: () => JSON.parse(JSON.stringify(status)),
+    /** Shown time range [t0, t1] and whether it is frozen (paused or zoomed). */
+    view: () => ({ range: viewRange(), frozen: frozen !== null, windowS }),
+    /** Which series each time plot shows (per-series toggles). */
+    shown: () => Object.fromEntries(timePlots.flatMap((p) => p.def.signals.map((sig, k) => [SERIES[sig.series], p.isVisible(k)]))),
     counts: () => ({ frames, badFrames, buckets: store.appended, held: store.length, restarts: store.restarts, lastTime: store.lastTime() }),
   }),
 });

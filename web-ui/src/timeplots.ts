@@ -173,8 +173,8 @@ export class TimePlot {
     this.u.redraw();
   }
 
-  setSize(width: number): void {
-    if (Math.abs(width - this.u.width) >= 1) this.u.setSize({ width, height: this.def.height });
+  setSize(width: number, height = this.def.height): void {
+    if (Math.abs(width - this.u.width) >= 1 || Math.abs(height - this.u.height) >= 1) this.u.setSize({ width, height });
   }
 
   update(cols: Columns, t0: number, t1: number): void {

@@ -1,0 +1,263 @@
+// PAGE-ONLY test: the page in real headless Chromium against dev/fake-server.mjs, which speaks
+// docs/web-protocol.md with synthetic sponge data. It checks the page's own behaviour (plots,
+// loop, pause, zoom, toggles, export, model swap, token, loop/server gone and recovery). The
+// same checks against the real infer-server + rt-loop are in tests/system.test.mjs.
+import { after, before, describe, test } from "node:test";
+import assert from "node:assert/strict";
+import { mkdir, readFile } from "node:fs/promises";
+import { dirname, join } from "node:path";
+import { fileURLToPath } from "node:url";
+import { startFakeServer } from "../dev/fake-server.mjs";
+import { enclosedArea, finite, hook, measureFrames, openBrowser, sleep, waitFor } from "./harness.mjs";
+
+const here = dirname(fileURLToPath(import.meta.url));
+const outDir = join(here, "..", "test-output");
+
+describe("page against the fake server", () => {
+  let server;
+  let b;
+  let page;
+
+  before(async () => {
+    await mkdir(outDir, { recursive: true });
+    server = await startFakeServer({ port: 0 });
+    b = await openBrowser();
+    page = b.page;
+    await page.goto(server.url + "/");
+    await waitFor(async () => (await hook.points(page, "rtob_force")).t.length > 50, { what: "first data on the plots" });
+  });
+
+  after(async () => {
+    await b?.close();
+    await server?.close();
+  });
+
+  test("the plots fill with data and move with the device time", async () => {
+    const a = await hook.points(page, "rtob_force");
+    const ca = await hook.counts(page);
+    await sleep(1200);
+    const bb = await hook.points(page, "rtob_force");
+    const cb = await hook.counts(page);
+    assert.ok(cb.buckets > ca.buckets + 500, `buckets arrived: ${ca.buckets} -> ${cb.buckets}`);
+    assert.ok(bb.t.at(-1) > a.t.at(-1) + 0.8, `right edge moved: ${a.t.at(-1)} -> ${bb.t.at(-1)}`);
+    // The plotted span grows until it fills the window (the number of points does not have to:
+    // past ~2 buckets per pixel the buckets are merged into one column per pixel).
+    const spanA = a.t.at(-1) - a.t[0];
+    const spanB = bb.t.at(-1) - bb.t[0];
+    assert.ok(spanB > spanA + 0.8 || spanB > 9.9, `plotted span grows: ${spanA} -> ${spanB}`);
+    // Every series the protocol carries reaches its plot (F_pred: the fake serves a model).
+    for (const name of ["F_ref", "rtob_force", "F_pred", "position_x", "velocity", "acceleration", "F_true"]) {
+      const p = await hook.points(page, name);
+      assert.ok(finite(p.max).length > 10, `${name} has data on its plot`);
+    }
+    // Depth is shown in mm: the fake's sponge rests at a few tenths of a mm to a few mm, never
+    // in metres (a unit slip would give values below 0.1).
+    const d = await hook.points(page, "position_x");
+    assert.ok(Math.max(...finite(d.max)) > 0.1, "depth plotted in mm");
+  });
+
+  test("nothing is requested from anywhere but the server itself", async () => {
+    const origin = new URL(server.url).host;
+    const foreign = b.requests.filter((u) => {
+      if (u.startsWith("data:") || u.startsWith("blob:")) return false;
+      return new URL(u).host !== origin;
+    });
+    assert.deepEqual(foreign, []);
+    assert.deepEqual(b.consoleErrors, []);
+  });
+
+  test("min/max buckets keep one-step force spikes visible on a long window", async () => {
+    await page.selectOption("#window", "20");
+    await sleep(6000);
+    // The fake adds a 2.5 N one-step spike every 2.5 s to the RFOB force; its other steps move
+    // by a few hundredths of a newton per 1 ms bucket. A plotted column whose max stands out
+    // from its neighbours by over 1.5 N is a spike that survived the merging into columns.
+    const p = await hook.points(page, "rtob_force");
+    const mx = p.max;
+    let spikes = 0;
+    for (let i = 2; i < mx.length - 2; i++) {
+      const around = Math.max(mx[i - 2], mx[i + 2]);
+      if (mx[i] - around > 1.5) spikes++;
+    }
+    assert.ok(p.t.length < 4000, `columns follow the plot width, not the window (${p.t.length})`);
+    assert.ok(spikes >= 2, `spikes visible: ${spikes}`);
+    await page.selectOption("#window", "10");
+  });
+
+  test("ramp cycles started from the page draw a closed force-depth loop", async () => {
+    await page.selectOption("#exp-kind", "abstraction");
+    await page.fill("#exp-rate", "6.2");
+    await page.fill("#exp-cycles", "3");
+    await page.fill("#exp-fmax", "4");
+    await page.fill("#exp-fstep", "1");
+    await page.selectOption("#xy-window", "5");
+    await page.click("#exp-start");
+    await waitFor(async () => (await hook.status(page)).mode === "abstraction", { what: "experiment running" });
+    // One cycle: 0.5 s hold, 0.65 s up, 0.5 s hold, 0.65 s down, 0.5 s hold.
+    await sleep(4200);
+    const xy = await hook.xy(page);
+    const xr = Math.max(...xy.x) - Math.min(...xy.x);
+    const yr = Math.max(...xy.y) - Math.min(...xy.y);
+    const area = Math.abs(enclosedArea(xy.x, xy.y));
+    console.log(`force-depth loop: depth range ${xr.toFixed(2)} mm, force range ${yr.toFixed(2)} N, enclosed ${area.toFixed(2)} N·mm (${((100 * area) / (xr * yr)).toFixed(1)} % of its box)`);
+    assert.ok(yr > 3, `force swept the ramp: ${yr}`);
+    assert.ok(xr > 2, `depth followed: ${xr} mm`);
+    // Loading and unloading differ (hysteresis): a real loop encloses a good part of its box;
+    // a path that went up and came back the same way would enclose ~0.
+    assert.ok(area > 0.1 * xr * yr, `loop encloses ${area} N·mm of a ${xr * yr} box`);
+    assert.ok(Math.abs(xy.area - enclosedArea(xy.x, xy.y)) < 1e-6 * Math.max(1, area), "the page's own area figure agrees");
+  });
+
+  test("swapping the model from the page changes the active model", async () => {
+    assert.equal((await hook.status(page)).active_model.name, "rf6");
+    await page.click('tr[data-model="lstm6"] button');
+    await waitFor(async () => (await hook.status(page)).active_model?.name === "lstm6", { what: "lstm6 active in the page's status" });
+    const st = await (await fetch(server.url + "/api/status")).json();
+    assert.equal(st.active_model.name, "lstm6", "the server reports the swap");
+    await waitFor(async () => (await page.textContent('tr[data-model="lstm6"] td:nth-child(2)')) === "active", { what: "table shows lstm6 active" });
+    assert.equal(await page.textContent("#f-model"), "lstm6 (stateful)");
+    assert.ok(server.state.requests.includes("POST /api/models/lstm6/load"), "an available model is loaded before activation");
+  });
+
+  test("pause freezes the plots while data keeps arriving; resume catches up", async () => {
+    await page.click("#pause");
+    assert.equal(await hook.paused(page), true);
+    assert.equal(await page.getAttribute("#pause", "aria-pressed"), "true");
+    const a = await hook.points(page, "rtob_force");
+    const ca = await hook.counts(page);
+    await sleep(1000);
+    const bb = await hook.points(page, "rtob_force");
+    const cb = await hook.counts(page);
+    assert.deepEqual(bb.t, a.t, "plotted times frozen");
+    assert.deepEqual(bb.max, a.max, "plotted values frozen");
+    assert.ok(cb.buckets > ca.buckets + 500, "data still received while paused");
+    await page.keyboard.press("Space");
+    await waitFor(async () => !(await hook.paused(page)), { what: "resumed by keyboard" });
+    await sleep(300);
+    const c = await hook.points(page, "rtob_force");
+    assert.ok(c.t.at(-1) > bb.t.at(-1) + 0.9, "resume jumps to the newest data");
+  });
+
+  test("dragging over a plot zooms into that range; Escape returns to live", async () => {
+    const box = await page.locator("#plot-force .u-over").boundingBox();
+    await page.mouse.move(box.x + box.width * 0.3, box.y + box.height / 2);
+    await page.mouse.down();
+    await page.mouse.move(box.x + box.width * 0.5, box.y + box.height / 2, { steps: 5 });
+    await page.mouse.up();
+    const v = await page.evaluate(() => window.__haptics.view());
+    assert.equal(v.frozen, true);
+    const span = v.range[1] - v.range[0];
+    assert.ok(span > 1 && span < 3, `zoomed to ~2 s of a 10 s window: ${span}`);
+    const p = await hook.points(page, "rtob_force");
+    assert.ok(p.t[0] >= v.range[0] - 0.01 && p.t.at(-1) <= v.range[1] + 0.01, "plotted data within the zoom");
+    await page.locator("body").focus();
+    await page.keyboard.press("Escape");
+    const w = await page.evaluate(() => window.__haptics.view());
+    assert.equal(w.frozen, false);
+    assert.ok(Math.abs(w.range[1] - w.range[0] - 10) < 1e-9);
+  });
+
+  test("per-series toggles hide and show a series, by keyboard too", async () => {
+    await page.focus("#toggle-force-0");
+    await page.keyboard.press("Space");
+    assert.equal((await page.evaluate(() => window.__haptics.shown())).F_ref, false);
+    await page.keyboard.press("Space");
+    assert.equal((await page.evaluate(() => window.__haptics.shown())).F_ref, true);
+  });
+
+  test("export writes the visible window as CSV at full resolution", async () => {
+    await page.click("#pause");
+    const v = await page.evaluate(() => window.__haptics.view());
+    const [dl] = await Promise.all([page.waitForEvent("download"), page.click("#export")]);
+    const file = join(outDir, "export.csv");
+    await dl.saveAs(file);
+    await page.click("#pause");
+    const lines = (await readFile(file, "utf8")).trim().split("\n");
+    assert.equal(lines[0], "t_s,F_ref_min,F_ref_max,rtob_force_min,rtob_force_max,F_pred_min,F_pred_max,position_x_min,position_x_max,velocity_min,velocity_max,acceleration_min,acceleration_max,F_true_min,F_true_max");
+    const ts = lines.slice(1).map((l) => Number(l.split(",")[0]));
+    // 1 ms buckets over the shown range (the page may hold less than 10 s at this point).
+    const held = ts.at(-1) - ts[0];
+    assert.ok(Math.abs(ts.length - held * 1000) < 50, `${ts.length} rows for ${held} s of 1 ms buckets`);
+    assert.ok(ts[0] >= v.range[0] - 1e-6 && ts.at(-1) <= v.range[1] + 1e-6, "rows within the visible window");
+    const row = lines[1].split(",").map(Number);
+    assert.ok(row[4] >= row[3], "max >= min");
+  });
+
+  test("frame times while drawing 10 kHz telemetry (printed, not asserted)", async () => {
+    await page.selectOption("#window", "10");
+    const m = await measureFrames(page, 5000);
+    console.log(`page frame times (fake server, 10 kHz, 1 ms buckets, 10 s window): ${m.fps.toFixed(1)} fps, rAF delta p50 ${m.frameDelta.p50.toFixed(1)} ms p99 ${m.frameDelta.p99.toFixed(1)} ms; draw p50 ${m.drawMs.p50.toFixed(2)} ms p99 ${m.drawMs.p99.toFixed(2)} ms over ${m.draws} draws; ${m.dataFrames} data frames, ${m.buckets} buckets`);
+    assert.ok(m.frames > 20, "the page kept drawing");
+    assert.ok(m.draws > 20, "new data was drawn");
+    await page.screenshot({ path: join(outDir, "page-fake.png") });
+  });
+
+  test("loop gone: a clear state, then the new run's data without a reload", async () => {
+    await page.evaluate(() => (window.__noReload = 1));
+    server.setLoopAlive(false);
+    await waitFor(async () => (await hook.state(page)) === "loop-gone", { what: "loop-gone state" });
+    assert.equal(await page.isVisible("#banner"), true);
+    assert.match(await page.textContent("#banner"), /loop is gone/);
+    assert.equal(await page.textContent("#f-loop"), "gone");
+    const r0 = (await hook.counts(page)).restarts;
+    server.setLoopAlive(true);
+    await waitFor(async () => (await hook.state(page)) === "live", { what: "live again" });
+    await waitFor(async () => (await hook.counts(page)).restarts > r0, { what: "new run detected (time went back)" });
+    await waitFor(async () => (await hook.points(page, "rtob_force")).t.length > 50, { what: "new run plotted" });
+    assert.equal(await page.isVisible("#banner"), false);
+    assert.equal(await page.evaluate(() => window.__noReload), 1);
+  });
+
+  test("server gone: a clear state, reconnect with backoff, recovery without a reload", async () => {
+    const port = server.port;
+    await server.close();
+    await waitFor(async () => (await hook.state(page)) === "server-gone", { what: "server-gone state" });
+    assert.match(await page.textContent("#banner"), /server is gone/);
+    assert.equal(await page.isVisible("#retry"), true);
+    await sleep(1500);
+    server = await startFakeServer({ port });
+    await waitFor(async () => (await hook.state(page)) === "live", { timeoutMs: 15000, what: "live after the server came back" });
+    const c0 = (await hook.counts(page)).buckets;
+    await sleep(500);
+    assert.ok((await hook.counts(page)).buckets > c0 + 200, "data flows again");
+    assert.equal(await page.evaluate(() => window.__noReload), 1, "same page, never reloaded");
+    // The fresh server has rf6 active again: the page's figures follow.
+    await waitFor(async () => (await page.textContent("#f-model")) === "rf6 (stateless)", { what: "figures refreshed" });
+  });
+});
+
+describe("page against a fake server that wants a token", () => {
+  let server;
+  let b;
+  before(async () => {
+    server = await startFakeServer({ port: 0, token: "s3cret" });
+    b = await openBrowser();
+    await b.page.goto(server.url + "/");
+    await waitFor(async () => (await hook.counts(b.page)).buckets > 10, { what: "data" });
+  });
+  after(async () => {
+    await b?.close();
+    await server?.close();
+  });
+
+  test("a 401 asks for the token, the call is retried with it, and it is kept for the tab", async () => {
+    const page = b.page;
+    await page.click('tr[data-model="spring_damper2"] button');
+    await page.waitForSelector("#token-dialog[open]");
+    await page.fill("#token-input", "wrong");
+    await page.keyboard.press("Enter");
+    // Wrong token: the retry gets 401 again and the page says so without swapping.
+    await waitFor(async () => /Could not activate spring_damper2/.test(await page.textContent("#log")), { what: "refusal logged" });
+    assert.equal((await hook.status(page)).active_model.name, "rf6");
+    await page.click('tr[data-model="spring_damper2"] button');
+    await page.waitForSelector("#token-dialog[open]");
+    await page.fill("#token-input", "s3cret");
+    await page.keyboard.press("Enter");
+    await waitFor(async () => (await hook.status(page)).active_model?.name === "spring_damper2", { what: "swap with the token" });
+    assert.equal(await page.evaluate(() => sessionStorage.getItem("haptics.token")), "s3cret");
+    // Next mutating call goes through without asking.
+    await page.click("#exp-stop");
+    await waitFor(async () => /Experiment stopped/.test(await page.textContent("#log")), { what: "stop accepted with the kept token" });
+    assert.equal(await page.isVisible("#token-dialog"), false);
+  });
+});
