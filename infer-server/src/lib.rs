@@ -7,6 +7,7 @@
 //! - [`latency`]: a lock-free HDR-style latency histogram the inference thread writes and any
 //!   thread reads.
 //! - [`handoff`]: hands a freshly validated engine to the inference thread between two steps.
+//! - [`serve`]: the inference thread over rt-loop's shared-memory segment.
 
 pub mod contract;
 pub mod engine;
@@ -14,6 +15,7 @@ pub mod handoff;
 pub mod latency;
 pub mod model;
 pub mod runtime;
+pub mod serve;
 
 pub use contract::{FeatureSchema, ModelKind};
 pub use engine::{StepEngine, StepError};

@@ -3,9 +3,14 @@
 use std::io::{BufRead, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
 
 use clap::{Parser, Subcommand};
+use infer_server::handoff;
+use infer_server::serve::{InferenceThread, ServeConfig};
 use infer_server::{FeatureSchema, ModelError, Runtime, RuntimeError, SessionConfig, StepEngine};
+use shm_ring::{SegmentName, WaitStrategy};
 
 /// Exit codes: 0 success, 1 the model (or input) was refused, 2 usage error (clap),
 /// 3 ONNX Runtime missing or unloadable.
@@ -49,6 +54,40 @@ enum Command {
         #[arg(long, default_value = "-")]
         csv: String,
     },
+    /// Serve a model to rt-loop over its shared-memory segment until interrupted.
+    Serve {
+        /// The model to serve; validated against the segment's feature schema on attach (and
+        /// again whenever a loop with another schema attaches).
+        #[arg(long)]
+        model: PathBuf,
+        /// rt-loop instance name: the segment is /haptics-INSTANCE.
+        #[arg(long, default_value = "default", conflicts_with = "segment")]
+        instance: String,
+        /// Explicit segment name (starting with /), instead of --instance.
+        #[arg(long)]
+        segment: Option<String>,
+        /// How the inference thread waits for features: spin (burns a core), park, or
+        /// spin-park (spin --spins times, then park).
+        #[arg(long, default_value = "spin-park")]
+        wait: WaitArg,
+        #[arg(long, default_value_t = 2000)]
+        spins: u32,
+        /// Pin the inference thread to this CPU (ignored with a warning where not permitted).
+        #[arg(long)]
+        cpu: Option<usize>,
+        /// Let ONNX Runtime's threads spin (off by default; only matters with --ort-threads > 1).
+        #[arg(long)]
+        ort_spin: bool,
+        /// ONNX Runtime intra-op threads (1: all work on the inference thread).
+        #[arg(long, default_value_t = 1)]
+        ort_threads: usize,
+        /// Exit when the loop goes away instead of waiting for the next one.
+        #[arg(long)]
+        exit_when_loop_gone: bool,
+        /// Print statistics to stderr every SECS seconds (0: only at exit).
+        #[arg(long, default_value_t = 5.0)]
+        stats_every: f64,
+    },
     /// Print which ONNX Runtime library would be loaded, and its version.
     Runtime {
         #[arg(long)]
@@ -66,7 +105,164 @@ fn main() -> ExitCode {
         } => validate(cli.ort_lib.as_deref(), &model, schema.as_deref(), json),
         Command::Predict { model, csv } => predict(cli.ort_lib.as_deref(), &model, &csv),
         Command::Runtime { json } => runtime_info(cli.ort_lib.as_deref(), json),
+        Command::Serve {
+            model,
+            instance,
+            segment,
+            wait,
+            spins,
+            cpu,
+            ort_spin,
+            ort_threads,
+            exit_when_loop_gone,
+            stats_every,
+        } => {
+            let name = match segment {
+                Some(s) => SegmentName::new(&s),
+                None => SegmentName::for_instance(&instance),
+            };
+            let name = match name {
+                Ok(n) => n,
+                Err(e) => {
+                    eprintln!("infer-server: {e}");
+                    return ExitCode::from(EXIT_REFUSED);
+                }
+            };
+            let wait = match wait {
+                WaitArg::Spin => WaitStrategy::Spin,
+                WaitArg::Park => WaitStrategy::Park,
+                WaitArg::SpinPark => WaitStrategy::SpinThenPark { spins },
+            };
+            let cfg = ServeConfig {
+                segment: name,
+                wait,
+                cpu,
+                exit_when_loop_gone,
+            };
+            let session = SessionConfig {
+                intra_threads: ort_threads,
+                spinning: ort_spin,
+                ..SessionConfig::default()
+            };
+            serve(cli.ort_lib.as_deref(), &model, cfg, session, stats_every)
+        }
     }
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum WaitArg {
+    Spin,
+    Park,
+    SpinPark,
+}
+
+static STOP: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_signal(_: libc::c_int) {
+    // Async-signal-safe: one atomic store.
+    STOP.store(true, Ordering::Relaxed);
+}
+
+fn serve(
+    ort_lib: Option<&Path>,
+    model: &Path,
+    cfg: ServeConfig,
+    session: SessionConfig,
+    stats_every: f64,
+) -> ExitCode {
+    let rt = match load_runtime(ort_lib, false) {
+        Ok(rt) => rt,
+        Err(code) => return code,
+    };
+    // Validate once against the standard schema up front, so a broken model is refused before
+    // waiting for a loop (the real check is against the segment's schema, on attach).
+    if let Err(e) = StepEngine::load(rt, model, &FeatureSchema::standard(), &session) {
+        if !matches!(e, ModelError::MissingFeature { .. }) {
+            report_model_error(model, &e, false);
+            return ExitCode::from(EXIT_REFUSED);
+        }
+    }
+    // SAFETY: installing an async-signal-safe handler (it only stores to an atomic).
+    unsafe {
+        libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
+        libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
+    }
+    let segment = cfg.segment.clone();
+    let (mut activator, taker) = handoff::channel();
+    let thread = match InferenceThread::spawn(cfg, taker) {
+        Ok(t) => t,
+        Err(e) => {
+            eprintln!("infer-server: {e}");
+            return ExitCode::from(EXIT_REFUSED);
+        }
+    };
+    eprintln!(
+        "infer-server: serving {} on {segment} (ONNX Runtime {}); waiting for rt-loop",
+        model.display(),
+        rt.version()
+    );
+    let mut served_schema: Option<FeatureSchema> = None;
+    let mut last_report = Instant::now();
+    let mut exit = ExitCode::SUCCESS;
+    while !STOP.load(Ordering::Relaxed) && !thread.is_finished() {
+        std::thread::sleep(Duration::from_millis(20));
+        activator.collect_retired();
+        if let Some(schema) = thread.segment_schema() {
+            if served_schema.as_ref() != Some(&schema) {
+                match StepEngine::load(rt, model, &schema, &session) {
+                    Ok(engine) => {
+                        let generation = activator.offer(engine);
+                        eprintln!(
+                            "infer-server: attached to {segment}; schema [{}]; model generation {generation} active",
+                            schema.names().join(", ")
+                        );
+                    }
+                    Err(e) => {
+                        // The loop keeps rendering on its fallback (answers carry
+                        // SCHEMA_MISMATCH or NO_MODEL); say why once per schema.
+                        report_model_error(model, &e, false);
+                        exit = ExitCode::from(EXIT_REFUSED);
+                    }
+                }
+                served_schema = Some(schema);
+            }
+        }
+        if stats_every > 0.0 && last_report.elapsed().as_secs_f64() >= stats_every {
+            report_stats(&thread);
+            last_report = Instant::now();
+        }
+    }
+    report_stats(&thread);
+    let result = if thread.is_finished() {
+        thread.join()
+    } else {
+        thread.stop()
+    };
+    if let Err(e) = result {
+        eprintln!("infer-server: inference thread: {e}");
+        return ExitCode::from(EXIT_REFUSED);
+    }
+    exit
+}
+
+fn report_stats(thread: &InferenceThread) {
+    let s = thread.stats().snapshot();
+    let l = thread.latency().snapshot();
+    eprintln!(
+        "infer-server: answered {} (model {}, no model {}, errors {}, schema mismatch {}, non-finite {}), resets {}, attachments {}; ring-to-ring p50 {} ns p99 {} ns p99.9 {} ns max {} ns",
+        s.answered,
+        s.predicted,
+        s.no_model,
+        s.step_errors,
+        s.schema_mismatch,
+        s.non_finite,
+        s.resets,
+        s.attachments,
+        l.quantile(0.5),
+        l.quantile(0.99),
+        l.quantile(0.999),
+        l.max
+    );
 }
 
 fn load_runtime(ort_lib: Option<&Path>, json: bool) -> Result<&'static Runtime, ExitCode> {

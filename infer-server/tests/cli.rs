@@ -163,3 +163,97 @@ fn predict_steps_a_csv_in_order() {
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("line 3"));
 }
+
+#[test]
+fn serve_answers_a_loop_over_shared_memory_and_exits_when_it_leaves() {
+    use shm_ring::{Config, FeatureMsg, Segment, SegmentName, WaitStrategy, MAX_FEATURES};
+    use std::time::{Duration, Instant};
+
+    let path = model_or_skip!("linear");
+    let name = SegmentName::new(&format!("/infer-server-cli-{}", std::process::id())).unwrap();
+    let mut lp = Segment::create(&name, &Config::default())
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
+    let mut child = bin()
+        .args([
+            "serve",
+            "--wait",
+            "park",
+            "--exit-when-loop-gone",
+            "--stats-every",
+            "0",
+        ])
+        .args(["--segment", name.as_str(), "--model"])
+        .arg(&path)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !lp.peer_alive() {
+        assert!(Instant::now() < deadline, "the server did not attach");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let mut step = |seq: u64, position_x: f64, velocity: f64| {
+        let mut values = [0.0; MAX_FEATURES];
+        values[0] = position_x;
+        values[1] = velocity;
+        let msg = FeatureMsg {
+            seq,
+            timestamp_ns: 0,
+            run_id: 1,
+            flags: 0,
+            len: 9,
+            values,
+        };
+        lp.features_tx.try_send(msg).unwrap();
+        let a = lp.forces_rx.recv_timeout(Duration::from_secs(10)).unwrap();
+        assert_eq!(a.seq, seq);
+        a
+    };
+    // The model is activated right after the attach; until then answers say NO_MODEL.
+    let mut seq = 0;
+    loop {
+        seq += 1;
+        let a = step(seq, 0.0, 0.0);
+        if a.flags == 0 {
+            assert!((a.force - 0.5).abs() < 1e-6);
+            break;
+        }
+        assert!(a.force.is_nan());
+        assert!(Instant::now() < deadline, "no model became active");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    for i in 0..1000 {
+        seq += 1;
+        let (x, v) = (i as f64 * 1e-4, (i as f64 * 0.1).cos());
+        let a = step(seq, x, v);
+        assert_eq!(a.flags, 0);
+        let want = 2.0 * v - 3.0 * x + 0.5;
+        assert!((a.force - want).abs() < 1e-5, "{} vs {want}", a.force);
+    }
+    drop(step);
+    drop(lp);
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if Instant::now() > deadline + Duration::from_secs(10) {
+            child.kill().unwrap();
+            panic!("serve did not exit after the loop left");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut stderr = String::new();
+    use std::io::Read;
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
+    assert!(status.success(), "{status}: {stderr}");
+    assert!(stderr.contains("model generation 1 active"), "{stderr}");
+    assert!(stderr.contains(&format!("answered {seq}")), "{stderr}");
+}

@@ -1,0 +1,401 @@
+//! The inference thread: attaches to rt-loop's shared-memory segment, answers every feature
+//! vector in order with the active model's force, tagged with the step's sequence number.
+//!
+//! A plain OS thread (never an async task), pinned to a CPU where the OS permits. Per step:
+//! receive from the features ring, pick up a newly activated model if one is pending
+//! ([`crate::handoff`]), reset a stateful model at a run start, run the model
+//! ([`crate::engine::StepEngine::step`]), send the force, record the ring-to-ring latency
+//! ([`crate::latency`]) and bump the counters in [`ServerStats`]. None of this allocates, locks
+//! or makes a syscall, except the futex wait/wake of the rings' wait strategy. Attaching,
+//! re-attaching after the loop restarts, and publishing the segment's schema happen between
+//! runs, not per step.
+//!
+//! Every message gets an answer, even when there is nothing sensible to say: without a model,
+//! with a model validated against another schema, or when ONNX Runtime fails, the answer is
+//! NaN with a flag ([`force_flags`]), so a lockstep loop falls back at once instead of waiting.
+
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use shm_ring::{FeatureMsg, ForceMsg, RecvError, Segment, SegmentName, WaitStrategy};
+
+use crate::contract::FeatureSchema;
+use crate::handoff::{Offered, Taker};
+use crate::latency::{self, LatencyReader, LatencyRecorder};
+
+/// Bits of `ForceMsg::flags` the server sets. 0 = a normal answer from the model.
+pub mod force_flags {
+    /// No model is active: `force` is NaN.
+    pub const NO_MODEL: u32 = 1;
+    /// ONNX Runtime failed this step (or the vector was shorter than the schema): NaN.
+    pub const STEP_ERROR: u32 = 2;
+    /// The active model was validated against another feature schema than this segment's;
+    /// the server waits for the control side to revalidate it: NaN.
+    pub const SCHEMA_MISMATCH: u32 = 4;
+    /// The model itself returned NaN or an infinity (passed on as is).
+    pub const NON_FINITE: u32 = 8;
+}
+
+/// How the inference thread attaches and waits.
+#[derive(Debug, Clone)]
+pub struct ServeConfig {
+    pub segment: SegmentName,
+    /// How the thread waits for features (and for room in the forces ring). Tests use `Park`.
+    pub wait: WaitStrategy,
+    /// CPU to pin the thread to (`None`: not pinned).
+    pub cpu: Option<usize>,
+    /// Return when the loop goes away instead of waiting for the next one.
+    pub exit_when_loop_gone: bool,
+}
+
+/// Counters the inference thread keeps; any thread may read them. Each has a single writer
+/// (the inference thread), so updates are plain relaxed load/store pairs.
+#[derive(Debug, Default)]
+pub struct ServerStats {
+    /// Feature messages answered (all of them, whatever the answer).
+    pub answered: AtomicU64,
+    /// Answers computed by a model (flags 0 or NON_FINITE).
+    pub predicted: AtomicU64,
+    pub no_model: AtomicU64,
+    pub step_errors: AtomicU64,
+    pub schema_mismatch: AtomicU64,
+    pub non_finite: AtomicU64,
+    /// Stateful-model resets (run starts / run id changes).
+    pub resets: AtomicU64,
+    /// Model switches picked up between steps.
+    pub switches: AtomicU64,
+    pub attachments: AtomicU64,
+    /// Feature messages left over from a previous server, skipped at attach.
+    pub skipped_on_attach: AtomicU64,
+    /// Sequence number of the last answered message.
+    pub last_seq: AtomicU64,
+    /// Generation of the model the thread runs (0: none).
+    pub model_generation: AtomicU64,
+    pub attached: AtomicBool,
+    /// CPU the thread is pinned to, -1 when not pinned (not asked, or not permitted).
+    pub pinned_cpu: AtomicI64,
+}
+
+#[inline(always)]
+fn bump(a: &AtomicU64) {
+    a.store(a.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed);
+}
+
+/// A plain snapshot of [`ServerStats`] for reports.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct StatsSnapshot {
+    pub answered: u64,
+    pub predicted: u64,
+    pub no_model: u64,
+    pub step_errors: u64,
+    pub schema_mismatch: u64,
+    pub non_finite: u64,
+    pub resets: u64,
+    pub switches: u64,
+    pub attachments: u64,
+    pub skipped_on_attach: u64,
+    pub last_seq: u64,
+    pub model_generation: u64,
+    pub attached: bool,
+    pub pinned_cpu: i64,
+}
+
+impl ServerStats {
+    pub fn snapshot(&self) -> StatsSnapshot {
+        let l = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        StatsSnapshot {
+            answered: l(&self.answered),
+            predicted: l(&self.predicted),
+            no_model: l(&self.no_model),
+            step_errors: l(&self.step_errors),
+            schema_mismatch: l(&self.schema_mismatch),
+            non_finite: l(&self.non_finite),
+            resets: l(&self.resets),
+            switches: l(&self.switches),
+            attachments: l(&self.attachments),
+            skipped_on_attach: l(&self.skipped_on_attach),
+            last_seq: l(&self.last_seq),
+            model_generation: l(&self.model_generation),
+            attached: self.attached.load(Ordering::Relaxed),
+            pinned_cpu: self.pinned_cpu.load(Ordering::Relaxed),
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    #[error("shared memory: {0}")]
+    Segment(#[from] shm_ring::Error),
+    #[error("the segment's feature schema is unusable: {0}")]
+    Schema(#[from] crate::contract::SchemaError),
+    #[error("the features ring failed: {0}")]
+    Ring(RecvError),
+    #[error("could not start the inference thread: {0}")]
+    Spawn(std::io::Error),
+}
+
+/// Handle on the running inference thread.
+pub struct InferenceThread {
+    handle: Option<JoinHandle<Result<(), ServeError>>>,
+    stop: Arc<AtomicBool>,
+    stats: Arc<ServerStats>,
+    latency: LatencyReader,
+    schema: Arc<Mutex<Option<FeatureSchema>>>,
+}
+
+impl InferenceThread {
+    /// Starts the thread. It attaches (and re-attaches) to `cfg.segment` by itself; models
+    /// arrive through `taker`'s [`crate::handoff::Activator`].
+    pub fn spawn(cfg: ServeConfig, taker: Taker) -> Result<Self, ServeError> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let stats = Arc::new(ServerStats {
+            pinned_cpu: AtomicI64::new(-1),
+            ..Default::default()
+        });
+        let (recorder, latency) = latency::histogram();
+        let schema = Arc::new(Mutex::new(None));
+        let worker = Worker {
+            cfg,
+            taker,
+            stop: Arc::clone(&stop),
+            stats: Arc::clone(&stats),
+            recorder,
+            schema: Arc::clone(&schema),
+        };
+        let handle = std::thread::Builder::new()
+            .name("inference".into())
+            .spawn(move || worker.run())
+            .map_err(ServeError::Spawn)?;
+        Ok(Self {
+            handle: Some(handle),
+            stop,
+            stats,
+            latency,
+            schema,
+        })
+    }
+
+    pub fn stats(&self) -> &ServerStats {
+        &self.stats
+    }
+
+    /// Ring-to-ring latency of every answered step, nanoseconds.
+    pub fn latency(&self) -> &LatencyReader {
+        &self.latency
+    }
+
+    /// The feature schema of the segment the thread is attached to (None while detached). The
+    /// control side validates models against it.
+    pub fn segment_schema(&self) -> Option<FeatureSchema> {
+        self.schema.lock().map(|s| s.clone()).unwrap_or(None)
+    }
+
+    pub fn is_finished(&self) -> bool {
+        self.handle.as_ref().is_none_or(|h| h.is_finished())
+    }
+
+    /// Asks the thread to stop (it notices within ~100 ms) and waits for it.
+    pub fn stop(mut self) -> Result<(), ServeError> {
+        self.stop.store(true, Ordering::Relaxed);
+        self.join_inner()
+    }
+
+    /// Waits for the thread to end by itself (`exit_when_loop_gone`).
+    pub fn join(mut self) -> Result<(), ServeError> {
+        self.join_inner()
+    }
+
+    fn join_inner(&mut self) -> Result<(), ServeError> {
+        match self.handle.take() {
+            Some(h) => h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for InferenceThread {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+/// How long one wait for a feature lasts before the thread re-checks `stop`.
+const RECV_SLICE: Duration = Duration::from_millis(100);
+/// How long one attach attempt waits for a loop before re-checking `stop`.
+const ATTACH_SLICE: Duration = Duration::from_millis(200);
+
+struct Worker {
+    cfg: ServeConfig,
+    taker: Taker,
+    stop: Arc<AtomicBool>,
+    stats: Arc<ServerStats>,
+    recorder: LatencyRecorder,
+    schema: Arc<Mutex<Option<FeatureSchema>>>,
+}
+
+impl Worker {
+    fn run(mut self) -> Result<(), ServeError> {
+        if let Some(cpu) = self.cfg.cpu {
+            match pin_current_thread(cpu) {
+                Ok(()) => self.stats.pinned_cpu.store(cpu as i64, Ordering::Relaxed),
+                Err(e) => {
+                    eprintln!("infer-server: not pinned to CPU {cpu} ({e}); running unpinned")
+                }
+            }
+        }
+        let mut active: Option<Box<Offered>> = None;
+        let mut attached_once = false;
+        while !self.stop.load(Ordering::Relaxed) {
+            let segment = match Segment::attach_timeout(&self.cfg.segment, ATTACH_SLICE) {
+                Ok(s) => s,
+                Err(e) if e.is_transient() => {
+                    if attached_once && self.cfg.exit_when_loop_gone {
+                        return Ok(());
+                    }
+                    continue;
+                }
+                Err(e) => return Err(e.into()),
+            };
+            attached_once = true;
+            let done = self.serve_segment(segment, &mut active)?;
+            if done || self.cfg.exit_when_loop_gone {
+                return Ok(());
+            }
+        }
+        Ok(())
+    }
+
+    /// Serves one attachment until the loop goes away (Ok(false)) or `stop` (Ok(true)).
+    fn serve_segment(
+        &mut self,
+        segment: Segment,
+        active: &mut Option<Box<Offered>>,
+    ) -> Result<bool, ServeError> {
+        let mut side = segment.server_side()?;
+        side.features_rx.set_wait_strategy(self.cfg.wait);
+        side.forces_tx.set_wait_strategy(self.cfg.wait);
+        let schema = FeatureSchema::new(side.link.feature_names())?;
+        let stats = Arc::clone(&self.stats);
+        bump(&stats.attachments);
+        stats
+            .skipped_on_attach
+            .fetch_add(side.skipped_on_attach, Ordering::Relaxed);
+        if let Ok(mut s) = self.schema.lock() {
+            *s = Some(schema.clone());
+        }
+        stats.attached.store(true, Ordering::Relaxed);
+
+        let matches = |a: &Option<Box<Offered>>| {
+            a.as_ref()
+                .is_some_and(|o| o.engine.info().schema == schema.names())
+        };
+        let mut usable = matches(active);
+        let mut last_run: Option<u32> = None;
+        let result = loop {
+            if self.stop.load(Ordering::Relaxed) {
+                break Ok(true);
+            }
+            let msg: FeatureMsg = match side.features_rx.recv_timeout(RECV_SLICE) {
+                Ok(m) => m,
+                Err(RecvError::Timeout) => {
+                    side.heartbeat();
+                    // A model may arrive while the loop is idle (e.g. before its first step).
+                    if self.taker.take(active) {
+                        bump(&stats.switches);
+                        usable = matches(active);
+                        last_run = None;
+                    }
+                    continue;
+                }
+                Err(RecvError::PeerGone) => break Ok(false),
+                Err(e) => break Err(ServeError::Ring(e)),
+            };
+            let t0 = Instant::now();
+
+            // ---- real-time section: no allocation, no lock, no syscall ----
+            if self.taker.take(active) {
+                bump(&stats.switches);
+                usable = matches(active);
+                last_run = None; // a fresh engine starts from a zero state
+            }
+            let (force, flags, generation) = match active.as_mut() {
+                None => {
+                    bump(&stats.no_model);
+                    (f64::NAN, force_flags::NO_MODEL, 0)
+                }
+                Some(a) if !usable => {
+                    bump(&stats.schema_mismatch);
+                    (f64::NAN, force_flags::SCHEMA_MISMATCH, a.generation)
+                }
+                Some(a) => {
+                    if msg.is_run_start() || last_run.is_some_and(|r| r != msg.run_id) {
+                        a.engine.reset();
+                        bump(&stats.resets);
+                    }
+                    last_run = Some(msg.run_id);
+                    match a.engine.step(msg.features()) {
+                        Ok(f) if f.is_finite() => {
+                            bump(&stats.predicted);
+                            (f as f64, 0, a.generation)
+                        }
+                        Ok(f) => {
+                            bump(&stats.predicted);
+                            bump(&stats.non_finite);
+                            (f as f64, force_flags::NON_FINITE, a.generation)
+                        }
+                        Err(_) => {
+                            bump(&stats.step_errors);
+                            (f64::NAN, force_flags::STEP_ERROR, a.generation)
+                        }
+                    }
+                }
+            };
+            let answer = ForceMsg {
+                seq: msg.seq,
+                force,
+                model_id: generation as u32,
+                flags,
+                inference_ns: t0.elapsed().as_nanos() as u64,
+            };
+            if side.forces_tx.send(answer).is_err() {
+                break Ok(false); // the loop's process is gone
+            }
+            self.recorder.record(t0.elapsed().as_nanos() as u64);
+            bump(&stats.answered);
+            stats.last_seq.store(msg.seq, Ordering::Relaxed);
+            stats.model_generation.store(generation, Ordering::Relaxed);
+            side.heartbeat();
+            // ---- end of real-time section ----
+        };
+        stats.attached.store(false, Ordering::Relaxed);
+        if let Ok(mut s) = self.schema.lock() {
+            *s = None;
+        }
+        result
+    }
+}
+
+/// Pins the calling thread to `cpu` (Linux `sched_setaffinity`).
+pub fn pin_current_thread(cpu: usize) -> std::io::Result<()> {
+    if cpu >= libc::CPU_SETSIZE as usize {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("CPU {cpu} is out of range"),
+        ));
+    }
+    // SAFETY: cpu_set_t is plain data; CPU_SET writes within it (cpu < CPU_SETSIZE); pid 0 is
+    // the calling thread.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        libc::CPU_SET(cpu, &mut set);
+        if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+    }
+    Ok(())
+}

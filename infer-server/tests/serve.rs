@@ -1,0 +1,232 @@
+//! The inference thread over a real shared-memory segment: this test plays rt-loop (it creates
+//! the segment and sends features), the library's inference thread answers.
+
+mod common;
+
+use std::time::Duration;
+
+use infer_server::handoff;
+use infer_server::serve::{force_flags, InferenceThread, ServeConfig};
+use infer_server::{FeatureSchema, SessionConfig, StepEngine};
+use shm_ring::{Config, FeatureMsg, LoopSide, Segment, SegmentName, WaitStrategy, MAX_FEATURES};
+
+const TIMEOUT: Duration = Duration::from_secs(10);
+
+fn segment_name(tag: &str) -> SegmentName {
+    SegmentName::new(&format!("/infer-server-test-{tag}-{}", std::process::id())).unwrap()
+}
+
+fn features(seq: u64, run_id: u32, flags: u32, values: &[f64]) -> FeatureMsg {
+    let mut v = [0.0; MAX_FEATURES];
+    v[..values.len()].copy_from_slice(values);
+    FeatureMsg {
+        seq,
+        timestamp_ns: seq * 1000,
+        run_id,
+        flags,
+        len: values.len() as u8,
+        values: v,
+    }
+}
+
+/// Waits until the thread has attached: features sent before that are skipped at attach (they
+/// would be requests to a previous server), as a real loop knows from `peer_alive`.
+fn wait_attached(thread: &InferenceThread) {
+    let end = std::time::Instant::now() + TIMEOUT;
+    while thread.segment_schema().is_none() {
+        assert!(
+            std::time::Instant::now() < end,
+            "the inference thread did not attach"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// Sends one step and waits for its answer, as a lockstep loop does.
+fn round_trip(lp: &mut LoopSide, msg: FeatureMsg) -> shm_ring::ForceMsg {
+    lp.features_tx
+        .try_send(msg)
+        .expect("features ring has room");
+    let answer = lp.forces_rx.recv_timeout(TIMEOUT).expect("an answer");
+    assert_eq!(
+        answer.seq, msg.seq,
+        "answers come in order, tagged with their step"
+    );
+    answer
+}
+
+#[test]
+fn serves_every_step_in_order_swaps_models_and_resets_state() {
+    let Some(dir) = common::fixtures() else {
+        return;
+    };
+    let rt = common::runtime();
+    // A loop whose schema is not the standard order: the model must be fed through the map.
+    let schema_names = ["velocity", "f_previous_x", "position_x"];
+    let schema = FeatureSchema::new(schema_names).unwrap();
+    let name = segment_name("swap");
+    let config = Config {
+        feature_names: schema_names.iter().map(|s| s.to_string()).collect(),
+        ..Config::default()
+    };
+    let mut lp = Segment::create(&name, &config)
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
+
+    let (mut activator, taker) = handoff::channel();
+    let thread = InferenceThread::spawn(
+        ServeConfig {
+            segment: name.clone(),
+            wait: WaitStrategy::Park, // never busy-spin in tests (two cores)
+            cpu: None,
+            exit_when_loop_gone: true,
+        },
+        taker,
+    )
+    .unwrap();
+    wait_attached(&thread);
+
+    // Before any model: every step is still answered, with NaN and NO_MODEL.
+    let a = round_trip(
+        &mut lp,
+        features(1, 1, FeatureMsg::RUN_START, &[0.1, 0.2, 0.3]),
+    );
+    assert!(a.force.is_nan());
+    assert_eq!(a.flags, force_flags::NO_MODEL);
+    assert_eq!(thread.segment_schema().as_ref(), Some(&schema));
+
+    // Linear model: force = 2 velocity - 3 position_x + 0.5.
+    let load = |n: &str| {
+        StepEngine::load(
+            rt,
+            &dir.join(format!("{n}.onnx")),
+            &schema,
+            &SessionConfig::default(),
+        )
+        .unwrap()
+    };
+    let g1 = activator.offer(load("linear"));
+    assert!(activator.wait_active(g1, TIMEOUT));
+    let mut seq = 2;
+    for i in 0..500 {
+        let (v, f, x) = (i as f64 * 0.01, 1.0, -(i as f64) * 0.003);
+        let a = round_trip(&mut lp, features(seq, 1, 0, &[v, f, x]));
+        assert_eq!(a.flags, 0);
+        assert_eq!(a.model_id as u64, g1);
+        let want = 2.0 * v - 3.0 * x + 0.5;
+        assert!(
+            (a.force - want).abs() < 1e-5 * (1.0 + want.abs()),
+            "step {seq}: {} vs {want}",
+            a.force
+        );
+        seq += 1;
+    }
+
+    // Swap to the LSTM between two steps; compare with a local engine stepping the same inputs.
+    let g2 = activator.offer(load("lstm"));
+    let mut reference = load("lstm");
+    let inputs: Vec<[f64; 3]> = (0..200)
+        .map(|t| {
+            let t = t as f64;
+            [0.0, (t * 0.37).sin() * 2.0, t * 0.05 - 1.0]
+        })
+        .collect();
+    let mut first_run = Vec::new();
+    for (k, x) in inputs.iter().enumerate() {
+        let flags = if k == 0 { FeatureMsg::RUN_START } else { 0 };
+        let a = round_trip(&mut lp, features(seq, 2, flags, x));
+        seq += 1;
+        assert_eq!(
+            a.model_id as u64, g2,
+            "the new model answers from the first step after the swap"
+        );
+        let want = reference.step(x).unwrap() as f64;
+        assert_eq!(a.force, want, "step {k}");
+        first_run.push(a.force);
+    }
+    // A new run id resets the state: the same inputs replay the same forces.
+    for (k, x) in inputs.iter().enumerate().take(50) {
+        let a = round_trip(&mut lp, features(seq, 3, 0, x));
+        seq += 1;
+        assert_eq!(a.force, first_run[k], "run 3 step {k}");
+    }
+
+    // A vector shorter than the schema gets a flagged NaN, not a crash.
+    let a = round_trip(&mut lp, features(seq, 3, 0, &[0.1]));
+    assert!(a.force.is_nan());
+    assert_eq!(a.flags, force_flags::STEP_ERROR);
+
+    // The thread counts a step just after sending its answer: give it that moment.
+    let end = std::time::Instant::now() + TIMEOUT;
+    while thread.stats().snapshot().answered < seq && std::time::Instant::now() < end {
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let stats = thread.stats().snapshot();
+    assert_eq!(stats.answered, seq);
+    assert_eq!(stats.no_model, 1);
+    assert_eq!(stats.step_errors, 1);
+    assert_eq!(stats.predicted, 500 + 200 + 50);
+    assert_eq!(stats.switches, 2);
+    assert!(stats.resets >= 1);
+    assert_eq!(stats.last_seq, seq);
+    let latency = thread.latency().snapshot();
+    assert_eq!(latency.samples(), seq);
+    assert!(latency.quantile(0.5) > 0 && latency.max >= latency.quantile(0.5));
+
+    // The loop goes away: the thread notices and ends (exit_when_loop_gone).
+    drop(lp);
+    let end = std::time::Instant::now();
+    while !thread.is_finished() {
+        assert!(
+            end.elapsed() < TIMEOUT,
+            "the inference thread did not notice the loop left"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    thread.join().unwrap();
+    activator.collect_retired();
+}
+
+#[test]
+fn a_model_for_another_schema_is_not_fed_wrong_columns() {
+    let Some(dir) = common::fixtures() else {
+        return;
+    };
+    let rt = common::runtime();
+    let name = segment_name("mismatch");
+    // Segment schema: standard nine. Model validated against a different schema.
+    let mut lp = Segment::create(&name, &Config::default())
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
+    let (mut activator, taker) = handoff::channel();
+    let thread = InferenceThread::spawn(
+        ServeConfig {
+            segment: name,
+            wait: WaitStrategy::Park,
+            cpu: None,
+            exit_when_loop_gone: true,
+        },
+        taker,
+    )
+    .unwrap();
+    let other = FeatureSchema::parse("position_x,velocity").unwrap();
+    let g = activator.offer(
+        StepEngine::load(
+            rt,
+            &dir.join("linear.onnx"),
+            &other,
+            &SessionConfig::default(),
+        )
+        .unwrap(),
+    );
+    assert!(activator.wait_active(g, TIMEOUT));
+    let a = round_trip(&mut lp, features(1, 1, FeatureMsg::RUN_START, &[0.5; 9]));
+    assert!(a.force.is_nan());
+    assert_eq!(a.flags, force_flags::SCHEMA_MISMATCH);
+    assert_eq!(thread.stats().snapshot().schema_mismatch, 1);
+    thread.stop().unwrap();
+}
