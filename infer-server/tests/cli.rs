@@ -233,7 +233,6 @@ fn serve_answers_a_loop_over_shared_memory_and_exits_when_it_leaves() {
         let want = 2.0 * v - 3.0 * x + 0.5;
         assert!((a.force - want).abs() < 1e-5, "{} vs {want}", a.force);
     }
-    drop(step);
     drop(lp);
     let status = loop {
         if let Some(s) = child.try_wait().unwrap() {
