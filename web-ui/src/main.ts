@@ -238,6 +238,9 @@ function frame(now: number): void {
     dataFramesThisSecond = 0;
     secondStart = now;
     updateConnView();
+    // The server pushes the status about twice a second; should those text frames stop while
+    // the socket is open, ask for it instead so the figures never go stale silently.
+    if (conn === "open" && now - lastStatusAt > 2000) void pollStatus();
   }
   if (dirty) {
     dirty = false;

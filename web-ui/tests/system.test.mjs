@@ -269,7 +269,7 @@ describe("page against the real rt-loop and infer-server", () => {
     const m = await measureFrames(page, 5000);
     console.log(`page frame times (real infer-server, 10 kHz loop): ${m.fps.toFixed(1)} fps, rAF delta p50 ${m.frameDelta.p50.toFixed(1)} ms p99 ${m.frameDelta.p99.toFixed(1)} ms; draw p50 ${m.drawMs.p50.toFixed(2)} ms p99 ${m.drawMs.p99.toFixed(2)} ms over ${m.draws} draws; ${m.dataFrames} data frames, ${m.buckets} buckets`);
     assert.ok(m.draws > 10, "the page drew new data");
-    await page.screenshot({ path: join(repo, "docs", "web-ui.png") });
+    await page.screenshot({ path: join(repo, "docs", "web-ui.png"), fullPage: true });
   });
 
   it("loop gone: the page says so, and recovers when a loop attaches again", async () => {

@@ -1,0 +1,44 @@
+#!/usr/bin/env node
+// Frame-time benchmark of the page: does it hold 60 frames per second of updates during a 10 kHz
+// run without falling behind? Prints percentiles; asserts nothing (speed is not a test).
+//
+//   npm run bench                       # against dev/fake-server.mjs (10 kHz, 1 ms buckets)
+//   npm run bench -- --url http://127.0.0.1:8080   # against a running infer-server
+//   npm run bench -- --bucket 1         # fake server sending one bucket per 10 kHz step
+//
+// "Falling behind" is measured as the page's newest device time advancing slower than the wall
+// clock (keep-up ratio below 1) or lagging further and further behind.
+import { startFakeServer } from "../dev/fake-server.mjs";
+import { measureFrames, openBrowser, sleep, waitFor, hook } from "../tests/harness.mjs";
+
+const a = process.argv.slice(2);
+const arg = (k, d) => (a.includes(k) ? a[a.indexOf(k) + 1] : d);
+const seconds = Number(arg("--seconds", 8));
+let server = null;
+let url = arg("--url", null);
+if (!url) {
+  server = await startFakeServer({ port: 0, bucket: Number(arg("--bucket", 10)), demo: true });
+  url = server.url;
+}
+const b = await openBrowser({ width: 1440, height: 1000 });
+try {
+  await b.page.goto(url + "/");
+  await waitFor(async () => (await hook.counts(b.page)).buckets > 100, { what: "data" });
+  console.log(`page frame-time benchmark at ${url} (${server ? `fake server, bucket ${arg("--bucket", 10)} steps at 10 kHz` : "given server"}), ${seconds} s per case`);
+  for (const win of ["10", "60"]) {
+    await b.page.selectOption("#window", win);
+    await sleep(win === "60" ? 3000 : 1000);
+    const w0 = Date.now();
+    const c0 = await hook.counts(b.page);
+    const m = await measureFrames(b.page, seconds * 1000);
+    const c1 = await hook.counts(b.page);
+    const keepUp = (c1.lastTime - c0.lastTime) / ((Date.now() - w0) / 1000);
+    const f = (x) => x.toFixed(1);
+    console.log(
+      `window ${win.padStart(2)} s: ${f(m.fps)} fps | rAF delta p50 ${f(m.frameDelta.p50)} p90 ${f(m.frameDelta.p90)} p99 ${f(m.frameDelta.p99)} ms | draw p50 ${m.drawMs.p50.toFixed(2)} p90 ${m.drawMs.p90.toFixed(2)} p99 ${m.drawMs.p99.toFixed(2)} ms (${m.draws} draws) | ${m.dataFrames} data frames, ${m.buckets} buckets | keep-up ratio ${keepUp.toFixed(3)}`,
+    );
+  }
+} finally {
+  await b.close();
+  await server?.close();
+}
