@@ -47,9 +47,23 @@ fn embed_web_ui(manifest: &Path, out: &Path) {
         println!("cargo:rerun-if-changed={}", web.display());
     }
     files.sort();
+    // Snapshot the files into OUT_DIR: a page rebuilt while cargo compiles (vite empties
+    // `dist/` first) then cannot break this build; the change reruns this script.
+    let snapshot = out.join("web");
+    let _ = std::fs::remove_dir_all(&snapshot);
     let mut code = String::from("pub static WEB_ASSETS: &[(&str, &[u8])] = &[\n");
-    for (rel, abs) in &files {
-        writeln!(code, "    ({rel:?}, include_bytes!({abs:?})),").unwrap();
+    for (i, (rel, abs)) in files.iter().enumerate() {
+        std::fs::create_dir_all(&snapshot).unwrap();
+        let copy = snapshot.join(i.to_string());
+        if std::fs::copy(abs, &copy).is_err() {
+            continue; // deleted meanwhile
+        }
+        writeln!(
+            code,
+            "    ({rel:?}, include_bytes!({:?})),",
+            copy.display().to_string()
+        )
+        .unwrap();
     }
     code.push_str("];\n");
     std::fs::write(out.join("web_assets.rs"), code).unwrap();

@@ -77,8 +77,17 @@ mod tests {
         assert!(open.check(None).is_ok());
         let auth = Auth::new(Some("s3cret"));
         assert!(auth.check(Some("Bearer s3cret")).is_ok());
-        for bad in [None, Some("s3cret"), Some("Bearer s3cre"), Some("Bearer s3cret2"), Some("Bearer ")] {
-            assert!(matches!(auth.check(bad), Err(ControlError::Unauthenticated(_))), "{bad:?}");
+        for bad in [
+            None,
+            Some("s3cret"),
+            Some("Bearer s3cre"),
+            Some("Bearer s3cret2"),
+            Some("Bearer "),
+        ] {
+            assert!(
+                matches!(auth.check(bad), Err(ControlError::Unauthenticated(_))),
+                "{bad:?}"
+            );
         }
     }
 }

@@ -337,7 +337,10 @@ mod tests {
     fn names_cannot_escape_the_model_directory() {
         for bad in ["", ".", "..", "../x.onnx", "a/b.onnx", "a\\b", "x\n.onnx"] {
             assert!(
-                matches!(validate_model_name(bad), Err(ControlError::InvalidArgument(_))),
+                matches!(
+                    validate_model_name(bad),
+                    Err(ControlError::InvalidArgument(_))
+                ),
                 "{bad:?}"
             );
         }

@@ -19,6 +19,9 @@ pub enum ControlError {
     /// The bearer token is missing or wrong. gRPC UNAUTHENTICATED, HTTP 401.
     #[error("{0}")]
     Unauthenticated(String),
+    /// A browser request from another site. gRPC PERMISSION_DENIED, HTTP 403.
+    #[error("{0}")]
+    Forbidden(String),
     /// An uploaded model is over the configured size limit. gRPC RESOURCE_EXHAUSTED, HTTP 413.
     #[error("{0}")]
     TooLarge(String),
@@ -38,6 +41,7 @@ impl ControlError {
             Self::FailedPrecondition(_) => tonic::Code::FailedPrecondition,
             Self::NotFound(_) => tonic::Code::NotFound,
             Self::Unauthenticated(_) => tonic::Code::Unauthenticated,
+            Self::Forbidden(_) => tonic::Code::PermissionDenied,
             Self::TooLarge(_) => tonic::Code::ResourceExhausted,
             Self::Unavailable(_) => tonic::Code::Unavailable,
             Self::Internal(_) => tonic::Code::Internal,
@@ -50,6 +54,7 @@ impl ControlError {
             Self::FailedPrecondition(_) => StatusCode::PRECONDITION_FAILED,
             Self::NotFound(_) => StatusCode::NOT_FOUND,
             Self::Unauthenticated(_) => StatusCode::UNAUTHORIZED,
+            Self::Forbidden(_) => StatusCode::FORBIDDEN,
             Self::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
             Self::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
             Self::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
@@ -63,6 +68,7 @@ impl ControlError {
             Self::FailedPrecondition(_) => "failed_precondition",
             Self::NotFound(_) => "not_found",
             Self::Unauthenticated(_) => "unauthenticated",
+            Self::Forbidden(_) => "forbidden",
             Self::TooLarge(_) => "too_large",
             Self::Unavailable(_) => "unavailable",
             Self::Internal(_) => "internal",

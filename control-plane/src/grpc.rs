@@ -104,7 +104,11 @@ impl pb::loop_service_server::LoopService for LoopSvc {
         _request: Request<pb::GetStatusRequest>,
     ) -> Result<Response<pb::Status>, Status> {
         let s = self.core.status().await?;
-        Ok(Response::new(status_to_pb(&s, self.core.auth.required())))
+        Ok(Response::new(status_to_pb(
+            &s,
+            self.core.auth.required(),
+            self.core.config.max_upload_bytes,
+        )))
     }
 
     async fn start_experiment(
@@ -113,7 +117,8 @@ impl pb::loop_service_server::LoopService for LoopSvc {
     ) -> Result<Response<pb::StartExperimentResponse>, Status> {
         self.core.auth.check_grpc(&request)?;
         let r = request.into_inner();
-        let req = ExperimentRequest::new(&r.kind, r.ramp_rate, r.cycles, r.f_max_start, r.f_max_step)?;
+        let req =
+            ExperimentRequest::new(&r.kind, r.ramp_rate, r.cycles, r.f_max_start, r.f_max_step)?;
         self.core.start_experiment(req).await?;
         Ok(Response::new(pb::StartExperimentResponse {}))
     }
@@ -243,7 +248,11 @@ fn latency_to_pb(l: &Latency) -> pb::LatencyPercentiles {
     }
 }
 
-pub fn status_to_pb(s: &StatusSnapshot, token_required: bool) -> pb::Status {
+pub fn status_to_pb(
+    s: &StatusSnapshot,
+    token_required: bool,
+    max_upload_bytes: usize,
+) -> pb::Status {
     let l = &s.loop_status;
     let mode = if l.experiment.running {
         l.experiment.kind.clone()
@@ -275,5 +284,6 @@ pub fn status_to_pb(s: &StatusSnapshot, token_required: bool) -> pb::Status {
         uptime_s: s.server.uptime_s,
         server_version: s.server.version.clone(),
         token_required,
+        max_upload_bytes: max_upload_bytes as u64,
     }
 }

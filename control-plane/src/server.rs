@@ -70,8 +70,9 @@ impl Bound {
         let reflection_v1alpha = reflection().build_v1alpha().context("reflection v1alpha")?;
         // The message limit leaves room for the request's other fields, so an upload just over
         // the limit gets our explanation, and a far larger one tonic's RESOURCE_EXHAUSTED.
-        let model_svc = pb::model_service_server::ModelServiceServer::new(ModelSvc::new(core.clone()))
-            .max_decoding_message_size(limit.saturating_add(64 << 10));
+        let model_svc =
+            pb::model_service_server::ModelServiceServer::new(ModelSvc::new(core.clone()))
+                .max_decoding_message_size(limit.saturating_add(64 << 10));
         let loop_svc = pb::loop_service_server::LoopServiceServer::new(LoopSvc::new(core.clone()));
 
         let grpc_shutdown = shutdown.clone();

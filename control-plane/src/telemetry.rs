@@ -157,7 +157,10 @@ pub struct Frame {
 /// Decodes a frame, for clients and tests; checks every length and the magic.
 pub fn decode_frame(bytes: &[u8]) -> Result<Frame, String> {
     if bytes.len() < FRAME_HEADER_BYTES {
-        return Err(format!("frame of {} bytes is shorter than its header", bytes.len()));
+        return Err(format!(
+            "frame of {} bytes is shorter than its header",
+            bytes.len()
+        ));
     }
     if &bytes[0..4] != FRAME_MAGIC {
         return Err("bad magic".into());

@@ -18,7 +18,13 @@ use crate::error::ControlError;
 use crate::telemetry::{series, Bucket, TelemetryBatch, N_SERIES};
 
 /// Features the simulated loop provides.
-pub const SCHEMA: [&str; 5] = ["position_x", "velocity", "acceleration", "f_ref", "f_res_prev"];
+pub const SCHEMA: [&str; 5] = [
+    "position_x",
+    "velocity",
+    "acceleration",
+    "f_ref",
+    "f_res_prev",
+];
 /// Every `SPIKE_EVERY` steps F_res has a spike of `SPIKE_N` newtons, so tests can check that
 /// decimation keeps spikes.
 pub const SPIKE_EVERY: u64 = 997;
@@ -132,8 +138,14 @@ impl SimBackend {
         Self::new(
             rate_hz,
             vec![
-                ("a.onnx".into(), model_file(&["position_x", "velocity"], 1.0)),
-                ("b.onnx".into(), model_file(&["position_x", "velocity"], 2.0)),
+                (
+                    "a.onnx".into(),
+                    model_file(&["position_x", "velocity"], 1.0),
+                ),
+                (
+                    "b.onnx".into(),
+                    model_file(&["position_x", "velocity"], 2.0),
+                ),
             ],
         )
     }
@@ -178,11 +190,9 @@ impl SimBackend {
                 s.directory.insert(name.clone(), bytes.clone());
                 bytes
             }
-            ModelSource::Directory { .. } => s
-                .directory
-                .get(&name)
-                .cloned()
-                .ok_or_else(|| ControlError::NotFound(format!("no model {name:?} in the model directory")))?,
+            ModelSource::Directory { .. } => s.directory.get(&name).cloned().ok_or_else(|| {
+                ControlError::NotFound(format!("no model {name:?} in the model directory"))
+            })?,
         };
         let result = validate(&bytes);
         match result {
@@ -267,7 +277,11 @@ fn run_loop(inner: &Inner) {
         if target <= s.step {
             continue;
         }
-        let gain = s.active.as_ref().and_then(|n| s.models.get(n)).map(|m| m.gain);
+        let gain = s
+            .active
+            .as_ref()
+            .and_then(|n| s.models.get(n))
+            .map(|m| m.gain);
         let ramp = s.experiment.running;
         let mut batch = Vec::with_capacity((target - s.step) as usize);
         for i in s.step..target {
@@ -426,7 +440,9 @@ impl Backend for SimBackend {
     fn start_experiment(&self, request: &ExperimentRequest) -> Result<(), ControlError> {
         let mut s = self.lock();
         if !s.alive {
-            return Err(ControlError::FailedPrecondition("no loop is attached".into()));
+            return Err(ControlError::FailedPrecondition(
+                "no loop is attached".into(),
+            ));
         }
         if s.experiment.running {
             return Err(ControlError::FailedPrecondition(format!(
@@ -447,7 +463,9 @@ impl Backend for SimBackend {
     fn stop_experiment(&self) -> Result<(), ControlError> {
         let mut s = self.lock();
         if !s.alive {
-            return Err(ControlError::FailedPrecondition("no loop is attached".into()));
+            return Err(ControlError::FailedPrecondition(
+                "no loop is attached".into(),
+            ));
         }
         s.experiment = ExperimentStatus {
             kind: "idle".into(),

@@ -15,7 +15,11 @@ use crate::error::ControlError;
 
 impl IntoResponse for ControlError {
     fn into_response(self) -> Response {
-        (self.http_status(), Json(json!({ "error": self.to_string() }))).into_response()
+        (
+            self.http_status(),
+            Json(json!({ "error": self.to_string() })),
+        )
+            .into_response()
     }
 }
 
@@ -54,7 +58,7 @@ pub fn check_origin(headers: &HeaderMap) -> Result<(), ControlError> {
     if origin_host == host || loopback {
         Ok(())
     } else {
-        Err(ControlError::Unauthenticated(format!(
+        Err(ControlError::Forbidden(format!(
             "cross-origin request from {origin} refused"
         )))
     }
@@ -62,7 +66,13 @@ pub fn check_origin(headers: &HeaderMap) -> Result<(), ControlError> {
 
 pub async fn status(State(core): State<Core>) -> ApiResult {
     let s = core.status().await?;
-    Ok(Json(StatusJson::new(&s, core.auth.required(), None)).into_response())
+    Ok(Json(StatusJson::new(
+        &s,
+        core.auth.required(),
+        core.config.max_upload_bytes,
+        None,
+    ))
+    .into_response())
 }
 
 pub async fn list_models(State(core): State<Core>) -> ApiResult {

@@ -19,6 +19,7 @@ pub struct ServerJson {
     pub version: String,
     pub uptime_s: f64,
     pub token_required: bool,
+    pub max_upload_bytes: u64,
     pub predictions: u64,
     pub inference_latency_us: LatencyJson,
 }
@@ -78,7 +79,12 @@ pub struct ActiveModelJson {
 }
 
 impl StatusJson {
-    pub fn new(s: &StatusSnapshot, token_required: bool, kind: Option<&'static str>) -> Self {
+    pub fn new(
+        s: &StatusSnapshot,
+        token_required: bool,
+        max_upload_bytes: usize,
+        kind: Option<&'static str>,
+    ) -> Self {
         let l = &s.loop_status;
         Self {
             kind,
@@ -86,6 +92,7 @@ impl StatusJson {
                 version: s.server.version.clone(),
                 uptime_s: s.server.uptime_s,
                 token_required,
+                max_upload_bytes: max_upload_bytes as u64,
                 predictions: s.server.predictions,
                 inference_latency_us: (&s.server.inference_latency).into(),
             },

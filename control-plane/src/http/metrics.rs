@@ -15,45 +15,139 @@ pub async fn metrics(State(core): State<Core>) -> Result<Response, ControlError>
     let models = core.list_models().await.unwrap_or_default();
     let mut m = Metrics::default();
     let l = &status.loop_status;
-    m.gauge("haptics_loop_alive", "1 when an rt-loop is attached and its heartbeat is fresh", &[], bool_f(l.alive));
-    m.counter("haptics_loop_steps_total", "Loop steps since the loop started", l.step as f64);
-    m.gauge("haptics_loop_rate_hz", "Loop steps per second over the last second", &[], l.rate_hz);
-    m.counter("haptics_loop_fallbacks_total", "Steps rendered with the fallback model", l.fallbacks as f64);
-    m.counter("haptics_loop_deadline_misses_total", "Steps that missed their deadline", l.deadline_misses as f64);
-    m.counter("haptics_loop_telemetry_drops_total", "Telemetry samples the loop could not publish", l.telemetry_drops as f64);
+    m.gauge(
+        "haptics_loop_alive",
+        "1 when an rt-loop is attached and its heartbeat is fresh",
+        &[],
+        bool_f(l.alive),
+    );
+    m.counter(
+        "haptics_loop_steps_total",
+        "Loop steps since the loop started",
+        l.step as f64,
+    );
+    m.gauge(
+        "haptics_loop_rate_hz",
+        "Loop steps per second over the last second",
+        &[],
+        l.rate_hz,
+    );
+    m.counter(
+        "haptics_loop_fallbacks_total",
+        "Steps rendered with the fallback model",
+        l.fallbacks as f64,
+    );
+    m.counter(
+        "haptics_loop_deadline_misses_total",
+        "Steps that missed their deadline",
+        l.deadline_misses as f64,
+    );
+    m.counter(
+        "haptics_loop_telemetry_drops_total",
+        "Telemetry samples the loop could not publish",
+        l.telemetry_drops as f64,
+    );
     m.gauge(
         "haptics_experiment_running",
         "1 while an experiment runs",
         &[("kind", l.experiment.kind.as_str())],
         bool_f(l.experiment.running),
     );
-    m.latency("haptics_round_trip_latency_us", "Features to force round trip as the loop sees it, microseconds", &l.round_trip_latency);
-    m.latency("haptics_inference_latency_us", "Ring to ring inference latency measured by the server, microseconds", &status.server.inference_latency);
-    m.counter("haptics_predictions_total", "Forces the server predicted", status.server.predictions as f64);
-    m.gauge("haptics_server_uptime_seconds", "Seconds since infer-server started", &[], status.server.uptime_s);
+    m.latency(
+        "haptics_round_trip_latency_us",
+        "Features to force round trip as the loop sees it, microseconds",
+        &l.round_trip_latency,
+    );
+    m.latency(
+        "haptics_inference_latency_us",
+        "Ring to ring inference latency measured by the server, microseconds",
+        &status.server.inference_latency,
+    );
+    m.counter(
+        "haptics_predictions_total",
+        "Forces the server predicted",
+        status.server.predictions as f64,
+    );
+    m.gauge(
+        "haptics_server_uptime_seconds",
+        "Seconds since infer-server started",
+        &[],
+        status.server.uptime_s,
+    );
     if let Some(a) = &status.active_model {
         m.gauge(
             "haptics_active_model_info",
             "The active model (value 1)",
-            &[("name", a.name.as_str()), ("kind", a.kind.as_str()), ("model_id", &a.model_id.to_string())],
+            &[
+                ("name", a.name.as_str()),
+                ("kind", a.kind.as_str()),
+                ("model_id", &a.model_id.to_string()),
+            ],
             1.0,
         );
     }
-    for state in [ModelState::Available, ModelState::Loaded, ModelState::Active, ModelState::Failed] {
+    for state in [
+        ModelState::Available,
+        ModelState::Loaded,
+        ModelState::Active,
+        ModelState::Failed,
+    ] {
         let n = models.iter().filter(|m| m.state == state).count();
-        m.gauge("haptics_models", "Models by state", &[("state", state.as_str())], n as f64);
+        m.gauge(
+            "haptics_models",
+            "Models by state",
+            &[("state", state.as_str())],
+            n as f64,
+        );
     }
     let s = &core.stats;
-    m.gauge("haptics_control_ws_clients", "Open telemetry WebSockets", &[], Stats::get(&s.ws_clients) as f64);
-    m.counter("haptics_control_ws_frames_total", "Binary telemetry frames sent", Stats::get(&s.ws_frames) as f64);
-    m.counter("haptics_control_ws_bytes_total", "Bytes of binary telemetry frames sent", Stats::get(&s.ws_bytes) as f64);
-    m.gauge("haptics_control_grpc_streams", "Open gRPC telemetry streams", &[], Stats::get(&s.grpc_streams) as f64);
-    m.counter("haptics_control_grpc_samples_total", "Telemetry samples sent over gRPC", Stats::get(&s.grpc_samples) as f64);
-    m.counter("haptics_control_lagged_batches_total", "Telemetry batches slow clients missed", Stats::get(&s.lagged_batches) as f64);
-    m.counter("haptics_control_requests_ok_total", "Control plane calls that succeeded", Stats::get(&s.requests_ok) as f64);
-    m.counter("haptics_control_requests_failed_total", "Control plane calls that failed", Stats::get(&s.requests_failed) as f64);
+    m.gauge(
+        "haptics_control_ws_clients",
+        "Open telemetry WebSockets",
+        &[],
+        Stats::get(&s.ws_clients) as f64,
+    );
+    m.counter(
+        "haptics_control_ws_frames_total",
+        "Binary telemetry frames sent",
+        Stats::get(&s.ws_frames) as f64,
+    );
+    m.counter(
+        "haptics_control_ws_bytes_total",
+        "Bytes of binary telemetry frames sent",
+        Stats::get(&s.ws_bytes) as f64,
+    );
+    m.gauge(
+        "haptics_control_grpc_streams",
+        "Open gRPC telemetry streams",
+        &[],
+        Stats::get(&s.grpc_streams) as f64,
+    );
+    m.counter(
+        "haptics_control_grpc_samples_total",
+        "Telemetry samples sent over gRPC",
+        Stats::get(&s.grpc_samples) as f64,
+    );
+    m.counter(
+        "haptics_control_lagged_batches_total",
+        "Telemetry batches slow clients missed",
+        Stats::get(&s.lagged_batches) as f64,
+    );
+    m.counter(
+        "haptics_control_requests_ok_total",
+        "Control plane calls that succeeded",
+        Stats::get(&s.requests_ok) as f64,
+    );
+    m.counter(
+        "haptics_control_requests_failed_total",
+        "Control plane calls that failed",
+        Stats::get(&s.requests_failed) as f64,
+    );
     Ok((
-        [(header::CONTENT_TYPE, "text/plain; version=0.0.4; charset=utf-8")],
+        [(
+            header::CONTENT_TYPE,
+            "text/plain; version=0.0.4; charset=utf-8",
+        )],
         m.text,
     )
         .into_response())
@@ -110,7 +204,12 @@ impl Metrics {
 
     fn latency(&mut self, name: &'static str, help: &str, l: &Latency) {
         self.declare(name, help, "gauge");
-        for (q, v) in [("0.5", l.p50_us), ("0.99", l.p99_us), ("0.999", l.p999_us), ("1", l.max_us)] {
+        for (q, v) in [
+            ("0.5", l.p50_us),
+            ("0.99", l.p99_us),
+            ("0.999", l.p999_us),
+            ("1", l.max_us),
+        ] {
             self.sample(name, &[("quantile", q)], v);
         }
     }
@@ -127,5 +226,7 @@ fn number(v: f64) -> String {
 }
 
 fn escape(v: &str) -> String {
-    v.replace('\\', "\\\\").replace('"', "\\\"").replace('\n', "\\n")
+    v.replace('\\', "\\\\")
+        .replace('"', "\\\"")
+        .replace('\n', "\\n")
 }

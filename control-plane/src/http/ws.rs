@@ -63,7 +63,12 @@ async fn run(core: Core, mut socket: WebSocket, fps: u32) {
             },
             _ = status_tick.tick() => match core.status().await {
                 Ok(s) => {
-                    let json = StatusJson::new(&s, core.auth.required(), Some("status"));
+                    let json = StatusJson::new(
+                        &s,
+                        core.auth.required(),
+                        core.config.max_upload_bytes,
+                        Some("status"),
+                    );
                     Message::Text(serde_json::to_string(&json).unwrap_or_default().into())
                 }
                 Err(_) => continue,
@@ -107,7 +112,9 @@ fn drain(
 fn decimate(core: &Core, decimator: &mut Decimator, pending: &[Bucket], out: &mut Vec<Bucket>) {
     let steps: u64 = pending.iter().map(|b| u64::from(b.steps)).sum();
     let max_buckets = u64::from(core.config.ws_max_buckets_per_frame.max(1));
-    let target = steps.div_ceil(max_buckets).max(u64::from(core.config.ws_bucket_steps));
+    let target = steps
+        .div_ceil(max_buckets)
+        .max(u64::from(core.config.ws_bucket_steps));
     decimator.set_target(u32::try_from(target).unwrap_or(u32::MAX));
     out.clear();
     for b in pending {
