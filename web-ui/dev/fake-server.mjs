@@ -383,6 +383,10 @@ export async function startFakeServer(opts = {}) {
     state,
     bench,
     setLoopAlive,
+    /** Sends raw bytes or text to every page (tests use it to send a malformed frame). */
+    broadcast(data) {
+      for (const ws of wss.clients) if (ws.readyState === 1) ws.send(data);
+    },
     async close() {
       clearInterval(tick);
       for (const ws of wss.clients) ws.terminate();

@@ -192,6 +192,21 @@ describe("page against the fake server", () => {
     await page.screenshot({ path: join(outDir, "page-fake.png") });
   });
 
+  test("a malformed frame is reported and skipped; the data after it still arrives", async () => {
+    const c0 = await hook.counts(page);
+    const bad = Buffer.alloc(40);
+    bad.write("XXXX", 0, "latin1");
+    server.broadcast(bad);
+    server.broadcast(Buffer.from("HPT1"));
+    await waitFor(async () => (await hook.counts(page)).badFrames === c0.badFrames + 2, { what: "two bad frames counted" });
+    const log = await page.textContent("#log");
+    assert.match(log, /Bad telemetry frame #\d+: bad magic/);
+    assert.match(log, /shorter than its header/);
+    const c1 = await hook.counts(page);
+    await sleep(500);
+    assert.ok((await hook.counts(page)).buckets > c1.buckets + 200, "good frames keep coming");
+  });
+
   test("loop gone: a clear state, then the new run's data without a reload", async () => {
     await page.evaluate(() => (window.__noReload = 1));
     server.setLoopAlive(false);

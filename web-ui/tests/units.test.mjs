@@ -1,0 +1,167 @@
+// Unit tests of the page's pure logic (frame decoding, the bucket store, per-pixel merging, CSV,
+// status normalisation), compiled from src/ with Vite into a temporary folder and imported here.
+import { before, describe, test } from "node:test";
+import assert from "node:assert/strict";
+import { mkdtemp, rm } from "node:fs/promises";
+import { tmpdir } from "node:os";
+import { dirname, join } from "node:path";
+import { fileURLToPath, pathToFileURL } from "node:url";
+import { build } from "vite";
+
+const root = join(dirname(fileURLToPath(import.meta.url)), "..");
+let m;
+
+before(async () => {
+  const out = await mkdtemp(join(tmpdir(), "haptics-units-"));
+  await build({
+    configFile: false,
+    root,
+    logLevel: "silent",
+    build: { outDir: out, emptyOutDir: true, minify: false, lib: { entry: join(root, "tests", "units-entry.ts"), formats: ["es"], fileName: "units" } },
+  });
+  m = await import(pathToFileURL(join(out, "units.js")).href);
+  await rm(out, { recursive: true, force: true });
+});
+
+/** A frame as the server writes it (docs/web-protocol.md), with `extra` series beyond the 7. */
+function frame(ts, values, { extra = 0, magic = "HPT1", version = 1 } = {}) {
+  const S = 7 + extra;
+  const B = ts.length;
+  const buf = new ArrayBuffer(16 + 8 * B + 8 * B * S);
+  const v = new DataView(buf);
+  for (let i = 0; i < 4; i++) v.setUint8(i, magic.charCodeAt(i));
+  v.setUint16(4, version, true);
+  v.setUint16(6, S, true);
+  v.setUint32(8, B, true);
+  ts.forEach((t, b) => v.setFloat64(16 + 8 * b, t, true));
+  let off = 16 + 8 * B;
+  for (let b = 0; b < B; b++) {
+    for (let s = 0; s < S; s++) {
+      const [lo, hi] = s < 7 ? values(b, s) : [999, 999];
+      v.setFloat32(off, lo, true);
+      v.setFloat32(off + 4, hi, true);
+      off += 8;
+    }
+  }
+  return buf;
+}
+
+describe("decodeFrame", () => {
+  test("reads times and min/max per series, skipping series the page does not know", () => {
+    const f = m.decodeFrame(frame([1.5, 1.501], (b, s) => [b * 10 + s, b * 10 + s + 0.5], { extra: 2 }));
+    assert.equal(f.nBuckets, 2);
+    assert.deepEqual([...f.t], [1.5, 1.501]);
+    assert.equal(f.minMax.length, 2 * 7 * 2);
+    assert.equal(f.minMax[2 * 3], 3); // bucket 0, series 3, min
+    assert.equal(f.minMax[14 + 2 * 6 + 1], 16.5); // bucket 1, series 6, max
+    assert.ok(![...f.minMax].includes(999), "extra series dropped");
+  });
+  test("refuses bad frames with a message that says what is wrong", () => {
+    const good = frame([0], () => [0, 0]);
+    assert.throws(() => m.decodeFrame(frame([0], () => [0, 0], { magic: "HPT2" })), /bad magic/);
+    assert.throws(() => m.decodeFrame(frame([0], () => [0, 0], { version: 2 })), /unsupported frame version 2/);
+    assert.throws(() => m.decodeFrame(good.slice(0, 10)), /shorter than its header/);
+    assert.throws(() => m.decodeFrame(good.slice(0, good.byteLength - 4)), /header says/);
+    const few = new ArrayBuffer(16);
+    const v = new DataView(few);
+    [0x48, 0x50, 0x54, 0x31].forEach((c, i) => v.setUint8(i, c));
+    v.setUint16(4, 1, true);
+    v.setUint16(6, 5, true);
+    assert.throws(() => m.decodeFrame(few), /has 5 series, the page needs 7/);
+  });
+});
+
+describe("TelemetryStore", () => {
+  const fill = (store, t0, n, dt, val = (i, s) => [i + s, i + s + 1]) => {
+    const ts = Array.from({ length: n }, (_, i) => t0 + i * dt);
+    store.append(m.decodeFrame(frame(ts, (b, s) => val(b, s))));
+  };
+
+  test("keeps the newest buckets when full, in time order", () => {
+    const st = new m.TelemetryStore(8);
+    fill(st, 0, 5, 1);
+    fill(st, 5, 6, 1);
+    assert.equal(st.length, 8);
+    assert.equal(st.appended, 11);
+    assert.equal(st.firstTime(), 3);
+    assert.equal(st.lastTime(), 10);
+    assert.deepEqual(Array.from({ length: 8 }, (_, i) => st.timeAt(i)), [3, 4, 5, 6, 7, 8, 9, 10]);
+    assert.equal(st.lowerBound(6.5), 4);
+    assert.equal(st.lowerBound(-1), 0);
+    assert.equal(st.lowerBound(11), 8);
+  });
+
+  test("a run whose time starts again replaces the old history", () => {
+    const st = new m.TelemetryStore(16);
+    fill(st, 100, 5, 1);
+    fill(st, 0, 3, 1);
+    assert.equal(st.restarts, 1);
+    assert.equal(st.length, 3);
+    assert.equal(st.firstTime(), 0);
+  });
+
+  test("merging into pixel columns keeps a one-bucket spike and the extremes", () => {
+    const st = new m.TelemetryStore(1 << 14);
+    // 10 000 buckets of 1 ms; series 1 is 1.0 everywhere except a 5.0 spike in bucket 4321
+    // and a -2.0 dip in bucket 777.
+    fill(st, 0, 10000, 0.001, (i, s) => (s === 1 ? (i === 4321 ? [1, 5] : i === 777 ? [-2, 1] : [1, 1]) : [0, 0]));
+    const scale = [1, 1, 1, 1, 1, 1, 1];
+    const c = m.readColumns(st, 0, 10, 500, scale);
+    assert.ok(c.t.length <= 500 && c.t.length > 450, `${c.t.length} columns`);
+    assert.equal(c.bucketsInRange, 10000);
+    assert.equal(Math.max(...c.max[1]), 5);
+    assert.equal(Math.min(...c.min[1]), -2);
+    const spikeCols = c.max[1].filter((v) => v === 5).length;
+    assert.equal(spikeCols, 1, "the spike is in exactly one column");
+    // Few buckets: drawn as they are, with unit scaling.
+    const raw = m.readColumns(st, 1.0, 1.01, 500, [1, 1000, 1, 1, 1, 1, 1]);
+    assert.equal(raw.t.length, 11);
+    assert.equal(raw.max[1][0], 1000);
+  });
+
+  test("a hole in the data becomes a gap (null), not a line across it", () => {
+    const st = new m.TelemetryStore(1 << 14);
+    fill(st, 0, 3000, 0.001, () => [1, 2]);
+    fill(st, 6, 3000, 0.001, () => [1, 2]);
+    const c = m.readColumns(st, 0, 9, 300, [1, 1, 1, 1, 1, 1, 1]);
+    const gaps = c.max[0].filter((v) => v === null).length;
+    assert.equal(gaps, 1, "one null marks the 3 s hole");
+    const gi = c.max[0].indexOf(null);
+    assert.ok(c.t[gi] >= 2.999 && c.t[gi] < 6, `gap at ${c.t[gi]}`);
+    assert.ok(c.t[gi - 1] < 3 && c.t[gi + 1] >= 6, "between the last point before the hole and the first after");
+  });
+
+  test("NaN series (no model, a real board's F_true) are gaps, not zeros", () => {
+    const st = new m.TelemetryStore(64);
+    fill(st, 0, 10, 0.001, (i, s) => (s === 2 ? [NaN, NaN] : [i, i]));
+    const c = m.readColumns(st, 0, 1, 100, [1, 1, 1, 1, 1, 1, 1]);
+    assert.ok(c.max[2].every((v) => v === null));
+    assert.equal(st.hasFinite(2, 0, 10), false);
+    assert.equal(st.hasFinite(1, 0, 10), true);
+  });
+
+  test("CSV export: the range at full resolution with min and max of every series", () => {
+    const st = new m.TelemetryStore(64);
+    fill(st, 0, 20, 0.5, (i, s) => (s === 6 ? [NaN, NaN] : [i * 10 + s, i * 10 + s + 0.25]));
+    const csv = m.toCsv(st, 2, 4, m.SERIES).trim().split("\n");
+    assert.equal(csv[0].split(",").length, 15);
+    assert.equal(csv.length, 1 + 5); // t = 2, 2.5, 3, 3.5, 4
+    assert.equal(csv[1], "2.000000,40,40.25,41,41.25,42,42.25,43,43.25,44,44.25,45,45.25,,");
+  });
+});
+
+describe("status and models", () => {
+  test("enum words with or without their proto prefix; no model means null", () => {
+    assert.equal(m.normalizeState("MODEL_STATE_ACTIVE"), "active");
+    assert.equal(m.normalizeState("loaded"), "loaded");
+    assert.equal(m.normalizeStatus({ active_model: { name: "" } }).active_model, null);
+    assert.equal(m.normalizeStatus({ active_model: null, loop_alive: false }).loop_alive, false);
+    assert.equal(m.normalizeStatus({ type: "status", active_model: { name: "rf", state: "MODEL_STATE_ACTIVE" } }).active_model.state, "active");
+  });
+  test("the model list as a plain list or wrapped as gRPC answers it", () => {
+    const l = [{ name: "a", state: "available" }, { name: "", state: "x" }, { nope: 1 }];
+    assert.deepEqual(m.normalizeModels(l).map((x) => x.name), ["a"]);
+    assert.deepEqual(m.normalizeModels({ models: l }).map((x) => x.name), ["a"]);
+    assert.deepEqual(m.normalizeModels(null), []);
+  });
+});
