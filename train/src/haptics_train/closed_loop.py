@@ -1,16 +1,24 @@
-"""Closed-loop evaluation: the previous force inside the features is the model's own
-previous prediction, exactly as rt-loop builds the features in reproduction.
+"""Closed-loop evaluation: every feature that depends on the force is rebuilt from the
+model's own previous predictions, exactly as rt-loop builds the features in reproduction.
 
-At every control step t (every row of the loop-rate recording, in order):
-  f_previous_x(t) = F_pred(t-1) / x(t)   (likewise / v(t), / a(t)); on a zero divisor the
-                                          ratio keeps its previous (closed-loop) value
-  f_previous(t)   = F_pred(t-1)
-The kinematic and per-cycle features come from the recording. Step 0 uses the recorded
-features as they are (there is no previous prediction yet).
+rt-loop's `FeatureExtractor` (rt-loop/src/features.rs) works per control step t as
+`begin(x, v, a)` -> features, then `commit(x, F)` with the step's force; in reproduction F is
+the model's prediction. `FeatureTracker` below is its line-for-line Python twin:
+
+- f_previous_x/v/a(t) = F(t-1) / x(t), v(t), a(t); on a divisor exactly 0 the ratio keeps
+  its previous value; all three are 0 before the first committed force;
+- cycle segmentation on the committed force with hysteresis (loaded above `contact_on_n`,
+  a cycle ends on the step F falls below `contact_off_n`): then `area_fx` (trapezoid integral
+  of F dx since the previous cycle end), `deformation` (x at that step) and `cycle_no` + 1;
+- f_previous(t) = F(t-1) (train/'s better-conditioned extra feature, 0 before the first).
+
+The kinematics (x, v, a) come from the recording. `tests/test_rt_loop_parity.py` checks that
+the twin reproduces the columns rt-loop wrote when fed the recorded force.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Protocol
 
@@ -20,7 +28,7 @@ import onnxruntime as ort
 from tqdm.auto import tqdm
 
 from .data import Recording
-from .features import F_PREVIOUS, RATIO_DIVISORS
+from .features import F_PREVIOUS, FEEDBACK_FEATURES
 
 
 class Stepper(Protocol):
@@ -80,31 +88,94 @@ class OnnxStepper:
         return float(self.sess.run(None, {"features": self.x})[0][0, 0])
 
 
-def previous_force_features(
-    rec: Recording, features: tuple[str, ...], force: np.ndarray
-) -> np.ndarray:
-    """The previous-force features recomputed from a force series (vectorised, open loop).
+class FeatureTracker:
+    """Python twin of rt-loop's FeatureExtractor (see the module docstring)."""
 
-    With the measured force this must reproduce the recorded columns: a check that train/
-    and rt-loop agree on the definitions.
-    """
-    x = rec.matrix(features).copy()
-    prev = np.empty_like(force)
-    prev[0] = np.nan
-    prev[1:] = force[:-1]
-    for j, f in enumerate(features):
-        if f == F_PREVIOUS:
-            x[1:, j] = prev[1:]
-        elif f in RATIO_DIVISORS:
-            d = rec.column(RATIO_DIVISORS[f])
-            with np.errstate(divide="ignore", invalid="ignore"):
-                r = np.where(d != 0, prev / d, np.nan)
-            r[0] = x[0, j]
-            # hold-last-value on zero divisors: forward fill
-            idx = np.where(np.isnan(r), 0, np.arange(len(r)))
-            np.maximum.accumulate(idx, out=idx)
-            x[:, j] = r[idx]
-    return x
+    def __init__(self, contact_on_n: float = 0.5, contact_off_n: float = 0.25) -> None:
+        if not contact_off_n < contact_on_n:
+            raise ValueError("contact_off_n must be below contact_on_n")
+        self.on, self.off = contact_on_n, contact_off_n
+        self.prev_force = 0.0
+        self.has_prev = False
+        self.f_px = self.f_pv = self.f_pa = 0.0
+        self.cycle_no = 1
+        self.deformation = 0.0
+        self.area = 0.0
+        self.loaded = False
+        self.area_acc = 0.0
+        self.seg_x = 0.0
+        self.seg_f = 0.0
+
+    def begin(self, x: float, v: float, a: float) -> dict[str, float]:
+        if self.has_prev:
+            f = self.prev_force
+            if x != 0.0:
+                self.f_px = f / x
+            if v != 0.0:
+                self.f_pv = f / v
+            if a != 0.0:
+                self.f_pa = f / a
+        return {
+            "position_x": x,
+            "velocity": v,
+            "acceleration": a,
+            "f_previous_x": self.f_px,
+            "f_previous_v": self.f_pv,
+            "f_previous_a": self.f_pa,
+            "cycle_no": float(self.cycle_no),
+            "deformation": self.deformation,
+            "area_fx": self.area,
+            F_PREVIOUS: self.prev_force if self.has_prev else 0.0,
+        }
+
+    def commit(self, x: float, force: float) -> None:
+        f = force if math.isfinite(force) else 0.0
+        if self.has_prev:
+            self.area_acc += 0.5 * (f + self.seg_f) * (x - self.seg_x)
+        if not self.loaded and f > self.on:
+            self.loaded = True
+        elif self.loaded and f < self.off:
+            self.loaded = False
+            self.area = self.area_acc
+            self.deformation = x
+            self.area_acc = 0.0
+            self.cycle_no += 1
+        self.seg_x = x
+        self.seg_f = f
+        self.prev_force = force
+        self.has_prev = True
+
+
+def contact_thresholds(rec: Recording) -> tuple[float, float]:
+    """The recording's feature parameters (haptics.run metadata), else rt-loop's defaults."""
+    run = rec.meta.get("haptics.run")
+    on, off = 0.5, 0.25
+    if isinstance(run, dict):
+        cfg = run.get("config") if isinstance(run.get("config"), dict) else {}
+        for fp in (run.get("features"), cfg.get("features")):
+            if isinstance(fp, dict):
+                on = float(fp.get("contact_on_n", on))
+                off = float(fp.get("contact_off_n", off))
+        params = run.get("params")
+        if isinstance(params, dict) and isinstance(params.get("features"), dict):
+            on = float(params["features"].get("contact_on_n", on))
+            off = float(params["features"].get("contact_off_n", off))
+    return on, off
+
+
+def replay_features(rec: Recording, force: np.ndarray) -> dict[str, np.ndarray]:
+    """Every force-dependent feature recomputed open-loop from a force series (with the
+    measured force this must reproduce the recorded columns)."""
+    tr = FeatureTracker(*contact_thresholds(rec))
+    x, v, a = rec.column("position_x"), rec.column("velocity"), rec.column("acceleration")
+    names = [*FEEDBACK_FEATURES]
+    out = {k: np.empty(len(x)) for k in names}
+    for t in range(len(x)):
+        row = tr.begin(float(x[t]), float(v[t]), float(a[t]))
+        for k in names:
+            out[k][t] = row[k]
+        tr.commit(float(x[t]), float(force[t]))
+    return out
 
 
 def simulate(
@@ -114,31 +185,25 @@ def simulate(
     progress: bool = False,
     desc: str = "closed loop",
 ) -> np.ndarray:
-    """Predictions at every row with the previous force fed back from the model itself."""
-    x = rec.matrix(features)
-    n = len(x)
+    """Predictions at every row, each feature rebuilt from the model's own past predictions."""
+    rows = rec.matrix(features)
+    n = len(rows)
     pred = np.empty(n)
-    ratio = [
-        (j, rec.column(RATIO_DIVISORS[f])) for j, f in enumerate(features) if f in RATIO_DIVISORS
-    ]
-    direct = [j for j, f in enumerate(features) if f == F_PREVIOUS]
+    tr = FeatureTracker(*contact_thresholds(rec))
+    x, v, a = rec.column("position_x"), rec.column("velocity"), rec.column("acceleration")
+    fb = [(j, f) for j, f in enumerate(features) if f in FEEDBACK_FEATURES]
     stepper.reset()
-    row = x[0].copy()
-    held = {j: float(row[j]) for j, _ in ratio}
-    pred[0] = stepper.step(row)
-    for t in tqdm(range(1, n), desc=desc, disable=not progress, mininterval=1.0, miniters=10000):
-        row = x[t].copy()
-        fp = pred[t - 1]
-        for j, d in ratio:
-            dt = d[t]
-            if dt != 0.0:
-                held[j] = fp / dt
-            row[j] = held[j]
-        for j in direct:
-            row[j] = fp
-        pred[t] = stepper.step(row)
-        if not np.isfinite(pred[t]):
+    for t in tqdm(range(n), desc=desc, disable=not progress, mininterval=1.0, miniters=10000):
+        xt = float(x[t])
+        feats = tr.begin(xt, float(v[t]), float(a[t]))
+        row = rows[t]
+        for j, f in fb:
+            row[j] = feats[f]
+        p = stepper.step(row)
+        pred[t] = p
+        if not math.isfinite(p):
             # Diverged: the rest is undefined. NaN makes every metric say so (RMSE inf).
             pred[t:] = np.nan
             break
+        tr.commit(xt, p)
     return pred

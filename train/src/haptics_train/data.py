@@ -104,7 +104,9 @@ def load_recording(path: str | Path, name: str | None = None) -> Recording:
         else:
             pf = pq.ParquetFile(path)
             table = pf.read()
-            kv = pf.schema_arrow.metadata or {}
+            # The Rust writer puts key-value metadata in the file footer; pyarrow writers put
+            # it in the Arrow schema. Read both.
+            kv = {**(pf.metadata.metadata or {}), **(pf.schema_arrow.metadata or {})}
             for k, v in kv.items():
                 key = k.decode(errors="replace")
                 if not key.startswith("haptics."):

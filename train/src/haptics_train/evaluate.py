@@ -9,13 +9,13 @@ import onnx
 
 from .closed_loop import OnnxStepper, simulate
 from .data import Recording
-from .features import PREVIOUS_FORCE_FEATURES
+from .features import FEEDBACK_FEATURES
 from .metrics import regression_metrics
 from .models.base import ForceModel, TrainConfig
 
 
 def needs_feedback(model: ForceModel) -> bool:
-    return any(f in PREVIOUS_FORCE_FEATURES for f in model.features)
+    return any(f in FEEDBACK_FEATURES for f in model.features)
 
 
 def evaluate(
@@ -30,9 +30,9 @@ def evaluate(
     - one-step: the framework model on the recorded features (the previous force is the
       measured one, as the thesis scored);
     - closed-loop: the exported ONNX model stepped through the recording as the server runs
-      it, the previous force being its own previous prediction. A model without any
-      previous-force feature gets the same inputs either way, so its closed-loop result is its
-      one-step result (`closed_loop_same_as_one_step`).
+      it, every force-dependent feature (ratios, f_previous, cycle features) rebuilt from its
+      own predictions. A model without any such feature gets the same inputs either way, so
+      its closed-loop result is its one-step result (`closed_loop_same_as_one_step`).
     """
     y = rec.target(cfg.target)
     t0 = time.perf_counter()

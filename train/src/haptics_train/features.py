@@ -38,8 +38,21 @@ RATIO_DIVISORS: dict[str, str] = {
 #: rt-loop records, so a model using it needs a loop that publishes it.
 F_PREVIOUS = "f_previous"
 
-#: Columns whose value depends on the previous force (closed loop recomputes them).
+#: Features built from the previous force (the ratios and f_previous).
 PREVIOUS_FORCE_FEATURES: frozenset[str] = frozenset({*RATIO_DIVISORS, F_PREVIOUS})
+
+#: Every feature rt-loop derives from the committed force: the previous-force features and
+#: the cycle segmentation (cycle_no, deformation, area_fx). In reproduction the committed force
+#: is the model's prediction, so closed-loop evaluation rebuilds all of them.
+FEEDBACK_FEATURES: tuple[str, ...] = (
+    "f_previous_x",
+    "f_previous_v",
+    "f_previous_a",
+    "cycle_no",
+    "deformation",
+    "area_fx",
+    F_PREVIOUS,
+)
 
 TARGET_DEFAULT = "rtob_force"
 
@@ -51,8 +64,8 @@ class FeatureSet:
     description: str
 
     @property
-    def uses_previous_force(self) -> bool:
-        return any(f in PREVIOUS_FORCE_FEATURES for f in self.features)
+    def uses_feedback(self) -> bool:
+        return any(f in FEEDBACK_FEATURES for f in self.features)
 
 
 FEATURE_SETS: dict[str, FeatureSet] = {

@@ -2,9 +2,9 @@
 
 It is *not* the project's sponge simulation (that lives in rt-loop); it only produces
 recordings with every column of docs/recording-format.md, with the same feature definitions
-(pseudo-derivative velocity/acceleration, previous-force ratios with hold on zero divisors,
-per-cycle deformation and loop area), a nonlinear, rate-dependent, hysteretic force and noise,
-so that the pipeline has something real to learn.
+(pseudo-derivative velocity/acceleration, and the force-dependent features through
+`closed_loop.FeatureTracker`, the twin of rt-loop's extractor), a nonlinear, rate-dependent,
+hysteretic force and noise, so that the pipeline has something real to learn.
 """
 
 from __future__ import annotations
@@ -15,6 +15,10 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+
+from .closed_loop import replay_features
+from .data import recording_from_columns
+from .features import NINE
 
 DT = 1e-4  # 10 kHz
 
@@ -81,25 +85,14 @@ def make_recording_columns(
         f_true[t] = f
         lp += 300.0 * (f - lp) * DT
         f_res[t] = lp + noise * rng.standard_normal()
-    # previous-force ratios, hold last value on zero divisors (initial 0)
-    feats = {}
-    for name, div in (("f_previous_x", x), ("f_previous_v", v), ("f_previous_a", a)):
-        out = np.zeros(n)
-        held = 0.0
-        for t in range(1, n):
-            if div[t] != 0.0:
-                held = f_res[t - 1] / div[t]
-            out[t] = held
-        feats[name] = out
-    deformation = np.zeros(n)
-    area = np.zeros(n)
-    for c in range(2, cycles + 1):
-        prev = cycle == c - 1
-        rows = cycle == c
-        deformation[rows] = x[prev][-1]
-        area[rows] = abs(
-            float(np.sum(0.5 * (f_res[prev][1:] + f_res[prev][:-1]) * np.diff(x[prev])))
-        )
+    # The force-dependent features by the same rules as rt-loop's FeatureExtractor.
+    feats = replay_features(
+        recording_from_columns("synthetic", {
+            "time": time, "rtob_force": f_res, "position_x": x, "velocity": v,
+            "acceleration": a, **{k: np.zeros(n) for k in NINE[3:]},
+        }),
+        f_res,
+    )  # fmt: skip
     f_ref = np.where(phase == 6, 0.0, f_true)
     i_ref = np.clip(f_ref / 24.0, -0.7, 0.7)
     i_motor = np.clip(i_ref, -0.59, 0.59)
@@ -122,12 +115,12 @@ def make_recording_columns(
         "F_true": f_true,
         "F_pred": np.full(n, np.nan),
         "fallback": np.zeros(n, dtype=bool),
-        "cycle_no": cycle.astype(np.uint32),
+        "cycle_no": feats["cycle_no"].astype(np.uint32),
         "f_previous_x": feats["f_previous_x"],
         "f_previous_v": feats["f_previous_v"],
         "f_previous_a": feats["f_previous_a"],
-        "deformation": deformation,
-        "area_fx": area,
+        "deformation": feats["deformation"],
+        "area_fx": feats["area_fx"],
     }
 
 

@@ -1,0 +1,214 @@
+"""The Markdown report: results beside the thesis's tables, with plots of the test set."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .analysis import DPI, md_table  # noqa: E402
+from .data import Dataset  # noqa: E402
+
+#: Test-set figures the thesis reports (SPEC section 6): model name -> (table, RMSE, R2).
+THESIS: dict[str, tuple[str, float, float | None]] = {
+    "sd_const": ("6.2", 3.67, 0.46),
+    "sd_poly1": ("6.2", 2.11, 0.82),
+    "sd_poly2": ("6.2", 1.56, 0.90),
+    "rf_x": ("6.10", 0.86, None),
+    "rf_x_v": ("6.10", 0.77, None),
+    "rf_six": ("6.10, 6.15", 0.34, 0.99),
+    "lr_six": ("6.15", 2.54, None),
+    "svr_six": ("6.15", 2.93, None),
+    "dnn_six": ("6.15", 6.18, None),
+    "lstm_six": ("6.15", 4.76, None),
+}
+
+
+def _f(v: float | None, nd: int = 3) -> str:
+    if v is None:
+        return "-"
+    if not np.isfinite(v):
+        return "diverged" if v == float("inf") or np.isnan(v) else str(v)
+    return f"{v:.{nd}f}"
+
+
+def _order(results: dict) -> list[str]:
+    algos = ["sd", "lr", "svr", "rf", "dnn", "lstm"]
+    return sorted(
+        results,
+        key=lambda n: (algos.index(results[n]["algo"]) if results[n]["algo"] in algos else 9, n),
+    )
+
+
+def _plot_series(
+    name: str, folder: Path, dataset: Dataset, out: Path, window: tuple[float, float] | None
+) -> str | None:
+    p = folder / "predictions" / f"{name}.npz"
+    if not p.exists():
+        return None
+    rec = dataset.test[0]
+    preds = np.load(p)
+    t = rec.column("time")
+    y = rec.target()
+    n = len(t)
+    stride = max(n // 20000, 1)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.2))
+    ax = axes[0]
+    ax.plot(t[::stride], y[::stride], color="k", lw=0.8, label="measured F_res")
+    one = preds.get(f"{rec.name}:one_step")
+    cl = preds.get(f"{rec.name}:closed_loop")
+    if one is not None:
+        ax.plot(t[::stride], one[::stride], lw=0.7, label="one-step")
+    if cl is not None:
+        ax.plot(t[::stride], cl[::stride], lw=0.7, label="closed loop")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("force [N]")
+    ax.set_title(f"{name} on {rec.name}", fontsize=10)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    ax = axes[1]
+    x = 1e3 * rec.column("position_x")
+    ax.plot(x[::stride], y[::stride], color="k", lw=0.6, label="measured")
+    if cl is not None:
+        ax.plot(x[::stride], cl[::stride], lw=0.6, label="closed loop")
+    ax.set_xlabel("compression x [mm]")
+    ax.set_ylabel("force [N]")
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fname = f"test_{name}.png"
+    fig.savefig(out / fname, dpi=DPI)
+    plt.close(fig)
+    return fname
+
+
+def _rmse_bars(results: dict, names: list[str], out: Path) -> str:
+    one = [results[n]["test"][0]["one_step"]["rmse"] for n in names]
+    cl = [results[n]["test"][0]["closed_loop"]["rmse"] for n in names]
+    cl = [c if np.isfinite(c) else np.nan for c in cl]
+    th = [THESIS[n][1] if n in THESIS else np.nan for n in names]
+    fig, ax = plt.subplots(figsize=(max(6, 0.6 * len(names)), 3.5))
+    i = np.arange(len(names))
+    ax.bar(i - 0.27, one, 0.27, label="one-step")
+    ax.bar(i, cl, 0.27, label="closed loop")
+    ax.bar(i + 0.27, th, 0.27, label="thesis (one-step)", color="grey")
+    ax.set_xticks(i, names, rotation=45, ha="right", fontsize=8)
+    ax.set_yscale("log")
+    ax.set_ylabel("RMSE [N] (log)")
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3, axis="y")
+    fig.tight_layout()
+    fig.savefig(out / "rmse.png", dpi=DPI)
+    plt.close(fig)
+    return "rmse.png"
+
+
+def write_report(
+    folder: Path, dataset: Dataset, out: Path, plot_models: list[str] | None = None
+) -> Path:
+    """Writes `out/README.md` from `folder/results.json` (+ `analysis.md` if present)."""
+    results = json.loads((folder / "results.json").read_text())
+    out.mkdir(parents=True, exist_ok=True)
+    names = _order(results)
+    test = dataset.test[0].name
+    any_res = results[names[0]]
+    tr = any_res["training"]
+    md = ["# Reconstruction report", ""]
+    md.append(
+        f"Trained on {', '.join(r.name for r in dataset.train)}; tested on **{test}** (held out, "
+        f"never seen in training). Stateless models train on every {tr['decimate']}th control "
+        f"step; the LSTM trains on every step. Target: `{tr['target']}`. Metrics at every "
+        f"control step of the test recording ({dataset.test[0].__len__()} rows)."
+    )
+    md += [
+        "",
+        "- **one-step**: the previous force inside the features is the measured one (how the "
+        "thesis scored its models).",
+        "- **closed loop**: the previous force is the model's own previous prediction, stepped "
+        "through the exported ONNX model at every control step as the server runs it in "
+        "reproduction (models without a previous-force feature: identical to one-step).",
+        "- parity: max |ONNX Runtime - framework| on the test recording (LSTM: first 20000 "
+        "steps, stepped one at a time).",
+        "",
+        "See [analysis.md](analysis.md) for the dataset statistics (Table 3.2, correlations, "
+        "f_regression, mutual information, PCA).",
+        "",
+        "## All models",
+        "",
+    ]
+    rows = []
+    for n in names:
+        r = results[n]
+        e = r["test"][0]
+        o, c = e["one_step"], e["closed_loop"]
+        th = THESIS.get(n)
+        rows.append([
+            f"`{n}`", r["feature_set"] if r["algo"] != "sd" else "x_v",
+            _f(o["rmse"]), _f(o["r2"]), _f(o["mae"]), _f(o["mse"]),
+            _f(c["rmse"]), _f(c["r2"]), _f(c["mae"]),
+            f"{th[1]:.2f} (T{th[0]})" if th else "-",
+            f"{r['parity']['max_abs_diff']:.1e}", f"{r['onnx_bytes'] / 1024:.0f} KiB",
+        ])  # fmt: skip
+    md.append(md_table(
+        ["model", "features", "RMSE", "R2", "MAE", "MSE", "closed-loop RMSE", "CL R2", "CL MAE",
+         "thesis RMSE", "parity", "ONNX"],
+        rows,
+    ))  # fmt: skip
+    md += ["", f"![RMSE per model]({_rmse_bars(results, names, out)})", ""]
+
+    def sub(title: str, keys: list[str], note: str) -> None:
+        keys = [k for k in keys if k in results]
+        if not keys:
+            return
+        md.extend([f"## {title}", "", note, ""])
+        md.append(md_table(
+            ["model", "thesis RMSE", "thesis R2", "one-step RMSE", "one-step R2",
+             "closed-loop RMSE", "closed-loop R2"],
+            [[f"`{k}`", _f(THESIS[k][1], 2) if k in THESIS else "-",
+              _f(THESIS[k][2], 2) if k in THESIS else "-",
+              _f(results[k]["test"][0]["one_step"]["rmse"]),
+              _f(results[k]["test"][0]["one_step"]["r2"]),
+              _f(results[k]["test"][0]["closed_loop"]["rmse"]),
+              _f(results[k]["test"][0]["closed_loop"]["r2"])] for k in keys],
+        ))  # fmt: skip
+        md.append("")
+
+    sub("Spring-damper baselines (thesis Table 6.2)", ["sd_const", "sd_poly1", "sd_poly2"],
+        "F = k(x) x + b(x) v with constant, first- and second-order polynomial k and b, least "
+        "squares on the training rows.")  # fmt: skip
+    sub("Feature ablation with the random forest (thesis Table 6.10)",
+        ["rf_x", "rf_x_v", "rf_six", "rf_nine", "rf_xva_f",
+         "rf_memory"],
+        "Feature sets: `x`; `x_v` = x, v; `six` = x, v, a, F(t-1)/x, F(t-1)/v, F(t-1)/a; "
+        "`xva_f` = x, v, a, F(t-1); `memory` = x, v, a, cycle_no, deformation, "
+        "area_fx.")  # fmt: skip
+    sub("Algorithms on the six features (thesis Table 6.15)",
+        ["lr_six", "svr_six", "rf_six", "dnn_six", "lstm_six"],
+        "The thesis's networks were trained at learning rate 1e-6 and never converged; here "
+        "they use Adam at 1e-3 with scaling inside the graph.")  # fmt: skip
+    others = [n for n in names if n not in THESIS and not n.startswith("rf_")]
+    sub("Alternatives beyond the thesis", others,
+        "Networks on the better-conditioned and memory-only feature sets.")  # fmt: skip
+
+    md += ["## Hyperparameters and training", ""]
+    md.append(md_table(
+        ["model", "hyperparameters", "training"],
+        [[f"`{n}`", f"`{json.dumps(results[n]['hyperparameters'])}`",
+          ", ".join(f"{k} {v}" for k, v in results[n]["training"].items()
+                    if k in ("rows", "rows_available", "fit_seconds", "steps_seen"))]
+         for n in names],
+    ))  # fmt: skip
+    md += ["", "## Test-set plots", ""]
+    for n in plot_models or names:
+        if n in results:
+            f = _plot_series(n, folder, dataset, out, None)
+            if f:
+                md += [f"![{n}]({f})", ""]
+    path = out / "README.md"
+    path.write_text("\n".join(md))
+    return path

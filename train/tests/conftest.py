@@ -1,0 +1,54 @@
+"""Shared fixtures: a small synthetic dataset (numpy fake sponge) and the project binaries."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+import torch
+
+from haptics_train.data import Dataset, load_dataset
+from haptics_train.synthetic import write_dataset
+
+REPO = Path(__file__).resolve().parents[2]
+
+torch.set_num_threads(2)
+
+
+def binary(name: str, env: str) -> Path | None:
+    """A built project binary: $ENV, else target/release, else target/debug."""
+    if os.environ.get(env):
+        p = Path(os.environ[env])
+        return p if p.is_file() else None
+    for sub in ("release", "debug"):
+        p = REPO / "target" / sub / name
+        if p.is_file() and os.access(p, os.X_OK):
+            return p
+    return None
+
+
+@pytest.fixture(scope="session")
+def synth_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_dataset(tmp_path_factory.mktemp("synth") / "dataset")
+
+
+@pytest.fixture(scope="session")
+def synth(synth_root: Path) -> Dataset:
+    return load_dataset(synth_root)
+
+
+@pytest.fixture(scope="session")
+def rt_loop() -> Path:
+    p = binary("rt-loop", "HAPTICS_RT_LOOP")
+    if p is None:
+        pytest.skip("rt-loop binary not built (cargo build --release -p rt-loop)")
+    return p
+
+
+@pytest.fixture(scope="session")
+def infer_server() -> Path:
+    p = binary("infer-server", "HAPTICS_INFER_SERVER")
+    if p is None:
+        pytest.skip("infer-server binary not built (cargo build --release -p infer-server)")
+    return p

@@ -1,0 +1,44 @@
+import math
+
+import numpy as np
+import pytest
+
+from haptics_train.metrics import regression_metrics
+
+
+def test_hand_worked_example():
+    # e = y - p = [0, 0, 0, -1]; mean y = 2.5, SS_tot = 2.25 + 0.25 + 0.25 + 2.25 = 5
+    m = regression_metrics(np.array([1.0, 2.0, 3.0, 4.0]), np.array([1.0, 2.0, 3.0, 5.0]))
+    assert m["mse"] == pytest.approx(0.25)
+    assert m["mae"] == pytest.approx(0.25)
+    assert m["rmse"] == pytest.approx(0.5)
+    assert m["r2"] == pytest.approx(1 - 1 / 5)
+
+
+def test_second_hand_worked_example_with_mixed_signs():
+    # e = [1, -2, 0.5]: MSE = (1 + 4 + 0.25) / 3 = 1.75, MAE = 3.5 / 3
+    y = np.array([2.0, -1.0, 0.5])
+    p = np.array([1.0, 1.0, 0.0])
+    m = regression_metrics(y, p)
+    assert m["mse"] == pytest.approx(1.75)
+    assert m["mae"] == pytest.approx(3.5 / 3)
+    assert m["rmse"] == pytest.approx(math.sqrt(1.75))
+    # mean y = 0.5: SS_tot = 2.25 + 2.25 + 0 = 4.5; SS_res = 5.25
+    assert m["r2"] == pytest.approx(1 - 5.25 / 4.5)
+
+
+def test_mean_predictor_has_zero_r2_and_perfect_has_one():
+    y = np.array([3.0, 1.0, 4.0, 1.0, 5.0])
+    assert regression_metrics(y, np.full(5, y.mean()))["r2"] == pytest.approx(0.0)
+    perfect = regression_metrics(y, y)
+    assert perfect["r2"] == 1.0 and perfect["rmse"] == 0.0
+
+
+def test_diverged_prediction_scores_infinite_rmse_not_dropped():
+    m = regression_metrics(np.array([1.0, 2.0, 3.0]), np.array([1.0, np.nan, np.nan]))
+    assert m["rmse"] == math.inf
+
+
+def test_shape_mismatch_is_an_error():
+    with pytest.raises(ValueError):
+        regression_metrics(np.zeros(3), np.zeros(4))

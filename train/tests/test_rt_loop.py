@@ -1,0 +1,40 @@
+"""Against a real lockstep recording of rt-loop (skipped when the binary is not built)."""
+
+import subprocess
+
+import numpy as np
+import pytest
+
+from haptics_train.closed_loop import replay_features
+from haptics_train.data import load_recording
+from haptics_train.features import F_PREVIOUS, FEEDBACK_FEATURES
+from haptics_train.models import TrainConfig, make_model
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory, rt_loop):
+    out = tmp_path_factory.mktemp("rt") / "r.parquet"
+    subprocess.run(
+        [str(rt_loop), "run", "--experiment", "abstraction", "--clock", "lockstep",
+         "--seed", "3", "--ramp-rate", "6.2", "--cycles", "3", "--record", str(out),
+         "--no-progress"],
+        check=True, capture_output=True, cwd=rt_loop.parents[2], timeout=120,
+    )  # fmt: skip
+    return load_recording(out)
+
+
+def test_closed_loop_feature_twin_matches_rt_loop_exactly(recording):
+    f = replay_features(recording, recording.column("rtob_force"))
+    for k in FEEDBACK_FEATURES:
+        if k == F_PREVIOUS:
+            continue
+        np.testing.assert_array_equal(f[k], recording.column(k), err_msg=k)
+    assert recording.column("cycle_no").max() >= 3
+
+
+def test_models_train_on_a_real_recording(recording):
+    m = make_model("rf", "six", hyper={"n_estimators": 10, "max_depth": 6})
+    m.fit([recording], TrainConfig(decimate=10, progress=False))
+    pred = m.predict_recording(recording)
+    y = recording.target()
+    assert np.sqrt(np.mean((pred - y) ** 2)) < 0.5 * y.std()
