@@ -1,1 +1,274 @@
-fn main() {}
+//! In-process per-step latency of the three model families at the thesis's sizes, through
+//! `StepEngine::step` (the inference thread's call), and for comparison through `ort`'s safe
+//! `Session::run` (allocating inputs and outputs per call). Also counts the C-level allocations
+//! (`malloc` & co., which ONNX Runtime's C++ `new` ends in) made per step, with an interposer.
+//!
+//! Run: `cargo bench -p infer-server --bench step_latency` (env: BENCH_STEPS, default 200000).
+//! Models are generated with the project's venv (benches/make_bench_models.py: scikit-learn +
+//! skl2onnx random forest 100 x depth 9, torch dense 9-150-25-1, torch LSTM 100 units).
+
+// The interposers below are `unsafe extern "C"` with the libc contracts; no per-function docs.
+#![allow(clippy::missing_safety_doc)]
+
+use std::ffi::c_void;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Instant;
+
+use infer_server::{FeatureSchema, Runtime, SessionConfig, StepEngine};
+
+// ---- malloc interposer: counts allocations while COUNTING is on -------------------------------
+// SAFETY (all six): same contracts as the libc functions they replace, which they call.
+// Symbols defined in the executable take precedence over glibc's for every shared library in
+// the process, libonnxruntime.so included. Each forwards to glibc's real implementation.
+
+static COUNTING: AtomicBool = AtomicBool::new(false);
+static C_ALLOCS: AtomicU64 = AtomicU64::new(0);
+
+extern "C" {
+    fn __libc_malloc(size: usize) -> *mut c_void;
+    fn __libc_calloc(n: usize, size: usize) -> *mut c_void;
+    fn __libc_realloc(p: *mut c_void, size: usize) -> *mut c_void;
+    fn __libc_memalign(align: usize, size: usize) -> *mut c_void;
+}
+
+#[inline(always)]
+fn count() {
+    if COUNTING.load(Ordering::Relaxed) {
+        C_ALLOCS.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+#[no_mangle]
+pub unsafe extern "C" fn malloc(size: usize) -> *mut c_void {
+    count();
+    unsafe { __libc_malloc(size) }
+}
+
+#[no_mangle]
+pub unsafe extern "C" fn calloc(n: usize, size: usize) -> *mut c_void {
+    count();
+    unsafe { __libc_calloc(n, size) }
+}
+
+#[no_mangle]
+pub unsafe extern "C" fn realloc(p: *mut c_void, size: usize) -> *mut c_void {
+    count();
+    unsafe { __libc_realloc(p, size) }
+}
+
+#[no_mangle]
+pub unsafe extern "C" fn posix_memalign(out: *mut *mut c_void, align: usize, size: usize) -> i32 {
+    count();
+    let p = unsafe { __libc_memalign(align, size) };
+    if p.is_null() {
+        return libc::ENOMEM;
+    }
+    unsafe { *out = p };
+    0
+}
+
+#[no_mangle]
+pub unsafe extern "C" fn aligned_alloc(align: usize, size: usize) -> *mut c_void {
+    count();
+    unsafe { __libc_memalign(align, size) }
+}
+
+#[no_mangle]
+pub unsafe extern "C" fn memalign(align: usize, size: usize) -> *mut c_void {
+    count();
+    unsafe { __libc_memalign(align, size) }
+}
+
+// ---- benchmark ------------------------------------------------------------------------------
+
+fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .canonicalize()
+        .unwrap()
+        .parent()
+        .unwrap()
+        .to_path_buf()
+}
+
+fn models() -> PathBuf {
+    let dir = repo_root().join("target/bench-models");
+    if ["rf", "dense", "lstm"]
+        .iter()
+        .all(|m| dir.join(format!("{m}.onnx")).exists())
+    {
+        return dir;
+    }
+    let py = std::env::var_os("HAPTICS_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| repo_root().join(".venv/bin/python"));
+    assert!(
+        py.exists(),
+        "{} missing: run `bash scripts/setup.sh` (the bench models are built with scikit-learn, skl2onnx and torch)",
+        py.display()
+    );
+    eprintln!("generating benchmark models in {} ...", dir.display());
+    let status = Command::new(&py)
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/make_bench_models.py"))
+        .arg(&dir)
+        .status()
+        .unwrap();
+    assert!(status.success(), "make_bench_models.py failed");
+    dir
+}
+
+struct Percentiles {
+    p50: u64,
+    p90: u64,
+    p99: u64,
+    p999: u64,
+    max: u64,
+    mean: f64,
+}
+
+fn percentiles(samples: &mut [u64]) -> Percentiles {
+    samples.sort_unstable();
+    let q =
+        |p: f64| samples[((samples.len() as f64 * p).ceil() as usize).clamp(1, samples.len()) - 1];
+    Percentiles {
+        p50: q(0.5),
+        p90: q(0.9),
+        p99: q(0.99),
+        p999: q(0.999),
+        max: *samples.last().unwrap(),
+        mean: samples.iter().sum::<u64>() as f64 / samples.len() as f64,
+    }
+}
+
+fn print_row(label: &str, p: &Percentiles, allocs_per_step: f64) {
+    println!(
+        "{label:<28} {:>8} {:>8} {:>8} {:>9} {:>9} {:>9.0} {:>10.2}",
+        p.p50, p.p90, p.p99, p.p999, p.max, p.mean, allocs_per_step
+    );
+}
+
+/// A feature vector that moves every step (trees take different paths, the LSTM's state moves).
+fn input_at(t: usize, v: &mut [f64; 9]) {
+    for (j, x) in v.iter_mut().enumerate() {
+        *x = (((t * 31 + j * 17) % 200) as f64 / 100.0) - 1.0;
+    }
+}
+
+fn bench_engine(
+    engine: &mut StepEngine,
+    steps: usize,
+    samples: &mut Vec<u64>,
+) -> (Percentiles, f64) {
+    let mut v = [0.0f64; 9];
+    let mut sink = 0.0f32;
+    for t in 0..2_000 {
+        input_at(t, &mut v);
+        sink += engine.step(&v).unwrap();
+    }
+    samples.clear();
+    C_ALLOCS.store(0, Ordering::Relaxed);
+    COUNTING.store(true, Ordering::Relaxed);
+    for t in 0..steps {
+        input_at(t, &mut v);
+        let t0 = Instant::now();
+        sink += engine.step(&v).unwrap();
+        samples.push(t0.elapsed().as_nanos() as u64);
+    }
+    COUNTING.store(false, Ordering::Relaxed);
+    let allocs = C_ALLOCS.load(Ordering::Relaxed) as f64 / steps as f64;
+    std::hint::black_box(sink);
+    (percentiles(samples), allocs)
+}
+
+/// The same model through ort's safe API: inputs built per call, outputs allocated by ONNX
+/// Runtime, `SessionOutputs` map; what a straightforward integration would do.
+fn bench_safe_run(path: &Path, steps: usize, samples: &mut Vec<u64>) -> (Percentiles, f64) {
+    use ort::session::Session;
+    use ort::value::Tensor;
+    let rt = Runtime::init(None).unwrap();
+    let mut session = Session::builder(rt.environment())
+        .unwrap()
+        .with_intra_threads(1)
+        .unwrap()
+        .with_inter_threads(1)
+        .unwrap()
+        .with_intra_op_spinning(false)
+        .unwrap()
+        .commit_from_file(path)
+        .unwrap();
+    let mut v = [0.0f64; 9];
+    let mut run = |t: usize| -> f32 {
+        input_at(t, &mut v);
+        let data: Vec<f32> = v.iter().map(|&x| x as f32).collect();
+        let input = Tensor::from_array(([1usize, 9], data)).unwrap();
+        let out = session.run(ort::inputs!["features" => input]).unwrap();
+        out["force"].try_extract_tensor::<f32>().unwrap().1[0]
+    };
+    let mut sink = 0.0f32;
+    for t in 0..2_000 {
+        sink += run(t);
+    }
+    samples.clear();
+    C_ALLOCS.store(0, Ordering::Relaxed);
+    COUNTING.store(true, Ordering::Relaxed);
+    for t in 0..steps {
+        let t0 = Instant::now();
+        sink += run(t);
+        samples.push(t0.elapsed().as_nanos() as u64);
+    }
+    COUNTING.store(false, Ordering::Relaxed);
+    let allocs = C_ALLOCS.load(Ordering::Relaxed) as f64 / steps as f64;
+    std::hint::black_box(sink);
+    (percentiles(samples), allocs)
+}
+
+fn main() {
+    // `cargo bench` passes `--bench`; a filter argument selects models by name.
+    let filter: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with('-'))
+        .collect();
+    let steps: usize = std::env::var("BENCH_STEPS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(200_000);
+    let rt = Runtime::init(None).unwrap_or_else(|e| panic!("{e}"));
+    if let Some(cpu) = std::env::var("BENCH_CPU").ok().and_then(|s| s.parse().ok()) {
+        match infer_server::serve::pin_current_thread(cpu) {
+            Ok(()) => println!("pinned to CPU {cpu}"),
+            Err(e) => println!("not pinned ({e})"),
+        }
+    }
+    let dir = models();
+    println!(
+        "infer-server step latency, in process, one thread, ONNX Runtime {} ({} steps per row, ns; load average {})",
+        rt.version(),
+        steps,
+        std::fs::read_to_string("/proc/loadavg").unwrap_or_default().split(' ').take(3).collect::<Vec<_>>().join(" ")
+    );
+    println!(
+        "{:<28} {:>8} {:>8} {:>8} {:>9} {:>9} {:>9} {:>10}",
+        "model / path", "p50", "p90", "p99", "p99.9", "max", "mean", "mallocs/st"
+    );
+    let schema = FeatureSchema::standard();
+    let mut samples = Vec::with_capacity(steps);
+    for (name, label) in [
+        ("rf", "random forest 100 x d9"),
+        ("dense", "dense 9-150-25-1"),
+        ("lstm", "LSTM 100 units"),
+    ] {
+        if !filter.is_empty() && !filter.iter().any(|f| name.contains(f.as_str())) {
+            continue;
+        }
+        let path = dir.join(format!("{name}.onnx"));
+        let mut engine = StepEngine::load(rt, &path, &schema, &SessionConfig::default())
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let (p, a) = bench_engine(&mut engine, steps, &mut samples);
+        print_row(&format!("{label} (StepEngine)"), &p, a);
+        if name != "lstm" {
+            let (p, a) = bench_safe_run(&path, steps, &mut samples);
+            print_row(&format!("{label} (ort run)"), &p, a);
+        }
+    }
+}
