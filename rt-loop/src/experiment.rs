@@ -427,10 +427,11 @@ mod tests {
         let (p, f) = s.at(2.25);
         assert_eq!(p, Phase::RampDown);
         assert!((f - 0.5).abs() < 1e-12);
-        // cycle 2 peaks at 2 N
-        let (p, f) = s.at(3.0 + 1.0 + 1.0);
+        // cycle 2 (F_max 2 N) ramps from t = 3.5 s to 4.5 s
+        let (p, f) = s.at(4.0);
         assert_eq!(p, Phase::RampUp);
-        assert!((f - 2.0).abs() < 1e-9);
+        assert!((f - 1.0).abs() < 1e-9);
+        assert_eq!(s.at(4.75), (Phase::HoldMax, 2.0));
         assert_eq!(s.at(100.0).0, Phase::Done);
     }
 

@@ -222,7 +222,8 @@ mod tests {
             worst = worst.max((est - analytic).abs());
         }
         assert!(worst < 0.01 * f_dist, "worst {worst}");
-        assert!((obs.estimate() - f_dist).abs() < 1e-6);
+        // O(g dt) discretisation offset: M_n g a dt = 0.01 N here
+        assert!((obs.estimate() - f_dist).abs() < 0.02);
     }
 
     /// The RFOB subtracts its friction model: with the model equal to the true Coulomb force,

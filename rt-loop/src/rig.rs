@@ -131,7 +131,11 @@ impl<B: Board> Rig<B> {
         } else {
             i_ref.clamp(-p.current_limit, p.current_limit)
         };
-        let word = dac::current_to_word(i_cmd, p.dac_full_scale);
+        let mut word = dac::current_to_word(i_cmd, p.dac_full_scale);
+        // Rounding to the nearest DAC code may land one code beyond the clamp: step back.
+        if dac::word_to_current(word, p.dac_full_scale).abs() > p.current_limit {
+            word = if word > 32768 { word - 1 } else { word + 1 };
+        }
         self.i_motor = dac::word_to_current(word, p.dac_full_scale);
         self.board.write_dac(word);
         self.board.kick_watchdog();

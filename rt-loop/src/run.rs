@@ -135,6 +135,24 @@ pub fn build_board(cfg: &RunConfig, material: Option<&Material>) -> Result<Box<d
     })
 }
 
+/// Builds the loop for a configuration (board, experiment, observers); everything the step
+/// needs is allocated here.
+pub fn build_rig(
+    cfg: &RunConfig,
+    model: Option<Box<dyn ForceModel>>,
+) -> Result<Rig<Box<dyn Board>>> {
+    cfg.validate().map_err(|e| anyhow!(e))?;
+    let (material, _) = Material::load(&cfg.material)?;
+    let experiment = build_experiment(cfg, model)?;
+    let board = build_board(cfg, Some(&material))?;
+    Ok(Rig::new(
+        board,
+        cfg.params.clone(),
+        experiment,
+        cfg.features.clone(),
+    ))
+}
+
 /// Progress reporting for long lockstep runs (called off the step, every few thousand steps).
 pub trait Progress {
     fn update(&mut self, loop_time_s: f64);
