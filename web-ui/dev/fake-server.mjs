@@ -234,31 +234,37 @@ export async function startFakeServer(opts = {}) {
     return buf;
   }
 
+  /** The status object in the shape infer-server's control plane sends (docs/web-protocol.md). */
   function status() {
     const lat = [];
     for (let i = 0; i < 64; i++) lat.push(5 + Math.abs(bench.r.n()) * 2 + (bench.r.u() < 0.02 ? 20 * bench.r.u() : 0));
     lat.sort((a, b) => a - b);
-    const pct = (k) => ({ p50_us: percentile(lat, 0.5) * k, p99_us: percentile(lat, 0.99) * k, p999_us: lat[lat.length - 1] * k, max_us: lat[lat.length - 1] * k * 1.2, count: state.predictions });
+    const pct = (k) => ({ p50: percentile(lat, 0.5) * k, p99: percentile(lat, 0.99) * k, p999: lat[lat.length - 1] * k, max: lat[lat.length - 1] * k * 1.2, count: state.predictions });
     const m = state.active ? MODELS[state.active] : null;
     return {
-      loop_alive: state.loopAlive,
-      mode: bench.exp.running ? bench.exp.kind : "idle",
-      phase: bench.phase,
-      clock: "realtime",
-      rate_hz: state.loopAlive ? rate * (1 + 0.0002 * bench.r.n()) : 0,
-      step: bench.step,
-      fallbacks: state.fallbacks,
-      deadline_misses: state.misses,
-      scheduling: "SCHED_OTHER (fake)",
-      recorder: "off",
-      telemetry_drops: 0,
-      active_model: m ? { name: state.active, state: "active", kind: m.kind, features: m.features } : null,
-      inference_latency: pct(0.6),
-      round_trip_latency: pct(1),
-      predictions: state.predictions,
-      uptime_s: (Date.now() - state.startedAt) / 1000,
-      server_version: "fake-0.1",
-      token_required: !!token,
+      server: {
+        version: "fake-0.1",
+        uptime_s: (Date.now() - state.startedAt) / 1000,
+        token_required: !!token,
+        max_upload_bytes: 64 << 20,
+        predictions: state.predictions,
+        inference_latency_us: pct(0.6),
+      },
+      loop: {
+        alive: state.loopAlive,
+        clock: "realtime",
+        board: "fake",
+        rate_hz: state.loopAlive ? rate * (1 + 0.0002 * bench.r.n()) : 0,
+        steps: bench.step,
+        deadline_misses: state.misses,
+        fallbacks: state.fallbacks,
+        latency_us: pct(1),
+        experiment: { kind: bench.exp.running ? bench.exp.kind : "idle", running: !!bench.exp.running, cycle: bench.exp.running ? bench.cycle ?? 0 : 0, phase: bench.phase },
+        scheduling: "SCHED_OTHER (fake)",
+        recorder: "off",
+        telemetry_drops: 0,
+      },
+      active_model: m ? { name: state.active, kind: m.kind, features: m.features, since_step: 0, model_id: 1 } : null,
     };
   }
 
@@ -295,7 +301,7 @@ export async function startFakeServer(opts = {}) {
         if (state.active) state.models[state.active] = "loaded";
         state.active = name;
         state.models[name] = "active";
-        return json(res, 200, { effective_step: bench.step + 1 });
+        return json(res, 200, { effective_step: bench.step + 1, model: { name, state: "active", kind: MODELS[name].kind } });
       }
       if (req.method === "POST" && p === "/api/experiment/start") {
         let body;

@@ -359,7 +359,7 @@ function setText(id: string, text: string, cls = ""): void {
 
 function updateFigures(): void {
   const s = status;
-  setText("f-loop", s.loop_alive === undefined ? "–" : s.loop_alive ? `alive${s.clock ? `, ${s.clock}` : ""}` : "gone", s.loop_alive === false ? "bad" : s.loop_alive ? "ok" : "");
+  setText("f-loop", s.loop_alive === undefined ? "–" : s.loop_alive ? `alive${[s.clock, s.board].filter(Boolean).map((x) => `, ${x}`).join("")}` : "gone", s.loop_alive === false ? "bad" : s.loop_alive ? "ok" : "");
   setText("f-rate", typeof s.rate_hz === "number" ? (s.rate_hz >= 1000 ? `${(s.rate_hz / 1000).toFixed(3)} kHz` : `${s.rate_hz.toFixed(1)} Hz`) : "–");
   setText("f-steps", fmtInt(s.step));
   const rt = s.round_trip_latency;
@@ -369,7 +369,8 @@ function updateFigures(): void {
   setText("f-miss", fmtInt(s.deadline_misses), (s.deadline_misses ?? 0) > 0 ? "bad" : "");
   setText("f-fallback", fmtInt(s.fallbacks), (s.fallbacks ?? 0) > 0 ? "bad" : "");
   setText("f-model", s.active_model ? `${s.active_model.name}${s.active_model.kind ? ` (${s.active_model.kind})` : ""}` : s.loop_alive === undefined ? "–" : "none (fallback)");
-  setText("f-mode", s.mode ?? "–");
+  const expDetail = s.mode && s.mode !== "idle" ? [s.experiment_cycle ? `cycle ${s.experiment_cycle}` : "", s.experiment_phase ?? ""].filter(Boolean).join(", ") : "";
+  setText("f-mode", s.mode ? `${s.mode}${expDetail ? ` (${expDetail})` : ""}` : "–");
   setText("f-drops", fmtInt(s.telemetry_drops));
   const up = typeof s.uptime_s === "number" ? `up ${formatDuration(s.uptime_s)}` : "";
   setText("f-server", [s.server_version ? `v${s.server_version}` : "", up].filter(Boolean).join(", ") || "–");

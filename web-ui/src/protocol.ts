@@ -89,6 +89,9 @@ export interface Status {
   step?: number;
   fallbacks?: number;
   deadline_misses?: number;
+  experiment_cycle?: number;
+  experiment_phase?: string;
+  board?: string;
   scheduling?: string;
   recorder?: string;
   telemetry_drops?: number;
@@ -122,13 +125,65 @@ export function normalizeModel(m: unknown): ModelInfo | null {
   };
 }
 
-/** Accepts the status object (plain or with `type: "status"`) and keeps the known fields. */
+type Obj = Record<string, unknown>;
+const obj = (v: unknown): Obj | null => (v && typeof v === "object" && !Array.isArray(v) ? (v as Obj) : null);
+const num = (v: unknown): number | undefined => (typeof v === "number" ? v : undefined);
+const str = (v: unknown): string | undefined => (typeof v === "string" ? v : undefined);
+const bool = (v: unknown): boolean | undefined => (typeof v === "boolean" ? v : undefined);
+
+/** `{ p50, p99, p999, max, count }` (the JSON API) or `{ p50_us, ... }` (gRPC names). */
+function latency(v: unknown): Latency | undefined {
+  const o = obj(v);
+  if (!o) return undefined;
+  return {
+    p50_us: num(o.p50) ?? num(o.p50_us),
+    p99_us: num(o.p99) ?? num(o.p99_us),
+    p999_us: num(o.p999) ?? num(o.p999_us),
+    max_us: num(o.max) ?? num(o.max_us),
+    count: num(o.count),
+  };
+}
+
+/**
+ * Reads the status object into the page's flat form. The server sends
+ * `{ server: {...}, loop: {...}, active_model }` (docs/web-protocol.md); the flat gRPC `Status`
+ * field names are accepted too, so a server speaking either works.
+ */
 export function normalizeStatus(raw: unknown): Status {
-  if (!raw || typeof raw !== "object") return {};
-  const o = raw as Record<string, unknown>;
-  const st: Status = { ...(o as Status) };
-  st.active_model = normalizeModel(o.active_model);
-  return st;
+  const o = obj(raw);
+  if (!o) return {};
+  const server = obj(o.server);
+  const loop = obj(o.loop);
+  if (!server && !loop) {
+    const st: Status = { ...(o as Status) };
+    st.active_model = normalizeModel(o.active_model);
+    return st;
+  }
+  const exp = obj(loop?.experiment);
+  const expKind = str(exp?.kind);
+  const running = bool(exp?.running);
+  return {
+    loop_alive: bool(loop?.alive),
+    mode: expKind === undefined ? undefined : running === false ? "idle" : expKind,
+    experiment_cycle: num(exp?.cycle),
+    experiment_phase: str(exp?.phase),
+    clock: str(loop?.clock),
+    board: str(loop?.board),
+    rate_hz: num(loop?.rate_hz),
+    step: num(loop?.steps),
+    fallbacks: num(loop?.fallbacks),
+    deadline_misses: num(loop?.deadline_misses),
+    scheduling: str(loop?.scheduling),
+    recorder: str(loop?.recorder),
+    telemetry_drops: num(loop?.telemetry_drops),
+    round_trip_latency: latency(loop?.latency_us),
+    inference_latency: latency(server?.inference_latency_us),
+    predictions: num(server?.predictions),
+    uptime_s: num(server?.uptime_s),
+    server_version: str(server?.version),
+    token_required: bool(server?.token_required),
+    active_model: normalizeModel(o.active_model),
+  };
 }
 
 /** `/api/models` answers a list; a `{ models: [...] }` wrapper (the gRPC shape) is accepted too. */

@@ -148,8 +148,14 @@ describe("page against the fake server", () => {
     assert.equal(v.frozen, true);
     const span = v.range[1] - v.range[0];
     assert.ok(span > 1 && span < 3, `zoomed to ~2 s of a 10 s window: ${span}`);
-    const p = await hook.points(page, "rtob_force");
-    assert.ok(p.t[0] >= v.range[0] - 0.01 && p.t.at(-1) <= v.range[1] + 0.01, "plotted data within the zoom");
+    // The next animation frame draws the zoomed range.
+    await waitFor(
+      async () => {
+        const p = await hook.points(page, "rtob_force");
+        return p.t.length > 0 && p.t[0] >= v.range[0] - 0.01 && p.t.at(-1) <= v.range[1] + 0.01;
+      },
+      { timeoutMs: 2000, what: "plotted data within the zoom" },
+    );
     await page.locator("body").focus();
     await page.keyboard.press("Escape");
     const w = await page.evaluate(() => window.__haptics.view());
@@ -166,6 +172,7 @@ describe("page against the fake server", () => {
   });
 
   test("export writes the visible window as CSV at full resolution", async () => {
+    await page.click("#live");
     await page.click("#pause");
     const v = await page.evaluate(() => window.__haptics.view());
     const [dl] = await Promise.all([page.waitForEvent("download"), page.click("#export")]);
@@ -184,6 +191,7 @@ describe("page against the fake server", () => {
   });
 
   test("frame times while drawing 10 kHz telemetry (printed, not asserted)", async () => {
+    await page.click("#live");
     await page.selectOption("#window", "10");
     const m = await measureFrames(page, 5000);
     console.log(`page frame times (fake server, 10 kHz, 1 ms buckets, 10 s window): ${m.fps.toFixed(1)} fps, rAF delta p50 ${m.frameDelta.p50.toFixed(1)} ms p99 ${m.frameDelta.p99.toFixed(1)} ms; draw p50 ${m.drawMs.p50.toFixed(2)} ms p99 ${m.drawMs.p99.toFixed(2)} ms over ${m.draws} draws; ${m.dataFrames} data frames, ${m.buckets} buckets`);

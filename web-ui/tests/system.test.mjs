@@ -3,12 +3,13 @@
 // infer-server serving the page (embedded from web-ui/dist), the WebSocket and /api/*.
 //
 // Until infer-server serves the web side, this test SKIPS with a loud message. It decides that
-// from the server's source: once infer-server/src mentions "/api/status", a server that does not
-// answer there is a hard failure, not a skip.
+// from the server's sources: once infer-server depends on control-plane (or its source mentions
+// "/api/status"), a server that does not answer there is a hard failure, not a skip.
 //
-// Command lines (placeholders {http} {grpc} {models} {bin} are filled in; whitespace-split):
-//   HAPTICS_RT_LOOP_ARGS        default: serve --clock realtime --rate-hz 10000
-//   HAPTICS_INFER_SERVER_ARGS   default: serve --models {models} --grpc {grpc} --http {http}
+// Command lines (placeholders {http} {grpc} {models} {instance} {bin} {tmp} are filled in;
+// whitespace-split; {instance} is unique to this run so a developer's own loop is not touched):
+//   HAPTICS_RT_LOOP_ARGS        default: serve --clock realtime --rate-hz 10000 --instance {instance}
+//   HAPTICS_INFER_SERVER_ARGS   default: serve --models {models} --instance {instance} --grpc {grpc} --http {http}
 //   HAPTICS_HAPTICCTL_ARGS      default: --server http://{grpc} status
 //   HAPTICS_MODELS_DIR          default: fixture models written by
 //                               infer-server/tests/fixtures/make_models.py with .venv's python,
@@ -29,15 +30,22 @@ const repo = resolve(here, "..", "..");
 const binDir = process.env.HAPTICS_BIN_DIR ? resolve(process.env.HAPTICS_BIN_DIR) : join(repo, "target", "release");
 const bin = (name) => join(binDir, name);
 
-/** True once the server's source declares the web API: from then on, no skipping. */
+/**
+ * True once infer-server wires in the web side: its Cargo.toml depends on control-plane (the
+ * crate with the axum routes) or its own source mentions "/api/status". From then on, no skipping.
+ */
 function serverClaimsWeb() {
-  const dir = join(repo, "infer-server", "src");
+  try {
+    if (/^\s*control-plane\s*=/m.test(readFileSync(join(repo, "infer-server", "Cargo.toml"), "utf8"))) return true;
+  } catch {
+    /* no manifest: look at the source */
+  }
   const walk = (d) =>
     readdirSync(d, { withFileTypes: true }).some((e) =>
       e.isDirectory() ? walk(join(d, e.name)) : e.name.endsWith(".rs") && readFileSync(join(d, e.name), "utf8").includes("/api/status"),
     );
   try {
-    return walk(dir);
+    return walk(join(repo, "infer-server", "src"));
   } catch {
     return false;
   }
@@ -49,7 +57,7 @@ function loudSkip(t, why) {
   if (shouted) return;
   shouted = true;
   const bar = "!".repeat(100);
-  const msg = `${bar}\n!! SYSTEM BROWSER TEST SKIPPED: ${why}\n!! Only the page-only test (tests/page.fake.test.mjs, fake server) ran. This becomes a hard failure\n!! as soon as infer-server/src declares "/api/status".\n${bar}`;
+  const msg = `${bar}\n!! SYSTEM BROWSER TEST SKIPPED: ${why}\n!! Only the page-only test (tests/page.fake.test.mjs, fake server) ran. This becomes a hard failure\n!! as soon as infer-server depends on control-plane (or mentions "/api/status").\n${bar}`;
   console.log(msg);
 }
 
@@ -135,12 +143,12 @@ describe("page against the real rt-loop and infer-server", () => {
     ctx.http = await freePort();
     ctx.grpc = await freePort();
     ctx.models = modelsDir(ctx.tmp);
-    const vars = { http: `127.0.0.1:${ctx.http}`, grpc: `127.0.0.1:${ctx.grpc}`, models: ctx.models, bin: binDir, tmp: ctx.tmp };
+    const vars = { http: `127.0.0.1:${ctx.http}`, grpc: `127.0.0.1:${ctx.grpc}`, models: ctx.models, bin: binDir, tmp: ctx.tmp, instance: `webtest-${process.pid}` };
     ctx.vars = vars;
-    ctx.rtArgs = fill(process.env.HAPTICS_RT_LOOP_ARGS ?? "serve --clock realtime --rate-hz 10000", vars);
+    ctx.rtArgs = fill(process.env.HAPTICS_RT_LOOP_ARGS ?? "serve --clock realtime --rate-hz 10000 --instance {instance}", vars);
     ctx.loop = start("rt-loop", bin("rt-loop"), ctx.rtArgs);
     await sleep(500);
-    ctx.server = start("infer-server", bin("infer-server"), fill(process.env.HAPTICS_INFER_SERVER_ARGS ?? "serve --models {models} --grpc {grpc} --http {http}", vars));
+    ctx.server = start("infer-server", bin("infer-server"), fill(process.env.HAPTICS_INFER_SERVER_ARGS ?? "serve --models {models} --instance {instance} --grpc {grpc} --http {http}", vars));
     ctx.url = `http://127.0.0.1:${ctx.http}`;
     try {
       await waitFor(

@@ -158,6 +158,36 @@ describe("status and models", () => {
     assert.equal(m.normalizeStatus({ active_model: null, loop_alive: false }).loop_alive, false);
     assert.equal(m.normalizeStatus({ type: "status", active_model: { name: "rf", state: "MODEL_STATE_ACTIVE" } }).active_model.state, "active");
   });
+  test("the server's nested status object becomes the page's figures", () => {
+    const st = m.normalizeStatus({
+      type: "status",
+      server: { version: "0.1.0", uptime_s: 3, token_required: true, predictions: 9, inference_latency_us: { p50: 1, p99: 2, p999: 3, max: 4, count: 5 } },
+      loop: {
+        alive: true, clock: "realtime", board: "sim", rate_hz: 9999.5, steps: 12345, deadline_misses: 2, fallbacks: 7,
+        latency_us: { p50: 6, p99: 14, p999: 31, max: 60, count: 100 },
+        experiment: { kind: "abstraction", running: true, cycle: 3, phase: "ramp-up" },
+        scheduling: "SCHED_FIFO 80", recorder: "off", telemetry_drops: 0,
+      },
+      active_model: { name: "rf6", kind: "stateless", features: ["position_x"], since_step: 10, model_id: 2 },
+    });
+    assert.equal(st.loop_alive, true);
+    assert.equal(st.rate_hz, 9999.5);
+    assert.equal(st.step, 12345);
+    assert.equal(st.deadline_misses, 2);
+    assert.equal(st.fallbacks, 7);
+    assert.deepEqual(st.round_trip_latency, { p50_us: 6, p99_us: 14, p999_us: 31, max_us: 60, count: 100 });
+    assert.equal(st.inference_latency.p99_us, 2);
+    assert.equal(st.mode, "abstraction");
+    assert.equal(st.experiment_cycle, 3);
+    assert.equal(st.active_model.name, "rf6");
+    assert.equal(st.server_version, "0.1.0");
+    assert.equal(st.token_required, true);
+    const idle = m.normalizeStatus({ loop: { alive: false, experiment: { kind: "abstraction", running: false } }, server: {}, active_model: null });
+    assert.equal(idle.mode, "idle");
+    assert.equal(idle.loop_alive, false);
+    assert.equal(idle.active_model, null);
+  });
+
   test("the model list as a plain list or wrapped as gRPC answers it", () => {
     const l = [{ name: "a", state: "available" }, { name: "", state: "x" }, { nope: 1 }];
     assert.deepEqual(m.normalizeModels(l).map((x) => x.name), ["a"]);
