@@ -22,23 +22,44 @@ pub enum Error {
     #[error("segment `{name}` is not a haptics segment: magic {found:#018x}")]
     BadMagic { name: String, found: u64 },
     #[error("segment `{name}` has layout version {found}, this build speaks {expected}")]
-    VersionMismatch { name: String, found: u64, expected: u64 },
-    #[error("segment `{name}` layout differs from this build: {what} is {found}, expected {expected}")]
-    LayoutMismatch { name: String, what: String, found: u64, expected: u64 },
+    VersionMismatch {
+        name: String,
+        found: u64,
+        expected: u64,
+    },
+    #[error(
+        "segment `{name}` layout differs from this build: {what} is {found}, expected {expected}"
+    )]
+    LayoutMismatch {
+        name: String,
+        what: String,
+        found: u64,
+        expected: u64,
+    },
     #[error("segment `{name}` belongs to uid {uid}, not to us; refusing it")]
     ForeignOwner { name: String, uid: u32 },
     #[error("segment `{name}` has mode {mode:o}: group/other may access it; refusing it")]
     InsecureMode { name: String, mode: u32 },
     #[error("this segment handle was {actual}, it cannot become the {wanted} side")]
-    WrongRole { actual: &'static str, wanted: &'static str },
+    WrongRole {
+        actual: &'static str,
+        wanted: &'static str,
+    },
     #[error("{op} failed for segment `{name}`: {source}")]
-    Os { op: &'static str, name: String, source: io::Error },
+    Os {
+        op: &'static str,
+        name: String,
+        source: io::Error,
+    },
 }
 
 impl Error {
     /// Whether waiting and retrying may succeed (no segment yet, a dead creator's segment
     /// awaiting replacement, initialisation in progress).
     pub fn is_transient(&self) -> bool {
-        matches!(self, Error::NotFound { .. } | Error::CreatorDead { .. } | Error::Initializing { .. })
+        matches!(
+            self,
+            Error::NotFound { .. } | Error::CreatorDead { .. } | Error::Initializing { .. }
+        )
     }
 }

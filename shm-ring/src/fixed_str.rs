@@ -36,7 +36,10 @@ impl FixedStr {
         }
         let mut bytes = [0u8; FIXED_STR_BYTES];
         bytes[..s.len()].copy_from_slice(s.as_bytes());
-        Ok(FixedStr { bytes, len: s.len() as u8 })
+        Ok(FixedStr {
+            bytes,
+            len: s.len() as u8,
+        })
     }
 
     /// The string.
@@ -59,12 +62,18 @@ impl FixedStr {
         for (chunk, word) in bytes.chunks_exact_mut(8).zip(words) {
             chunk.copy_from_slice(&word.to_le_bytes());
         }
-        let len = bytes.iter().position(|&b| b == 0).unwrap_or(FIXED_STR_BYTES);
+        let len = bytes
+            .iter()
+            .position(|&b| b == 0)
+            .unwrap_or(FIXED_STR_BYTES);
         if bytes[len..].iter().any(|&b| b != 0) {
             return None;
         }
         std::str::from_utf8(&bytes[..len]).ok()?;
-        Some(FixedStr { bytes, len: len as u8 })
+        Some(FixedStr {
+            bytes,
+            len: len as u8,
+        })
     }
 }
 

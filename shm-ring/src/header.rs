@@ -23,7 +23,12 @@ pub enum Channel {
 }
 
 impl Channel {
-    pub const ALL: [Channel; 4] = [Channel::Features, Channel::Forces, Channel::Telemetry, Channel::Commands];
+    pub const ALL: [Channel; 4] = [
+        Channel::Features,
+        Channel::Forces,
+        Channel::Telemetry,
+        Channel::Commands,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -108,22 +113,34 @@ impl Layout {
             slots_offsets[i] = at;
             at += capacities[i] * slot_words(channel.message_shape().0) * 8;
         }
-        Layout { control_offsets, slots_offsets, total: align_up(at, 4096) }
+        Layout {
+            control_offsets,
+            slots_offsets,
+            total: align_up(at, 4096),
+        }
     }
 }
 
 impl Header {
     /// Writes every field but `magic`, for a freshly zeroed segment.
-    pub(crate) fn init(&self, capacities: [usize; 4], schema: &[FixedStr], layout: &Layout, created_unix_ns: u64) {
+    pub(crate) fn init(
+        &self,
+        capacities: [usize; 4],
+        schema: &[FixedStr],
+        layout: &Layout,
+        created_unix_ns: u64,
+    ) {
         let r = Ordering::Relaxed;
         self.layout_version.store(LAYOUT_VERSION, r);
-        self.header_size.store(std::mem::size_of::<Header>() as u64, r);
+        self.header_size
+            .store(std::mem::size_of::<Header>() as u64, r);
         self.control_size.store(RingControl::SIZE as u64, r);
         self.control_align.store(RingControl::ALIGN as u64, r);
         self.total_size.store(layout.total as u64, r);
         let pid = crate::os::pid();
         self.creator_pid.store(pid as u64, r);
-        self.creator_start_ticks.store(crate::os::process_start_ticks(pid).unwrap_or(0), r);
+        self.creator_start_ticks
+            .store(crate::os::process_start_ticks(pid).unwrap_or(0), r);
         self.created_unix_ns.store(created_unix_ns, r);
         self.schema_len.store(schema.len() as u64, r);
         for (cells, name) in self.schema.iter().zip(schema) {
@@ -139,7 +156,8 @@ impl Header {
             desc.slot_bytes.store(slot_words(words) as u64 * 8, r);
             desc.slot_align.store(SLOT_ALIGN as u64, r);
             desc.layout_id.store(id, r);
-            desc.control_offset.store(layout.control_offsets[i] as u64, r);
+            desc.control_offset
+                .store(layout.control_offsets[i] as u64, r);
             desc.slots_offset.store(layout.slots_offsets[i] as u64, r);
         }
     }

@@ -31,6 +31,41 @@ mod spsc;
 mod sync;
 mod wait;
 
+/// Hooks for the loom models in `tests/loom.rs` (compiled only under `--cfg loom`).
+#[cfg(loom)]
+#[doc(hidden)]
+pub mod loom_hooks {
+    use crate::ring_mem::Signal;
+    use crate::sync::{AtomicU32, Ordering};
+
+    /// A bare wake signal with the real `register_waiter` / `notify` code.
+    pub struct Handshake(Signal);
+
+    impl Default for Handshake {
+        fn default() -> Self {
+            Handshake(Signal {
+                epoch: AtomicU32::new(0),
+                waiters: AtomicU32::new(0),
+            })
+        }
+    }
+
+    impl Handshake {
+        /// Waiter side: returns the epoch it would sleep on.
+        pub fn register_waiter(&self) -> u32 {
+            crate::wait::register_waiter(&self.0)
+        }
+        /// Notifier side, after publishing.
+        pub fn notify(&self) {
+            crate::wait::notify(&self.0)
+        }
+        /// Whether a futex wait on `epoch` would return at once (the value moved).
+        pub fn epoch_moved(&self, epoch: u32) -> bool {
+            self.0.epoch.load(Ordering::Acquire) != epoch
+        }
+    }
+}
+
 #[cfg(not(loom))]
 mod endpoints;
 #[cfg(not(loom))]
@@ -44,7 +79,9 @@ mod segment;
 
 pub use fixed_str::{FixedStr, FixedStrError, FIXED_STR_BYTES};
 pub use message::{layout_id, DecodeError, Message, MAX_WORDS};
-pub use messages::{Command, CommandKind, FeatureMsg, ForceMsg, TelemetryRow, COMMAND_VALUES, MAX_FEATURES};
+pub use messages::{
+    Command, CommandKind, FeatureMsg, ForceMsg, TelemetryRow, COMMAND_VALUES, MAX_FEATURES,
+};
 pub use overwrite::{heap_overwrite_channel, OverwriteConsumer, OverwriteProducer};
 pub use ring_mem::slot_words;
 pub use spsc::{heap_channel, Consumer, CorruptRing, Producer, RecvError, SendError};
@@ -58,5 +95,6 @@ pub use error::Error;
 pub use header::{Channel, LAYOUT_VERSION, MAGIC};
 #[cfg(not(loom))]
 pub use segment::{
-    Config, Link, Role, Segment, SegmentInfo, SegmentName, StaleSegment, MAX_CAPACITY, THESIS_FEATURES,
+    Config, Link, Role, Segment, SegmentInfo, SegmentName, StaleSegment, MAX_CAPACITY,
+    THESIS_FEATURES,
 };

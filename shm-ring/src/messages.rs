@@ -46,14 +46,22 @@ impl FeatureMsg {
 
 impl Default for FeatureMsg {
     fn default() -> Self {
-        FeatureMsg { seq: 0, timestamp_ns: 0, run_id: 0, flags: 0, len: 0, values: [0.0; MAX_FEATURES] }
+        FeatureMsg {
+            seq: 0,
+            timestamp_ns: 0,
+            run_id: 0,
+            flags: 0,
+            len: 0,
+            values: [0.0; MAX_FEATURES],
+        }
     }
 }
 
 impl Message for FeatureMsg {
     const WORDS: usize = 4 + MAX_FEATURES;
-    const LAYOUT_ID: u64 =
-        layout_id("FeatureMsg v1: seq u64, timestamp_ns u64, run_id u32|flags u32, len u64, values [f64; 16]");
+    const LAYOUT_ID: u64 = layout_id(
+        "FeatureMsg v1: seq u64, timestamp_ns u64, run_id u32|flags u32, len u64, values [f64; 16]",
+    );
 
     fn encode(&self, out: &mut [u64]) {
         out[0] = self.seq;
@@ -67,7 +75,10 @@ impl Message for FeatureMsg {
 
     fn decode(w: &[u64]) -> Result<Self, DecodeError> {
         if w[3] > MAX_FEATURES as u64 {
-            return Err(DecodeError::InvalidField { field: "FeatureMsg.len", value: w[3] });
+            return Err(DecodeError::InvalidField {
+                field: "FeatureMsg.len",
+                value: w[3],
+            });
         }
         let mut values = [0.0; MAX_FEATURES];
         for (value, word) in values.iter_mut().zip(&w[4..4 + MAX_FEATURES]) {
@@ -205,7 +216,10 @@ impl Message for TelemetryRow {
     fn decode(w: &[u64]) -> Result<Self, DecodeError> {
         let fallback = (w[3] >> 24) & 0xff;
         if fallback > 1 {
-            return Err(DecodeError::InvalidField { field: "TelemetryRow.fallback", value: fallback });
+            return Err(DecodeError::InvalidField {
+                field: "TelemetryRow.fallback",
+                value: fallback,
+            });
         }
         let f = |i: usize| f64::from_bits(w[4 + i]);
         Ok(TelemetryRow {
@@ -278,7 +292,9 @@ pub struct Command {
 
 impl Message for Command {
     const WORDS: usize = 2 + FIXED_STR_WORDS + COMMAND_VALUES;
-    const LAYOUT_ID: u64 = layout_id("Command v1: id u64, kind u64 (1 start, 2 stop, 3 set), name [u8; 32], values [f64; 4]");
+    const LAYOUT_ID: u64 = layout_id(
+        "Command v1: id u64, kind u64 (1 start, 2 stop, 3 set), name [u8; 32], values [f64; 4]",
+    );
 
     fn encode(&self, out: &mut [u64]) {
         out[0] = self.id;
@@ -290,14 +306,24 @@ impl Message for Command {
     }
 
     fn decode(w: &[u64]) -> Result<Self, DecodeError> {
-        let kind = CommandKind::from_u64(w[1])
-            .ok_or(DecodeError::InvalidField { field: "Command.kind", value: w[1] })?;
-        let name = FixedStr::from_words(&w[2..2 + FIXED_STR_WORDS])
-            .ok_or(DecodeError::InvalidField { field: "Command.name", value: w[2] })?;
+        let kind = CommandKind::from_u64(w[1]).ok_or(DecodeError::InvalidField {
+            field: "Command.kind",
+            value: w[1],
+        })?;
+        let name =
+            FixedStr::from_words(&w[2..2 + FIXED_STR_WORDS]).ok_or(DecodeError::InvalidField {
+                field: "Command.name",
+                value: w[2],
+            })?;
         let mut values = [0.0; COMMAND_VALUES];
         for (value, word) in values.iter_mut().zip(&w[2 + FIXED_STR_WORDS..Self::WORDS]) {
             *value = f64::from_bits(*word);
         }
-        Ok(Command { id: w[0], kind, name, values })
+        Ok(Command {
+            id: w[0],
+            kind,
+            name,
+            values,
+        })
     }
 }

@@ -52,7 +52,11 @@ pub(crate) fn fstat(fd: &OwnedFd) -> io::Result<FileStat> {
     // SAFETY: `stat` is plain data; fstat fills it on success.
     let mut st: libc::stat = unsafe { std::mem::zeroed() };
     cvt(unsafe { libc::fstat(fd.as_raw_fd(), &mut st) })?;
-    Ok(FileStat { size: st.st_size as u64, uid: st.st_uid, mode: st.st_mode & 0o7777 })
+    Ok(FileStat {
+        size: st.st_size as u64,
+        uid: st.st_uid,
+        mode: st.st_mode & 0o7777,
+    })
 }
 
 pub(crate) fn set_mode_0600(fd: &OwnedFd) -> io::Result<()> {
@@ -98,14 +102,14 @@ impl Mapping {
         if ptr == libc::MAP_FAILED {
             return Err(io::Error::last_os_error());
         }
-        let ptr = NonNull::new(ptr.cast::<u8>()).ok_or_else(|| io::Error::from(io::ErrorKind::Other))?;
+        let ptr =
+            NonNull::new(ptr.cast::<u8>()).ok_or_else(|| io::Error::from(io::ErrorKind::Other))?;
         Ok(Mapping { ptr, len })
     }
 
     pub(crate) fn base(&self) -> NonNull<u8> {
         self.ptr
     }
-
 }
 
 impl Drop for Mapping {
@@ -151,7 +155,13 @@ pub(crate) fn byte_is_locked(fd: &impl AsRawFd, byte: u64) -> io::Result<bool> {
 /// Opens (creating, mode 0600) a lock file.
 pub(crate) fn open_lock_file(path: &std::path::Path) -> io::Result<File> {
     use std::os::unix::fs::OpenOptionsExt;
-    std::fs::OpenOptions::new().read(true).write(true).create(true).truncate(false).mode(0o600).open(path)
+    std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .mode(0o600)
+        .open(path)
 }
 
 /// This process's id.
@@ -173,7 +183,9 @@ pub(crate) fn process_alive(pid: u32, start_ticks: u64) -> bool {
     let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
         return false;
     };
-    let Some(close) = stat.rfind(')') else { return false };
+    let Some(close) = stat.rfind(')') else {
+        return false;
+    };
     let mut fields = stat[close + 1..].split_whitespace();
     let state = fields.next().unwrap_or("X");
     let start = fields.nth(18).and_then(|s| s.parse::<u64>().ok());

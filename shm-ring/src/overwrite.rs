@@ -65,7 +65,11 @@ impl<M: Message> OverwriteProducer<M> {
     pub(crate) fn new(mem: RingMem) -> Self {
         assert!(M::WORDS <= MAX_WORDS);
         let tail = mem.ctrl().tail.0.load(Ordering::Relaxed);
-        OverwriteProducer { mem, tail, _msg: PhantomData }
+        OverwriteProducer {
+            mem,
+            tail,
+            _msg: PhantomData,
+        }
     }
 
     /// Publishes `msg`, overwriting the oldest message if the ring is full. Never blocks,
@@ -121,7 +125,12 @@ impl<M: Message> OverwriteConsumer<M> {
         loop {
             let tail = self.mem.ctrl().tail.0.load(Ordering::Acquire);
             if tail < self.head {
-                return Err(crate::spsc::CorruptRing::Indices { head: self.head, tail, capacity }.into());
+                return Err(crate::spsc::CorruptRing::Indices {
+                    head: self.head,
+                    tail,
+                    capacity,
+                }
+                .into());
             }
             if tail == self.head {
                 return Ok(None);
@@ -154,7 +163,11 @@ impl<M: Message> OverwriteConsumer<M> {
     fn lose(&mut self, count: u64) {
         self.head += count;
         self.dropped += count;
-        self.mem.ctrl().dropped.0.store(self.dropped, Ordering::Relaxed);
+        self.mem
+            .ctrl()
+            .dropped
+            .0
+            .store(self.dropped, Ordering::Relaxed);
     }
 
     /// Messages lost to overwriting so far.
@@ -192,9 +205,13 @@ impl<M: Message> OverwriteConsumer<M> {
             }
             let mem = &self.mem;
             let head = self.head;
-            let waited = wait_for(&mem.ctrl().data.0, self.wait, deadline, self.peer.as_deref(), || {
-                (mem.ctrl().tail.0.load(Ordering::Acquire) != head).then_some(())
-            });
+            let waited = wait_for(
+                &mem.ctrl().data.0,
+                self.wait,
+                deadline,
+                self.peer.as_deref(),
+                || (mem.ctrl().tail.0.load(Ordering::Acquire) != head).then_some(()),
+            );
             match waited {
                 Ok(()) => {}
                 Err(WaitEnd::Timeout) => return Err(RecvError::Timeout),

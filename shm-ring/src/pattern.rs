@@ -29,7 +29,7 @@ pub fn feature(seq: u64) -> FeatureMsg {
         seq,
         timestamp_ns: seq.wrapping_mul(1_000_000),
         run_id: (seq >> 20) as u32,
-        flags: (seq % 1000 == 0) as u32,
+        flags: (seq & 1023 == 0) as u32,
         len: MAX_FEATURES as u8,
         values,
     }
@@ -39,13 +39,25 @@ pub fn feature(seq: u64) -> FeatureMsg {
 pub fn check_feature(msg: &FeatureMsg, expected_seq: u64) -> Result<(), String> {
     let want = feature(expected_seq);
     if msg.seq != expected_seq {
-        return Err(format!("feature seq {} where {expected_seq} was expected", msg.seq));
+        return Err(format!(
+            "feature seq {} where {expected_seq} was expected",
+            msg.seq
+        ));
     }
-    let same_bits = msg.values.iter().zip(&want.values).all(|(a, b)| a.to_bits() == b.to_bits());
-    if !same_bits || msg.timestamp_ns != want.timestamp_ns || msg.run_id != want.run_id
-        || msg.flags != want.flags || msg.len != want.len
+    let same_bits = msg
+        .values
+        .iter()
+        .zip(&want.values)
+        .all(|(a, b)| a.to_bits() == b.to_bits());
+    if !same_bits
+        || msg.timestamp_ns != want.timestamp_ns
+        || msg.run_id != want.run_id
+        || msg.flags != want.flags
+        || msg.len != want.len
     {
-        return Err(format!("feature {expected_seq} is torn or corrupt: {msg:?}"));
+        return Err(format!(
+            "feature {expected_seq} is torn or corrupt: {msg:?}"
+        ));
     }
     Ok(())
 }
@@ -66,10 +78,15 @@ pub fn force(seq: u64) -> ForceMsg {
 pub fn check_force(msg: &ForceMsg, expected_seq: u64) -> Result<(), String> {
     let want = force(expected_seq);
     if msg.seq != expected_seq {
-        return Err(format!("force seq {} where {expected_seq} was expected", msg.seq));
+        return Err(format!(
+            "force seq {} where {expected_seq} was expected",
+            msg.seq
+        ));
     }
-    if msg.force.to_bits() != want.force.to_bits() || msg.model_id != want.model_id
-        || msg.inference_ns != want.inference_ns || msg.flags != 0
+    if msg.force.to_bits() != want.force.to_bits()
+        || msg.model_id != want.model_id
+        || msg.inference_ns != want.inference_ns
+        || msg.flags != 0
     {
         return Err(format!("force {expected_seq} is torn or corrupt: {msg:?}"));
     }

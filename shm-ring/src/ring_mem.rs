@@ -47,7 +47,10 @@ impl RingControl {
     pub(crate) const ALIGN: usize = std::mem::align_of::<RingControl>();
 
     fn new_zeroed() -> Self {
-        let signal = || Signal { epoch: AtomicU32::new(0), waiters: AtomicU32::new(0) };
+        let signal = || Signal {
+            epoch: AtomicU32::new(0),
+            waiters: AtomicU32::new(0),
+        };
         RingControl {
             tail: Padded(AtomicU64::new(0)),
             head: Padded(AtomicU64::new(0)),
@@ -92,10 +95,16 @@ struct HeapStorage {
 impl RingMem {
     /// Allocates a zeroed ring on the heap. `capacity` must be a power of two.
     pub(crate) fn heap(capacity: usize, payload_words: usize) -> RingMem {
-        assert!(capacity.is_power_of_two(), "ring capacity must be a power of two");
+        assert!(
+            capacity.is_power_of_two(),
+            "ring capacity must be a power of two"
+        );
         let stride = slot_words(payload_words);
         let slots: Box<[AtomicU64]> = (0..capacity * stride).map(|_| AtomicU64::new(0)).collect();
-        let storage = Arc::new(HeapStorage { ctrl: Box::new(RingControl::new_zeroed()), slots });
+        let storage = Arc::new(HeapStorage {
+            ctrl: Box::new(RingControl::new_zeroed()),
+            slots,
+        });
         let ctrl = NonNull::from(&*storage.ctrl);
         // From the whole slice, so the pointer's provenance covers every slot (Miri-clean).
         let slots = NonNull::from(&storage.slots[..]).cast::<AtomicU64>();
@@ -136,7 +145,10 @@ impl RingMem {
 
     /// A second view of the same ring (for the other end), sharing the owner.
     pub(crate) fn twin(&self) -> RingMem {
-        RingMem { _owner: Arc::clone(&self._owner), ..*self }
+        RingMem {
+            _owner: Arc::clone(&self._owner),
+            ..*self
+        }
     }
 
     #[inline]

@@ -54,12 +54,22 @@ impl SegmentName {
 
     /// An explicit name (must start with `/`).
     pub fn new(name: &str) -> Result<SegmentName, Error> {
-        let bad = |reason| Err(Error::InvalidName { name: name.to_owned(), reason });
-        let Some(rest) = name.strip_prefix('/') else { return bad("must start with `/`") };
+        let bad = |reason| {
+            Err(Error::InvalidName {
+                name: name.to_owned(),
+                reason,
+            })
+        };
+        let Some(rest) = name.strip_prefix('/') else {
+            return bad("must start with `/`");
+        };
         if rest.is_empty() || rest.len() > 200 {
             return bad("must have 1 to 200 characters after `/`");
         }
-        if !rest.bytes().all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'_' | b'-')) {
+        if !rest
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'_' | b'-'))
+        {
             return bad("only letters, digits, `.`, `_` and `-` are allowed after `/`");
         }
         if rest.starts_with('.') {
@@ -74,7 +84,11 @@ impl SegmentName {
 
     /// The creator's instance lock file (a dot file, so it never collides with a segment).
     pub fn lock_path(&self) -> PathBuf {
-        let dir = if std::path::Path::new("/dev/shm").is_dir() { PathBuf::from("/dev/shm") } else { std::env::temp_dir() };
+        let dir = if std::path::Path::new("/dev/shm").is_dir() {
+            PathBuf::from("/dev/shm")
+        } else {
+            std::env::temp_dir()
+        };
         dir.join(format!(".shm-ring.{}.lock", &self.0[1..]))
     }
 }
@@ -113,7 +127,12 @@ impl Default for Config {
 
 impl Config {
     fn capacities(&self) -> [usize; 4] {
-        [self.features_capacity, self.forces_capacity, self.telemetry_capacity, self.commands_capacity]
+        [
+            self.features_capacity,
+            self.forces_capacity,
+            self.telemetry_capacity,
+            self.commands_capacity,
+        ]
     }
 
     fn validate(&self) -> Result<Vec<FixedStr>, Error> {
@@ -137,9 +156,14 @@ impl Config {
                 return Err(Error::InvalidConfig(format!("feature name #{i} is empty")));
             }
             if self.feature_names[..i].contains(name) {
-                return Err(Error::InvalidConfig(format!("feature name `{name}` appears twice")));
+                return Err(Error::InvalidConfig(format!(
+                    "feature name `{name}` appears twice"
+                )));
             }
-            names.push(FixedStr::new(name).map_err(|e| Error::InvalidConfig(format!("feature name: {e}")))?);
+            names.push(
+                FixedStr::new(name)
+                    .map_err(|e| Error::InvalidConfig(format!("feature name: {e}")))?,
+            );
         }
         Ok(names)
     }
@@ -222,8 +246,10 @@ impl Shared {
         // and slots to SLOT_ALIGN; the memory is only used through atomics and stays mapped
         // while the `Arc<Shared>` owner passed along lives.
         unsafe {
-            let ctrl = NonNull::new_unchecked(base.add(self.layout.control_offsets[i])).cast::<RingControl>();
-            let slots = NonNull::new_unchecked(base.add(self.layout.slots_offsets[i])).cast::<AtomicU64>();
+            let ctrl = NonNull::new_unchecked(base.add(self.layout.control_offsets[i]))
+                .cast::<RingControl>();
+            let slots =
+                NonNull::new_unchecked(base.add(self.layout.slots_offsets[i])).cast::<AtomicU64>();
             RingMem::foreign(ctrl, slots, capacity, payload, self.clone())
         }
     }
@@ -264,6 +290,9 @@ impl Drop for Shared {
         // sees the loop's lock released.
         if self.role == Role::Loop {
             let _ = os::shm_unlink(self.name.as_str());
+            // Removing the lock file while still holding its lock is safe because
+            // `lock_instance` re-checks, after locking, that the path still names its file.
+            let _ = std::fs::remove_file(self.name.lock_path());
         }
     }
 }
@@ -274,8 +303,15 @@ pub struct Segment {
     replaced: Option<StaleSegment>,
 }
 
-fn os_err<'a>(op: &'static str, name: &'a SegmentName) -> impl FnOnce(std::io::Error) -> Error + 'a {
-    move |source| Error::Os { op, name: name.to_string(), source }
+fn os_err<'a>(
+    op: &'static str,
+    name: &'a SegmentName,
+) -> impl FnOnce(std::io::Error) -> Error + 'a {
+    move |source| Error::Os {
+        op,
+        name: name.to_string(),
+        source,
+    }
 }
 
 impl Segment {
@@ -286,10 +322,7 @@ impl Segment {
         let capacities = config.capacities();
 
         // 1. The instance lock: one creator per name at a time, for the creator's lifetime.
-        let lock = os::open_lock_file(&name.lock_path()).map_err(os_err("open instance lock", name))?;
-        if !os::try_lock_byte(&lock, 0).map_err(os_err("lock instance", name))? {
-            return Err(Error::InstanceInUse { name: name.to_string(), pid: peek_creator_pid(name).unwrap_or(0) });
-        }
+        let lock = lock_instance(name)?;
 
         // 2. Create exclusively; a leftover is stale by construction (its creator released the
         //    instance lock, i.e. died) unless its loop byte is still locked (defensive check).
@@ -297,10 +330,16 @@ impl Segment {
         let fd = match os::shm_open(name.as_str(), true) {
             Ok(fd) => fd,
             Err(e) if e.raw_os_error() == Some(libc::EEXIST) => {
-                let old = os::shm_open(name.as_str(), false).map_err(os_err("open stale segment", name))?;
+                let old = os::shm_open(name.as_str(), false)
+                    .map_err(os_err("open stale segment", name))?;
                 let pid = peek_creator_pid(name).unwrap_or(0);
-                if os::byte_is_locked(&old, LOOP_LOCK_BYTE).map_err(os_err("probe stale segment", name))? {
-                    return Err(Error::InstanceInUse { name: name.to_string(), pid });
+                if os::byte_is_locked(&old, LOOP_LOCK_BYTE)
+                    .map_err(os_err("probe stale segment", name))?
+                {
+                    return Err(Error::InstanceInUse {
+                        name: name.to_string(),
+                        pid,
+                    });
                 }
                 drop(old);
                 os::shm_unlink(name.as_str()).map_err(os_err("unlink stale segment", name))?;
@@ -311,7 +350,10 @@ impl Segment {
         };
         os::set_mode_0600(&fd).map_err(os_err("fchmod", name))?;
         if !os::try_lock_byte(&fd, LOOP_LOCK_BYTE).map_err(os_err("lock loop byte", name))? {
-            return Err(Error::InstanceInUse { name: name.to_string(), pid: 0 });
+            return Err(Error::InstanceInUse {
+                name: name.to_string(),
+                pid: 0,
+            });
         }
 
         // 3. Size, map (zero-filled by the kernel), write the header, publish the magic last.
@@ -326,7 +368,10 @@ impl Segment {
             layout: layout.clone(),
             _instance_lock: Some(lock),
         });
-        let now_ns = SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(0);
+        let now_ns = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map(|d| d.as_nanos() as u64)
+            .unwrap_or(0);
         shared.header().init(capacities, &schema, &layout, now_ns);
         shared.header().magic.store(MAGIC, Ordering::Release);
         Ok(Segment { shared, replaced })
@@ -337,25 +382,38 @@ impl Segment {
         let fd = match os::shm_open(name.as_str(), false) {
             Ok(fd) => fd,
             Err(e) if e.raw_os_error() == Some(libc::ENOENT) => {
-                return Err(Error::NotFound { name: name.to_string() })
+                return Err(Error::NotFound {
+                    name: name.to_string(),
+                })
             }
             Err(e) => return Err(os_err("shm_open", name)(e)),
         };
         let stat = os::fstat(&fd).map_err(os_err("fstat", name))?;
         if stat.uid != os::euid() {
-            return Err(Error::ForeignOwner { name: name.to_string(), uid: stat.uid });
+            return Err(Error::ForeignOwner {
+                name: name.to_string(),
+                uid: stat.uid,
+            });
         }
         if stat.mode & 0o077 != 0 {
-            return Err(Error::InsecureMode { name: name.to_string(), mode: stat.mode });
+            return Err(Error::InsecureMode {
+                name: name.to_string(),
+                mode: stat.mode,
+            });
         }
         let loop_alive = || os::byte_is_locked(&fd, LOOP_LOCK_BYTE).unwrap_or(false);
         let header_size = std::mem::size_of::<Header>() as u64;
         if stat.size < header_size {
             // Either mid-creation (loop byte locked) or a creator that died right away.
             return Err(if loop_alive() {
-                Error::Initializing { name: name.to_string() }
+                Error::Initializing {
+                    name: name.to_string(),
+                }
             } else {
-                Error::CreatorDead { name: name.to_string(), pid: 0 }
+                Error::CreatorDead {
+                    name: name.to_string(),
+                    pid: 0,
+                }
             });
         }
         let mapping = Mapping::map(&fd, stat.size as usize).map_err(os_err("mmap", name))?;
@@ -364,24 +422,45 @@ impl Segment {
         let magic = header.magic.load(Ordering::Acquire);
         if magic == 0 {
             return Err(if loop_alive() {
-                Error::Initializing { name: name.to_string() }
+                Error::Initializing {
+                    name: name.to_string(),
+                }
             } else {
-                Error::CreatorDead { name: name.to_string(), pid: 0 }
+                Error::CreatorDead {
+                    name: name.to_string(),
+                    pid: 0,
+                }
             });
         }
         let layout = validate(header, name, stat.size)?;
         let creator_pid = header.creator_pid.load(Ordering::Relaxed) as u32;
         if !loop_alive() {
-            return Err(Error::CreatorDead { name: name.to_string(), pid: creator_pid });
+            return Err(Error::CreatorDead {
+                name: name.to_string(),
+                pid: creator_pid,
+            });
         }
         if !os::try_lock_byte(&fd, SERVER_LOCK_BYTE).map_err(os_err("lock server byte", name))? {
             let pid = header.server_pid.load(Ordering::Relaxed) as u32;
-            return Err(Error::ServerAlreadyAttached { name: name.to_string(), pid });
+            return Err(Error::ServerAlreadyAttached {
+                name: name.to_string(),
+                pid,
+            });
         }
         header.server_pid.store(os::pid() as u64, Ordering::Relaxed);
         header.server_attachments.fetch_add(1, Ordering::AcqRel);
-        let shared = Arc::new(Shared { mapping, fd, name: name.clone(), role: Role::Server, layout, _instance_lock: None });
-        Ok(Segment { shared, replaced: None })
+        let shared = Arc::new(Shared {
+            mapping,
+            fd,
+            name: name.clone(),
+            role: Role::Server,
+            layout,
+            _instance_lock: None,
+        });
+        Ok(Segment {
+            shared,
+            replaced: None,
+        })
     }
 
     /// [`Segment::attach`], retrying transient failures (no segment yet, a dead loop's
@@ -421,7 +500,10 @@ impl Segment {
     /// The loop's endpoints. Fails if this handle was attached (the server's).
     pub fn loop_side(self) -> Result<crate::endpoints::LoopSide, Error> {
         if self.shared.role != Role::Loop {
-            return Err(Error::WrongRole { actual: self.shared.role.name(), wanted: "loop" });
+            return Err(Error::WrongRole {
+                actual: self.shared.role.name(),
+                wanted: "loop",
+            });
         }
         Ok(crate::endpoints::LoopSide::new(self.shared))
     }
@@ -429,9 +511,36 @@ impl Segment {
     /// The server's endpoints. Fails if this handle created the segment (the loop's).
     pub fn server_side(self) -> Result<crate::endpoints::ServerSide, Error> {
         if self.shared.role != Role::Server {
-            return Err(Error::WrongRole { actual: self.shared.role.name(), wanted: "server" });
+            return Err(Error::WrongRole {
+                actual: self.shared.role.name(),
+                wanted: "server",
+            });
         }
         Ok(crate::endpoints::ServerSide::new(self.shared))
+    }
+}
+
+/// Takes the creator's instance lock. The lock file may be removed by a previous owner
+/// between our open and our lock, so after locking we check that the path still names the
+/// file we locked (same inode), and start over if not.
+fn lock_instance(name: &SegmentName) -> Result<std::fs::File, Error> {
+    use std::os::unix::fs::MetadataExt;
+    let path = name.lock_path();
+    loop {
+        let lock = os::open_lock_file(&path).map_err(os_err("open instance lock", name))?;
+        if !os::try_lock_byte(&lock, 0).map_err(os_err("lock instance", name))? {
+            return Err(Error::InstanceInUse {
+                name: name.to_string(),
+                pid: peek_creator_pid(name).unwrap_or(0),
+            });
+        }
+        let ours = lock
+            .metadata()
+            .map_err(os_err("stat instance lock", name))?;
+        match std::fs::metadata(&path) {
+            Ok(now) if now.ino() == ours.ino() && now.dev() == ours.dev() => return Ok(lock),
+            _ => continue,
+        }
     }
 }
 
@@ -441,31 +550,71 @@ fn validate(header: &Header, name: &SegmentName, file_size: u64) -> Result<Layou
     let name_s = || name.to_string();
     let magic = header.magic.load(r);
     if magic != MAGIC {
-        return Err(Error::BadMagic { name: name_s(), found: magic });
+        return Err(Error::BadMagic {
+            name: name_s(),
+            found: magic,
+        });
     }
     let version = header.layout_version.load(r);
     if version != LAYOUT_VERSION {
-        return Err(Error::VersionMismatch { name: name_s(), found: version, expected: LAYOUT_VERSION });
+        return Err(Error::VersionMismatch {
+            name: name_s(),
+            found: version,
+            expected: LAYOUT_VERSION,
+        });
     }
     let mismatch = |what: String, found: u64, expected: u64| -> Result<(), Error> {
         if found == expected {
             Ok(())
         } else {
-            Err(Error::LayoutMismatch { name: name_s(), what, found, expected })
+            Err(Error::LayoutMismatch {
+                name: name_s(),
+                what,
+                found,
+                expected,
+            })
         }
     };
-    mismatch("header size".into(), header.header_size.load(r), std::mem::size_of::<Header>() as u64)?;
-    mismatch("ring control size".into(), header.control_size.load(r), RingControl::SIZE as u64)?;
-    mismatch("ring control alignment".into(), header.control_align.load(r), RingControl::ALIGN as u64)?;
+    mismatch(
+        "header size".into(),
+        header.header_size.load(r),
+        std::mem::size_of::<Header>() as u64,
+    )?;
+    mismatch(
+        "ring control size".into(),
+        header.control_size.load(r),
+        RingControl::SIZE as u64,
+    )?;
+    mismatch(
+        "ring control alignment".into(),
+        header.control_align.load(r),
+        RingControl::ALIGN as u64,
+    )?;
     let capacities = header.capacities();
     for (i, channel) in Channel::ALL.iter().enumerate() {
         let desc = &header.channels[i];
         let (words, id) = channel.message_shape();
         let ch = channel.name();
-        mismatch(format!("{ch} message layout id"), desc.layout_id.load(r), id)?;
-        mismatch(format!("{ch} payload words"), desc.payload_words.load(r), words as u64)?;
-        mismatch(format!("{ch} slot bytes"), desc.slot_bytes.load(r), slot_words(words) as u64 * 8)?;
-        mismatch(format!("{ch} slot alignment"), desc.slot_align.load(r), SLOT_ALIGN as u64)?;
+        mismatch(
+            format!("{ch} message layout id"),
+            desc.layout_id.load(r),
+            id,
+        )?;
+        mismatch(
+            format!("{ch} payload words"),
+            desc.payload_words.load(r),
+            words as u64,
+        )?;
+        mismatch(
+            format!("{ch} slot bytes"),
+            desc.slot_bytes.load(r),
+            slot_words(words) as u64 * 8,
+        )?;
+        mismatch(
+            format!("{ch} slot alignment"),
+            desc.slot_align.load(r),
+            SLOT_ALIGN as u64,
+        )?;
         let cap = capacities[i];
         if !cap.is_power_of_two() || cap > MAX_CAPACITY {
             return Err(Error::LayoutMismatch {
@@ -480,10 +629,22 @@ fn validate(header: &Header, name: &SegmentName, file_size: u64) -> Result<Layou
     for (i, channel) in Channel::ALL.iter().enumerate() {
         let desc = &header.channels[i];
         let ch = channel.name();
-        mismatch(format!("{ch} control offset"), desc.control_offset.load(r), layout.control_offsets[i] as u64)?;
-        mismatch(format!("{ch} slots offset"), desc.slots_offset.load(r), layout.slots_offsets[i] as u64)?;
+        mismatch(
+            format!("{ch} control offset"),
+            desc.control_offset.load(r),
+            layout.control_offsets[i] as u64,
+        )?;
+        mismatch(
+            format!("{ch} slots offset"),
+            desc.slots_offset.load(r),
+            layout.slots_offsets[i] as u64,
+        )?;
     }
-    mismatch("total size".into(), header.total_size.load(r), layout.total as u64)?;
+    mismatch(
+        "total size".into(),
+        header.total_size.load(r),
+        layout.total as u64,
+    )?;
     mismatch("file size".into(), file_size, layout.total as u64)?;
     if header.schema().is_none() {
         return Err(Error::LayoutMismatch {
@@ -522,7 +683,8 @@ fn peek_creator_pid(name: &SegmentName) -> Option<u32> {
     let mapping = Mapping::map(&fd, std::mem::size_of::<Header>()).ok()?;
     // SAFETY: mapped at least a header; atomics only.
     let header = unsafe { mapping.base().cast::<Header>().as_ref() };
-    (header.magic.load(Ordering::Acquire) == MAGIC).then(|| header.creator_pid.load(Ordering::Relaxed) as u32)
+    (header.magic.load(Ordering::Acquire) == MAGIC)
+        .then(|| header.creator_pid.load(Ordering::Relaxed) as u32)
 }
 
 /// Liveness and identity shared by all endpoints of one side. Cheap to clone.
@@ -542,7 +704,10 @@ impl Link {
     #[inline]
     pub fn heartbeat(&self) {
         let hb = self.shared.own_heartbeat();
-        hb.store(hb.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed);
+        hb.store(
+            hb.load(Ordering::Relaxed).wrapping_add(1),
+            Ordering::Relaxed,
+        );
     }
 
     /// This side's heartbeat counter.
@@ -560,7 +725,10 @@ impl Link {
     /// How many times a server attached to this segment; a change means a new server came.
     #[inline]
     pub fn server_attachments(&self) -> u64 {
-        self.shared.header().server_attachments.load(Ordering::Acquire)
+        self.shared
+            .header()
+            .server_attachments
+            .load(Ordering::Acquire)
     }
 
     /// The feature schema (names in `FeatureMsg::values` order).

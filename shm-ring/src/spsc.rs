@@ -20,7 +20,7 @@ use std::marker::PhantomData;
 use crate::message::{DecodeError, Message, MAX_WORDS};
 use crate::ring_mem::RingMem;
 use crate::sync::Ordering;
-use crate::wait::notify;
+use crate::wait::{notify, notify_if};
 
 #[cfg(not(loom))]
 use crate::wait::{wait_for, WaitEnd, WaitStrategy};
@@ -36,7 +36,11 @@ pub(crate) type PeerProbe = Option<std::sync::Arc<dyn Fn() -> bool + Send + Sync
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum CorruptRing {
     #[error("slot for position {position} has sequence word {found}, expected {expected}")]
-    SlotSequence { position: u64, expected: u64, found: u64 },
+    SlotSequence {
+        position: u64,
+        expected: u64,
+        found: u64,
+    },
     #[error("indices out of range: head {head}, tail {tail}, capacity {capacity}")]
     Indices { head: u64, tail: u64, capacity: u64 },
 }
@@ -91,6 +95,13 @@ impl<M> fmt::Display for SendError<M> {
 }
 
 impl<M> std::error::Error for SendError<M> {}
+
+/// Free slots a blocked `send` waits for before it resumes (hysteresis against one wake-up
+/// per slot when the producer is faster than the consumer).
+#[inline]
+fn space_wanted(capacity: u64) -> u64 {
+    (capacity / 4).max(1)
+}
 
 /// Producing end of a lossless ring. Not `Clone`: exactly one producer exists per ring.
 pub struct Producer<M: Message> {
@@ -156,7 +167,12 @@ impl<M: Message> Producer<M> {
     pub(crate) fn new(mem: RingMem) -> Self {
         let tail = mem.ctrl().tail.0.load(Ordering::Relaxed);
         let cached_head = mem.ctrl().head.0.load(Ordering::Acquire);
-        Producer { mem, tail, cached_head, _msg: PhantomData }
+        Producer {
+            mem,
+            tail,
+            cached_head,
+            _msg: PhantomData,
+        }
     }
 
     /// Pushes `msg` if there is room; otherwise hands it back in `SendError::Full` and counts
@@ -237,10 +253,17 @@ impl<M: Message> Producer<M> {
             let capacity = mem.capacity();
             let tail = self.tail;
             let mut cached_head = self.cached_head;
-            let waited = wait_for(&mem.ctrl().space.0, self.wait, deadline, self.peer.as_deref(), || {
-                cached_head = mem.ctrl().head.0.load(Ordering::Acquire);
-                (tail - cached_head < capacity).then_some(())
-            });
+            let wanted = space_wanted(capacity);
+            let waited = wait_for(
+                &mem.ctrl().space.0,
+                self.wait,
+                deadline,
+                self.peer.as_deref(),
+                || {
+                    cached_head = mem.ctrl().head.0.load(Ordering::Acquire);
+                    (capacity - (tail - cached_head) >= wanted).then_some(())
+                },
+            );
             self.cached_head = cached_head;
             match waited {
                 Ok(()) => {}
@@ -259,13 +282,25 @@ impl<M: Message> Consumer<M> {
         assert!(M::WORDS <= MAX_WORDS);
         let head = mem.ctrl().head.0.load(Ordering::Relaxed);
         let cached_tail = head;
-        Consumer { mem, head, cached_tail, wait: WaitStrategy::default(), peer, _msg: PhantomData }
+        Consumer {
+            mem,
+            head,
+            cached_tail,
+            wait: WaitStrategy::default(),
+            peer,
+            _msg: PhantomData,
+        }
     }
 
     #[cfg(loom)]
     pub(crate) fn new(mem: RingMem) -> Self {
         let head = mem.ctrl().head.0.load(Ordering::Relaxed);
-        Consumer { mem, head, cached_tail: head, _msg: PhantomData }
+        Consumer {
+            mem,
+            head,
+            cached_tail: head,
+            _msg: PhantomData,
+        }
     }
 
     /// Pops the oldest message if there is one. Never blocks, never allocates, no syscall
@@ -286,7 +321,11 @@ impl<M: Message> Consumer<M> {
         self.cached_tail = self.mem.ctrl().tail.0.load(Ordering::Acquire);
         let (head, tail, capacity) = (self.head, self.cached_tail, self.mem.capacity());
         if tail < head || tail - head > capacity {
-            return Err(CorruptRing::Indices { head, tail, capacity });
+            return Err(CorruptRing::Indices {
+                head,
+                tail,
+                capacity,
+            });
         }
         Ok(head != tail)
     }
@@ -309,7 +348,15 @@ impl<M: Message> Consumer<M> {
         }
         self.head += 1;
         self.mem.ctrl().head.0.store(self.head, Ordering::Release);
-        notify(&self.mem.ctrl().space.0);
+        // A producer parked on a full ring waits for a quarter of the ring to free up
+        // (`space_wanted`), so it is not woken (one syscall each side) for every single slot.
+        // `cached_tail` may be behind the real tail, which over-estimates the free space:
+        // a spurious wake at worst, never a missed one.
+        let free_at_least = self.mem.capacity() - (self.cached_tail - self.head);
+        notify_if(
+            &self.mem.ctrl().space.0,
+            free_at_least >= space_wanted(self.mem.capacity()),
+        );
         Ok(M::decode(&words[..M::WORDS])?)
     }
 
@@ -367,10 +414,16 @@ impl<M: Message> Consumer<M> {
             let mem = &self.mem;
             let head = self.head;
             let mut tail = self.cached_tail;
-            let waited = wait_for(&mem.ctrl().data.0, self.wait, deadline, self.peer.as_deref(), || {
-                tail = mem.ctrl().tail.0.load(Ordering::Acquire);
-                (tail != head).then_some(())
-            });
+            let waited = wait_for(
+                &mem.ctrl().data.0,
+                self.wait,
+                deadline,
+                self.peer.as_deref(),
+                || {
+                    tail = mem.ctrl().tail.0.load(Ordering::Acquire);
+                    (tail != head).then_some(())
+                },
+            );
             self.cached_tail = tail;
             match waited {
                 Ok(()) => {}

@@ -7,11 +7,10 @@ pub(crate) use loom::sync::atomic::{fence, AtomicU32, AtomicU64, Ordering};
 #[cfg(not(loom))]
 pub(crate) use std::sync::atomic::{fence, AtomicU32, AtomicU64, Ordering};
 
-/// Spin-loop hint; under loom a yield so the model checker can schedule the other thread.
+/// Spin-loop hint (the waiting loops exist only outside loom; the models poll with
+/// `loom::thread::yield_now` themselves).
+#[cfg(not(loom))]
 #[inline]
 pub(crate) fn spin_hint() {
-    #[cfg(loom)]
-    loom::thread::yield_now();
-    #[cfg(not(loom))]
     std::hint::spin_loop();
 }

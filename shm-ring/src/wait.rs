@@ -31,6 +31,7 @@ impl WaitStrategy {
     /// Spin-then-park with a spin budget of roughly a few microseconds.
     pub const DEFAULT_SPIN_THEN_PARK: WaitStrategy = WaitStrategy::SpinThenPark { spins: 2000 };
 
+    #[cfg(not(loom))]
     fn spins(self) -> u32 {
         match self {
             WaitStrategy::Spin => u32::MAX,
@@ -50,12 +51,31 @@ impl Default for WaitStrategy {
 /// Cost when nobody waits: one `SeqCst` fence and one load; no syscall.
 #[inline]
 pub(crate) fn notify(signal: &Signal) {
+    notify_if(signal, true)
+}
+
+/// As [`notify`], but only wakes if `worth_it` (the waiter's condition can hold now). The
+/// caller must guarantee that `worth_it == false` implies the waiter's condition is false,
+/// and that a later publish will call again; then skipping the wake loses nothing.
+#[inline]
+pub(crate) fn notify_if(signal: &Signal, worth_it: bool) {
     fence(Ordering::SeqCst);
-    if signal.waiters.load(Ordering::Relaxed) != 0 {
+    if worth_it && signal.waiters.load(Ordering::Relaxed) != 0 {
         signal.epoch.fetch_add(1, Ordering::Release);
         #[cfg(not(loom))]
         futex::wake_all(&signal.epoch);
     }
+}
+
+/// The waiter's half of the handshake: read the epoch, announce ourselves, fence. After
+/// this the caller re-checks its ring and, if still nothing, sleeps on `epoch` having the
+/// returned value (so any bump since makes the sleep return at once).
+#[inline]
+pub(crate) fn register_waiter(signal: &Signal) -> u32 {
+    let epoch = signal.epoch.load(Ordering::Acquire);
+    signal.waiters.fetch_add(1, Ordering::SeqCst);
+    fence(Ordering::SeqCst);
+    epoch
 }
 
 /// Why a wait ended without a result.
@@ -97,7 +117,7 @@ pub(crate) fn wait_for<T>(
         }
         crate::sync::spin_hint();
         spun += 1;
-        if spun % SPINS_PER_CHECK == 0 {
+        if spun & (SPINS_PER_CHECK - 1) == 0 {
             if past(deadline) {
                 return Err(WaitEnd::Timeout);
             }
@@ -105,16 +125,14 @@ pub(crate) fn wait_for<T>(
                 return Err(WaitEnd::PeerGone);
             }
         }
-        if deadline.is_some() && spun % 64 == 0 && past(deadline) {
+        if deadline.is_some() && spun & 63 == 0 && past(deadline) {
             return Err(WaitEnd::Timeout);
         }
     }
 
     // Park phase.
     loop {
-        let epoch = signal.epoch.load(Ordering::Acquire);
-        signal.waiters.fetch_add(1, Ordering::SeqCst);
-        fence(Ordering::SeqCst);
+        let epoch = register_waiter(signal);
         if let Some(value) = attempt() {
             signal.waiters.fetch_sub(1, Ordering::Relaxed);
             return Ok(value);

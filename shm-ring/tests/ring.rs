@@ -5,8 +5,8 @@
 use std::time::Duration;
 
 use shm_ring::{
-    heap_channel, heap_overwrite_channel, pattern, Command, CommandKind, DecodeError, FeatureMsg, FixedStr,
-    ForceMsg, Message, RecvError, SendError, TelemetryRow, WaitStrategy, MAX_FEATURES,
+    heap_channel, heap_overwrite_channel, pattern, Command, CommandKind, DecodeError, FeatureMsg,
+    FixedStr, ForceMsg, Message, RecvError, SendError, TelemetryRow, WaitStrategy, MAX_FEATURES,
 };
 
 fn roundtrip<M: Message + PartialEq + std::fmt::Debug>(msg: M) {
@@ -43,7 +43,11 @@ fn every_message_type_survives_encoding() {
 
 #[test]
 fn nan_travels_bit_exact() {
-    let row = TelemetryRow { f_true: f64::NAN, f_pred: f64::from_bits(0x7ff8_dead_beef_0001), ..Default::default() };
+    let row = TelemetryRow {
+        f_true: f64::NAN,
+        f_pred: f64::from_bits(0x7ff8_dead_beef_0001),
+        ..Default::default()
+    };
     let mut words = vec![0u64; TelemetryRow::WORDS];
     row.encode(&mut words);
     let back = TelemetryRow::decode(&words).unwrap();
@@ -54,16 +58,33 @@ fn nan_travels_bit_exact() {
 #[test]
 fn invalid_words_are_refused_not_misread() {
     let mut words = vec![0u64; Command::WORDS];
-    Command { id: 1, kind: CommandKind::StopExperiment, name: FixedStr::default(), values: [0.0; 4] }.encode(&mut words);
+    Command {
+        id: 1,
+        kind: CommandKind::StopExperiment,
+        name: FixedStr::default(),
+        values: [0.0; 4],
+    }
+    .encode(&mut words);
     words[1] = 99;
-    assert_eq!(Command::decode(&words), Err(DecodeError::InvalidField { field: "Command.kind", value: 99 }));
+    assert_eq!(
+        Command::decode(&words),
+        Err(DecodeError::InvalidField {
+            field: "Command.kind",
+            value: 99
+        })
+    );
     let mut words = vec![0u64; FeatureMsg::WORDS];
     pattern::feature(1).encode(&mut words);
     words[3] = MAX_FEATURES as u64 + 1;
     assert!(FeatureMsg::decode(&words).is_err());
     let mut words = vec![0u64; Command::WORDS];
-    Command { id: 1, kind: CommandKind::StartExperiment, name: FixedStr::new("ab").unwrap(), values: [0.0; 4] }
-        .encode(&mut words);
+    Command {
+        id: 1,
+        kind: CommandKind::StartExperiment,
+        name: FixedStr::new("ab").unwrap(),
+        values: [0.0; 4],
+    }
+    .encode(&mut words);
     words[2] |= 0xff << 56; // garbage after the NUL padding
     assert!(Command::decode(&words).is_err());
 }
@@ -87,7 +108,9 @@ fn fifo_full_empty_and_wraparound() {
             tx.try_send(pattern::force(lap * 4 + i)).unwrap();
         }
         match tx.try_send(pattern::force(9999)) {
-            Err(SendError::Full(m)) => assert_eq!(m, pattern::force(9999), "refused message is handed back"),
+            Err(SendError::Full(m)) => {
+                assert_eq!(m, pattern::force(9999), "refused message is handed back")
+            }
             other => panic!("expected Full, got {other:?}"),
         }
         assert_eq!(tx.free(), 0);
@@ -140,18 +163,32 @@ fn skip_pending_discards_backlog() {
 fn overwrite_ring_keeps_newest_and_counts_drops() {
     let (mut tx, mut rx) = heap_overwrite_channel::<TelemetryRow>(8);
     for step in 0..100 {
-        tx.send(&TelemetryRow { step, ..Default::default() });
+        tx.send(&TelemetryRow {
+            step,
+            ..Default::default()
+        });
     }
     let mut got = Vec::new();
     while let Some(row) = rx.try_recv().unwrap() {
         got.push(row.step);
     }
-    assert_eq!(got, (92..100).collect::<Vec<_>>(), "the 8 newest survive, in order");
+    assert_eq!(
+        got,
+        (92..100).collect::<Vec<_>>(),
+        "the 8 newest survive, in order"
+    );
     assert_eq!(rx.dropped(), 92);
-    assert_eq!(tx.dropped(), 92, "the producer can read the consumer's drop count");
+    assert_eq!(
+        tx.dropped(),
+        92,
+        "the producer can read the consumer's drop count"
+    );
     // Keeping up loses nothing.
     for step in 100..110 {
-        tx.send(&TelemetryRow { step, ..Default::default() });
+        tx.send(&TelemetryRow {
+            step,
+            ..Default::default()
+        });
         assert_eq!(rx.try_recv().unwrap().unwrap().step, step);
     }
     assert_eq!(rx.dropped(), 92);
@@ -181,12 +218,22 @@ fn two_threads_one_million_in_order_with_parking() {
 #[test]
 fn recv_times_out_on_an_empty_ring() {
     let (_tx, mut rx) = heap_channel::<ForceMsg>(4);
-    for wait in [WaitStrategy::Spin, WaitStrategy::Park, WaitStrategy::DEFAULT_SPIN_THEN_PARK] {
+    for wait in [
+        WaitStrategy::Spin,
+        WaitStrategy::Park,
+        WaitStrategy::DEFAULT_SPIN_THEN_PARK,
+    ] {
         rx.set_wait_strategy(wait);
         let t0 = std::time::Instant::now();
-        assert_eq!(rx.recv_timeout(Duration::from_millis(30)), Err(RecvError::Timeout));
+        assert_eq!(
+            rx.recv_timeout(Duration::from_millis(30)),
+            Err(RecvError::Timeout)
+        );
         let waited = t0.elapsed();
-        assert!(waited >= Duration::from_millis(30) && waited < Duration::from_secs(2), "{wait:?}: {waited:?}");
+        assert!(
+            waited >= Duration::from_millis(30) && waited < Duration::from_secs(2),
+            "{wait:?}: {waited:?}"
+        );
     }
 }
 
@@ -248,5 +295,9 @@ fn overwrite_ring_never_returns_a_torn_row() {
         }
     }
     producer.join().unwrap();
-    assert_eq!(received + rx.dropped(), N, "every row is either received or counted as dropped");
+    assert_eq!(
+        received + rx.dropped(),
+        N,
+        "every row is either received or counted as dropped"
+    );
 }

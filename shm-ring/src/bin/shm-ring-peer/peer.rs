@@ -1,12 +1,12 @@
-//! A stand-alone peer for a shm-ring segment: inspects a header, or plays the loop or the
-//! server with deterministic messages (`shm_ring::pattern`). The multi-process tests drive it;
-//! it is also handy by hand, e.g. `shm-ring-peer inspect /haptics-default`.
+//! The peer's commands (see `main.rs`).
 
 use std::io::Write;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
-use shm_ring::{pattern, Config, RecvError, Segment, SegmentName, SendError, TelemetryRow, WaitStrategy};
+use shm_ring::{
+    pattern, Config, RecvError, Segment, SegmentName, SendError, TelemetryRow, WaitStrategy,
+};
 
 const USAGE: &str = "usage:
   shm-ring-peer inspect NAME
@@ -16,7 +16,7 @@ const USAGE: &str = "usage:
   shm-ring-peer server-echo NAME WAIT         attach; answer every feature until the loop dies
 WAIT: spin | park | spin-then-park";
 
-fn main() -> ExitCode {
+pub fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
     match run(&args) {
         Ok(()) => ExitCode::SUCCESS,
@@ -36,8 +36,10 @@ fn parse_wait(s: &str) -> Result<WaitStrategy, String> {
     }
 }
 
-fn arg<'a>(args: &'a [String], i: usize) -> Result<&'a str, String> {
-    args.get(i).map(String::as_str).ok_or_else(|| USAGE.to_owned())
+fn arg(args: &[String], i: usize) -> Result<&str, String> {
+    args.get(i)
+        .map(String::as_str)
+        .ok_or_else(|| USAGE.to_owned())
 }
 
 fn say(line: &str) {
@@ -81,17 +83,23 @@ fn wait_until(timeout: Duration, mut done: impl FnMut() -> bool) -> bool {
 }
 
 fn loop_flood(name: &SegmentName, count: u64, wait: WaitStrategy) -> Result<(), String> {
-    let mut lp = Segment::create(name, &Config::default()).and_then(Segment::loop_side).map_err(|e| e.to_string())?;
+    let mut lp = Segment::create(name, &Config::default())
+        .and_then(Segment::loop_side)
+        .map_err(|e| e.to_string())?;
     lp.features_tx.set_wait_strategy(wait);
     say("ready");
     if !wait_until(Duration::from_secs(30), || lp.peer_alive()) {
         return Err("no server attached within 30 s".into());
     }
     for seq in 0..count {
-        lp.features_tx.send(pattern::feature(seq)).map_err(|e| format!("send {seq}: {e}"))?;
+        lp.features_tx
+            .send(pattern::feature(seq))
+            .map_err(|e| format!("send {seq}: {e}"))?;
     }
     let capacity = Config::default().features_capacity as u64;
-    if !wait_until(Duration::from_secs(30), || lp.features_tx.free() == capacity || !lp.peer_alive()) {
+    if !wait_until(Duration::from_secs(30), || {
+        lp.features_tx.free() == capacity || !lp.peer_alive()
+    }) {
         return Err("server did not drain the ring".into());
     }
     say(&format!("done {count}"));
@@ -100,7 +108,10 @@ fn loop_flood(name: &SegmentName, count: u64, wait: WaitStrategy) -> Result<(), 
 
 fn loop_run(name: &SegmentName, wait: WaitStrategy) -> Result<(), String> {
     let seg = Segment::create(name, &Config::default()).map_err(|e| e.to_string())?;
-    let replaced = seg.replaced_stale().map(|s| s.creator_pid.to_string()).unwrap_or_else(|| "-".into());
+    let replaced = seg
+        .replaced_stale()
+        .map(|s| s.creator_pid.to_string())
+        .unwrap_or_else(|| "-".into());
     let mut lp = seg.loop_side().map_err(|e| e.to_string())?;
     lp.forces_rx.set_wait_strategy(wait);
     say(&format!("ready replaced={replaced}"));
@@ -109,7 +120,11 @@ fn loop_run(name: &SegmentName, wait: WaitStrategy) -> Result<(), String> {
         // Like the real loop: never wait on the server; a full ring is refused and retried.
         match lp.features_tx.try_send(pattern::feature(seq)) {
             Ok(()) => {
-                lp.telemetry_tx.send(&TelemetryRow { step: seq, time: seq as f64 * 1e-3, ..Default::default() });
+                lp.telemetry_tx.send(&TelemetryRow {
+                    step: seq,
+                    time: seq as f64 * 1e-3,
+                    ..Default::default()
+                });
                 seq += 1;
             }
             Err(SendError::Full(_)) => std::thread::sleep(Duration::from_millis(1)),
@@ -119,7 +134,7 @@ fn loop_run(name: &SegmentName, wait: WaitStrategy) -> Result<(), String> {
         while let Some(force) = lp.forces_rx.try_recv().map_err(|e| e.to_string())? {
             pattern::check_force(&force, force.seq)?;
         }
-        if seq % 64 == 0 {
+        if seq & 63 == 0 {
             std::thread::sleep(Duration::from_micros(200));
         }
     }
@@ -131,7 +146,9 @@ fn server_flood(name: &SegmentName, count: u64, wait: WaitStrategy) -> Result<()
     sv.forces_tx.set_wait_strategy(wait);
     say("ready");
     for seq in 0..count {
-        sv.forces_tx.send(pattern::force(seq)).map_err(|e| format!("send {seq}: {e}"))?;
+        sv.forces_tx
+            .send(pattern::force(seq))
+            .map_err(|e| format!("send {seq}: {e}"))?;
     }
     say(&format!("done {count}"));
     Ok(())
@@ -148,7 +165,9 @@ fn server_echo(name: &SegmentName, wait: WaitStrategy) -> Result<(), String> {
             Ok(f) => {
                 pattern::check_feature(&f, f.seq)?;
                 sv.heartbeat();
-                sv.forces_tx.send(pattern::force(f.seq)).map_err(|e| e.to_string())?;
+                sv.forces_tx
+                    .send(pattern::force(f.seq))
+                    .map_err(|e| e.to_string())?;
             }
             Err(RecvError::PeerGone) => return Ok(()),
             Err(e) => return Err(e.to_string()),

@@ -1,0 +1,355 @@
+//! The segment in one process: create/attach, header validation, stale replacement, refusal
+//! to steal a live segment, liveness, and every channel end to end through real shm.
+
+use std::os::unix::fs::{FileExt, PermissionsExt};
+use std::time::Duration;
+
+use shm_ring::{
+    pattern, Command, CommandKind, Config, Error, FixedStr, Message, RecvError, Role, Segment,
+    SegmentName, TelemetryRow, THESIS_FEATURES,
+};
+
+/// A name no other test (or test run) uses.
+fn unique(tag: &str) -> SegmentName {
+    SegmentName::for_instance(&format!("t{}-{tag}", std::process::id())).unwrap()
+}
+
+fn shm_path(name: &SegmentName) -> String {
+    format!("/dev/shm{}", name.as_str())
+}
+
+#[test]
+fn names_are_validated() {
+    assert_eq!(
+        SegmentName::for_instance("bench-1").unwrap().as_str(),
+        "/haptics-bench-1"
+    );
+    for bad in [
+        "noslash",
+        "/",
+        "/a/b",
+        "/sp ace",
+        "/.hidden",
+        &format!("/{}", "x".repeat(201)),
+    ] {
+        assert!(
+            matches!(SegmentName::new(bad), Err(Error::InvalidName { .. })),
+            "{bad}"
+        );
+    }
+}
+
+#[test]
+fn config_is_validated() {
+    let name = unique("cfg");
+    let bad = |c: Config| matches!(Segment::create(&name, &c), Err(Error::InvalidConfig(_)));
+    assert!(bad(Config {
+        features_capacity: 1000,
+        ..Config::default()
+    }));
+    assert!(bad(Config {
+        telemetry_capacity: 1 << 21,
+        ..Config::default()
+    }));
+    assert!(bad(Config {
+        feature_names: (0..17).map(|i| format!("f{i}")).collect(),
+        ..Config::default()
+    }));
+    assert!(bad(Config {
+        feature_names: vec!["a".into(), "a".into()],
+        ..Config::default()
+    }));
+    assert!(bad(Config {
+        feature_names: vec!["x".repeat(33)],
+        ..Config::default()
+    }));
+    assert!(
+        !std::path::Path::new(&shm_path(&name)).exists(),
+        "a refused config creates nothing"
+    );
+}
+
+#[test]
+fn create_attach_and_header_contents() {
+    let name = unique("info");
+    let config = Config {
+        features_capacity: 64,
+        forces_capacity: 32,
+        telemetry_capacity: 128,
+        commands_capacity: 8,
+        ..Config::default()
+    };
+    let lp = Segment::create(&name, &config).unwrap();
+    assert_eq!(lp.role(), Role::Loop);
+    let meta = std::fs::metadata(shm_path(&name)).unwrap();
+    assert_eq!(
+        meta.permissions().mode() & 0o777,
+        0o600,
+        "segment is private to its user"
+    );
+    assert!(!lp.peer_alive(), "no server yet");
+
+    let sv = Segment::attach(&name).unwrap();
+    assert_eq!(sv.role(), Role::Server);
+    assert!(lp.peer_alive() && sv.peer_alive());
+    let info = sv.info();
+    assert_eq!(info.feature_names, THESIS_FEATURES);
+    assert_eq!(info.capacities, [64, 32, 128, 8]);
+    assert_eq!(info.creator_pid, std::process::id());
+    assert_eq!(info.server_pid, std::process::id());
+    assert_eq!(info.server_attachments, 1);
+    assert!(info.creator_process_alive());
+    assert_eq!(info.total_size, meta.len());
+
+    assert!(
+        matches!(
+            Segment::attach(&name),
+            Err(Error::ServerAlreadyAttached { .. })
+        ),
+        "one server at a time"
+    );
+    assert!(
+        matches!(
+            Segment::create(&name, &config),
+            Err(Error::InstanceInUse { .. })
+        ),
+        "a live segment is never stolen"
+    );
+    drop(sv);
+    // The server's lock went with it; a new server may attach.
+    let sv2 = Segment::attach(&name).unwrap();
+    assert_eq!(sv2.info().server_attachments, 2);
+    assert!(matches!(sv2.loop_side(), Err(Error::WrongRole { .. })));
+    assert!(matches!(lp.server_side(), Err(Error::WrongRole { .. })));
+}
+
+#[test]
+fn all_four_channels_end_to_end() {
+    let name = unique("chan");
+    let mut lp = Segment::create(&name, &Config::default())
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    let mut sv = Segment::attach(&name).unwrap().server_side().unwrap();
+    assert_eq!(sv.skipped_on_attach, 0);
+    assert_eq!(sv.link.feature_names(), THESIS_FEATURES);
+
+    for seq in 0..5000u64 {
+        lp.features_tx.try_send(pattern::feature(seq)).unwrap();
+        lp.telemetry_tx.send(&TelemetryRow {
+            step: seq,
+            f_pred: seq as f64,
+            ..Default::default()
+        });
+        let f = sv.features_rx.try_recv().unwrap().unwrap();
+        pattern::check_feature(&f, seq).unwrap();
+        sv.forces_tx.try_send(pattern::force(f.seq)).unwrap();
+        pattern::check_force(&lp.forces_rx.try_recv().unwrap().unwrap(), seq).unwrap();
+    }
+    let mut rows = 0;
+    while let Some(row) = sv.telemetry_rx.try_recv().unwrap() {
+        assert_eq!(row.f_pred, row.step as f64);
+        rows += 1;
+    }
+    assert_eq!(rows, 5000, "8192 telemetry slots hold all 5000 rows");
+    assert_eq!(sv.telemetry_rx.dropped(), 0);
+
+    let cmd = Command {
+        id: 3,
+        kind: CommandKind::StartExperiment,
+        name: FixedStr::new("ramp").unwrap(),
+        values: [10.0, 2.0, 0.0, 0.0],
+    };
+    sv.commands_tx.try_send(cmd).unwrap();
+    assert_eq!(lp.commands_rx.try_recv().unwrap(), Some(cmd));
+
+    lp.heartbeat();
+    lp.heartbeat();
+    sv.heartbeat();
+    assert_eq!(sv.link.peer_heartbeat(), 2);
+    assert_eq!(lp.link.peer_heartbeat(), 1);
+}
+
+#[test]
+fn reattaching_server_skips_stale_requests() {
+    let name = unique("skip");
+    let mut lp = Segment::create(&name, &Config::default())
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    let sv = Segment::attach(&name).unwrap().server_side().unwrap();
+    let attachments = lp.link.server_attachments();
+    drop(sv);
+    assert!(!lp.peer_alive());
+    for seq in 0..10 {
+        lp.features_tx.try_send(pattern::feature(seq)).unwrap();
+    }
+    let mut sv = Segment::attach(&name).unwrap().server_side().unwrap();
+    assert_eq!(sv.skipped_on_attach, 10);
+    assert_eq!(
+        lp.link.server_attachments(),
+        attachments + 1,
+        "the loop can see a new server came"
+    );
+    lp.features_tx.try_send(pattern::feature(10)).unwrap();
+    pattern::check_feature(&sv.features_rx.try_recv().unwrap().unwrap(), 10).unwrap();
+}
+
+#[test]
+fn loop_exit_unlinks_and_server_sees_it() {
+    let name = unique("exit");
+    let mut lp = Segment::create(&name, &Config::default())
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    let mut sv = Segment::attach(&name).unwrap().server_side().unwrap();
+    lp.features_tx.try_send(pattern::feature(0)).unwrap();
+    drop(lp);
+    assert!(
+        !std::path::Path::new(&shm_path(&name)).exists(),
+        "clean exit removes the segment"
+    );
+    assert!(!sv.peer_alive());
+    // What the loop left is still delivered, then the server learns the loop is gone.
+    pattern::check_feature(
+        &sv.features_rx.recv_timeout(Duration::from_secs(1)).unwrap(),
+        0,
+    )
+    .unwrap();
+    assert_eq!(
+        sv.features_rx.recv_timeout(Duration::from_secs(5)),
+        Err(RecvError::PeerGone)
+    );
+    assert!(matches!(
+        Segment::attach(&name),
+        Err(Error::NotFound { .. })
+    ));
+}
+
+#[test]
+fn garbage_segment_is_refused_then_replaced() {
+    let name = unique("junk");
+    let path = shm_path(&name);
+    std::fs::write(&path, vec![0xabu8; 8192]).unwrap();
+    std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).unwrap();
+    assert!(matches!(
+        Segment::attach(&name),
+        Err(Error::BadMagic {
+            found: 0xabab_abab_abab_abab,
+            ..
+        })
+    ));
+    // Nobody holds its locks: the creator treats it as stale and replaces it.
+    let lp = Segment::create(&name, &Config::default()).unwrap();
+    assert!(lp.replaced_stale().is_some());
+    Segment::attach(&name).unwrap();
+}
+
+#[test]
+fn group_readable_segment_is_refused() {
+    let name = unique("mode");
+    let _lp = Segment::create(&name, &Config::default()).unwrap();
+    std::fs::set_permissions(shm_path(&name), std::fs::Permissions::from_mode(0o644)).unwrap();
+    assert!(matches!(
+        Segment::attach(&name),
+        Err(Error::InsecureMode { mode: 0o644, .. })
+    ));
+}
+
+/// Header offsets (repr(C), all u64): magic 0, layout_version 8, ...; schema 96..608;
+/// channels[0] at 608: capacity 608, payload_words 616, slot_bytes 624, slot_align 632,
+/// layout_id 640.
+fn poke(name: &SegmentName, offset: u64, value: u64) -> u64 {
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(shm_path(name))
+        .unwrap();
+    let mut old = [0u8; 8];
+    file.read_exact_at(&mut old, offset).unwrap();
+    file.write_all_at(&value.to_le_bytes(), offset).unwrap();
+    u64::from_le_bytes(old)
+}
+
+#[test]
+fn mismatched_header_is_refused_with_a_clear_error() {
+    let name = unique("hdr");
+    let _lp = Segment::create(&name, &Config::default()).unwrap();
+
+    let old = poke(&name, 0, 0x1234);
+    assert_eq!(old, shm_ring::MAGIC);
+    let e = Segment::attach(&name).err().unwrap();
+    assert!(matches!(e, Error::BadMagic { found: 0x1234, .. }), "{e}");
+    poke(&name, 0, old);
+
+    let old = poke(&name, 8, 99);
+    assert_eq!(old, shm_ring::LAYOUT_VERSION);
+    let e = Segment::attach(&name).err().unwrap();
+    assert!(
+        matches!(
+            e,
+            Error::VersionMismatch {
+                found: 99,
+                expected: 1,
+                ..
+            }
+        ),
+        "{e}"
+    );
+    poke(&name, 8, old);
+
+    let old = poke(&name, 616, 3);
+    assert_eq!(
+        old,
+        shm_ring::FeatureMsg::WORDS as u64,
+        "offset 616 is the features payload_words"
+    );
+    let e = Segment::attach(&name).err().unwrap();
+    assert!(
+        matches!(&e, Error::LayoutMismatch { what, found: 3, .. } if what == "features payload words"),
+        "{e}"
+    );
+    poke(&name, 616, old);
+
+    let old = poke(&name, 640, 0xdead);
+    let e = Segment::attach(&name).err().unwrap();
+    assert!(
+        matches!(&e, Error::LayoutMismatch { what, .. } if what == "features message layout id"),
+        "{e}"
+    );
+    assert!(e.to_string().contains("layout differs"), "{e}");
+    poke(&name, 640, old);
+
+    let old = poke(&name, 608, 1000);
+    assert!(matches!(
+        Segment::attach(&name),
+        Err(Error::LayoutMismatch { .. })
+    ));
+    poke(&name, 608, old);
+
+    Segment::attach(&name).expect("restored header attaches");
+}
+
+#[test]
+fn attach_timeout_waits_for_the_loop() {
+    let name = unique("late");
+    let n2 = name.clone();
+    let creator = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_millis(100));
+        let seg = Segment::create(&n2, &Config::default()).unwrap();
+        std::thread::sleep(Duration::from_millis(500));
+        drop(seg);
+    });
+    let t0 = std::time::Instant::now();
+    assert!(matches!(
+        Segment::attach(&name),
+        Err(Error::NotFound { .. })
+    ));
+    Segment::attach_timeout(&name, Duration::from_secs(5)).unwrap();
+    assert!(t0.elapsed() >= Duration::from_millis(90));
+    creator.join().unwrap();
+    assert!(matches!(
+        Segment::attach_timeout(&name, Duration::from_millis(50)),
+        Err(Error::NotFound { .. })
+    ));
+}
