@@ -143,7 +143,7 @@ fn percentiles(samples: &mut [u64]) -> Percentiles {
 
 fn print_row(label: &str, p: &Percentiles, allocs_per_step: f64) {
     println!(
-        "{label:<28} {:>8} {:>8} {:>8} {:>9} {:>9} {:>9.0} {:>10.2}",
+        "{label:<40} {:>8} {:>8} {:>8} {:>9} {:>9} {:>9.0} {:>10.2}",
         p.p50, p.p90, p.p99, p.p999, p.max, p.mean, allocs_per_step
     );
 }
@@ -248,7 +248,7 @@ fn main() {
         std::fs::read_to_string("/proc/loadavg").unwrap_or_default().split(' ').take(3).collect::<Vec<_>>().join(" ")
     );
     println!(
-        "{:<28} {:>8} {:>8} {:>8} {:>9} {:>9} {:>9} {:>10}",
+        "{:<40} {:>8} {:>8} {:>8} {:>9} {:>9} {:>9} {:>10}",
         "model / path", "p50", "p90", "p99", "p99.9", "max", "mean", "mallocs/st"
     );
     let schema = FeatureSchema::standard();
@@ -265,7 +265,16 @@ fn main() {
         let mut engine = StepEngine::load(rt, &path, &schema, &SessionConfig::default())
             .unwrap_or_else(|e| panic!("{name}: {e}"));
         let (p, a) = bench_engine(&mut engine, steps, &mut samples);
-        print_row(&format!("{label} (StepEngine)"), &p, a);
+        print_row(&format!("{label} (StepEngine Run)"), &p, a);
+        drop(engine);
+        let binding = SessionConfig {
+            io_binding: true,
+            ..SessionConfig::default()
+        };
+        let mut engine = StepEngine::load(rt, &path, &schema, &binding)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let (p, a) = bench_engine(&mut engine, steps, &mut samples);
+        print_row(&format!("{label} (StepEngine IoBinding)"), &p, a);
         if name != "lstm" {
             let (p, a) = bench_safe_run(&path, steps, &mut samples);
             print_row(&format!("{label} (ort run)"), &p, a);

@@ -15,7 +15,7 @@ use std::path::Path;
 use std::ptr;
 
 use ort::session::Session;
-use ort::sys::{OrtStatus, OrtValue};
+use ort::sys::{OrtIoBinding, OrtRunOptions, OrtStatus, OrtValue};
 use ort::value::Tensor;
 use ort::AsPointer;
 
@@ -130,6 +130,42 @@ pub struct StepEngine {
     input_map: Box<[usize]>,
     schema_len: usize,
     last_error: ErrorText,
+    /// Created once and passed to every run (a null one makes ONNX Runtime build a default
+    /// `RunOptions` per call).
+    run_options: *mut OrtRunOptions,
+    /// With `SessionConfig::io_binding`: inputs and outputs bound once, `RunWithBinding` per step.
+    binding: *mut OrtIoBinding,
+}
+
+impl Drop for StepEngine {
+    fn drop(&mut self) {
+        // Before the fields (session, tensors) go: the binding refers to both.
+        let api = ort::api();
+        // SAFETY: created in `load` by ONNX Runtime, released exactly once here.
+        unsafe {
+            if !self.binding.is_null() {
+                (api.ReleaseIoBinding)(self.binding);
+            }
+            if !self.run_options.is_null() {
+                (api.ReleaseRunOptions)(self.run_options);
+            }
+        }
+    }
+}
+
+/// Turns a status from a set-up call into a `ModelError` (allocates; not for the hot path).
+fn setup_status(what: &str, status: ort::sys::OrtStatusPtr) -> Result<(), ModelError> {
+    if status.0.is_null() {
+        return Ok(());
+    }
+    let mut text = ErrorText {
+        buf: [0; 256],
+        len: 0,
+    };
+    let e = text.take_status(status.0);
+    Err(ModelError::Session {
+        reason: format!("{what}: {e}: {}", text.as_str()),
+    })
 }
 
 impl std::fmt::Debug for StepEngine {
@@ -272,7 +308,33 @@ impl StepEngine {
                 buf: [0; 256],
                 len: 0,
             },
+            run_options: ptr::null_mut(),
+            binding: ptr::null_mut(),
         };
+        let api = ort::api();
+        // SAFETY: plain ONNX Runtime C calls; every pointer passed is owned by `engine` and
+        // outlives the objects created (released in Drop before the session and tensors).
+        unsafe {
+            setup_status(
+                "CreateRunOptions",
+                (api.CreateRunOptions)(&mut engine.run_options),
+            )?;
+            if cfg.io_binding {
+                setup_status(
+                    "CreateIoBinding",
+                    (api.CreateIoBinding)(engine.session.ptr().cast_mut(), &mut engine.binding),
+                )?;
+                for (name, value) in engine.in_names.iter().zip(engine.in_values.iter()) {
+                    setup_status("BindInput", (api.BindInput)(engine.binding, *name, *value))?;
+                }
+                for (name, value) in engine.out_names.iter().zip(engine.out_values.iter()) {
+                    setup_status(
+                        "BindOutput",
+                        (api.BindOutput)(engine.binding, *name, *value),
+                    )?;
+                }
+            }
+        }
         engine.warm_up(cfg.warmup_runs.max(1))?;
         Ok(engine)
     }
@@ -345,13 +407,28 @@ impl StepEngine {
 
     #[inline]
     fn run_raw(&mut self) -> Result<(), StepError> {
+        if !self.binding.is_null() {
+            // SAFETY: as below; the binding holds our input and output values, bound at load.
+            let status = unsafe {
+                (ort::api().RunWithBinding)(
+                    self.session.ptr().cast_mut(),
+                    self.run_options,
+                    self.binding,
+                )
+            };
+            return if status.0.is_null() {
+                Ok(())
+            } else {
+                Err(self.last_error.take_status(status.0))
+            };
+        }
         // SAFETY: the session is alive for self's lifetime; the name and value arrays point at
         // C strings and OrtValues owned by self; `&mut self` guarantees no concurrent Run on
         // this session. Passing non-null outputs makes ONNX Runtime write into our buffers.
         let status = unsafe {
             (ort::api().Run)(
                 self.session.ptr().cast_mut(),
-                ptr::null(),
+                self.run_options,
                 self.in_names.as_ptr(),
                 self.in_values.as_ptr(),
                 self.in_values.len(),

@@ -102,6 +102,9 @@ pub struct SessionConfig {
     pub spinning: bool,
     /// Warm-up runs before a model is accepted (at least 1: the finite-output check).
     pub warmup_runs: usize,
+    /// Bind inputs and outputs once (`OrtIoBinding`) and step with `RunWithBinding` instead
+    /// of `Run` with preallocated outputs. Both write into the same preallocated buffers.
+    pub io_binding: bool,
 }
 
 impl Default for SessionConfig {
@@ -110,6 +113,7 @@ impl Default for SessionConfig {
             intra_threads: 1,
             spinning: false,
             warmup_runs: 32,
+            io_binding: false,
         }
     }
 }

@@ -339,3 +339,33 @@ fn broken_models_are_refused_with_the_right_error() {
     let e = load(Path::new("/nonexistent/model.onnx"), &std_schema).unwrap_err();
     assert!(matches!(e, ModelError::Unreadable { .. }), "{e:?}");
 }
+
+#[test]
+fn io_binding_path_gives_identical_results() {
+    let Some(dir) = common::fixtures() else {
+        return;
+    };
+    let schema = FeatureSchema::standard();
+    let bound = SessionConfig {
+        io_binding: true,
+        ..SessionConfig::default()
+    };
+    for name in ["linear", "tree", "lstm"] {
+        let path = dir.join(format!("{name}.onnx"));
+        let mut plain = load(&path, &schema).unwrap();
+        let mut binding = StepEngine::load(common::runtime(), &path, &schema, &bound).unwrap();
+        let mut reference = ReferenceLstm::new();
+        for t in 0..100 {
+            let (f, x) = lstm_input(t);
+            let input =
+                standard_vector(&[("f_previous_x", f), ("position_x", x), ("velocity", f * x)]);
+            let a = plain.step(&input).unwrap();
+            let b = binding.step(&input).unwrap();
+            assert_eq!(a, b, "{name} step {t}");
+            if name == "lstm" {
+                let want = reference.step([f, x]);
+                assert!(close(b, want, 1e-5), "{name} step {t}: {b} vs {want}");
+            }
+        }
+    }
+}
