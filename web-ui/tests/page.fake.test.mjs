@@ -190,6 +190,17 @@ describe("page against the fake server", () => {
     assert.ok(row[4] >= row[3], "max >= min");
   });
 
+  test("clear forgets the history and the plots start again from new data", async () => {
+    const before = await hook.counts(page);
+    assert.ok(before.held > 2000);
+    await page.click("#clear");
+    const after = await hook.counts(page);
+    assert.ok(after.held < 200, `held after clear: ${after.held}`);
+    await waitFor(async () => (await hook.counts(page)).held > 300, { what: "new data after clear" });
+    const p = await hook.points(page, "rtob_force");
+    assert.ok(p.t[0] >= before.lastTime - 0.05, "nothing from before the clear is drawn");
+  });
+
   test("frame times while drawing 10 kHz telemetry (printed, not asserted)", async () => {
     await page.click("#live");
     await page.selectOption("#window", "10");
