@@ -224,7 +224,12 @@ describe("page against the real rt-loop and infer-server", () => {
     await page.selectOption("#xy-window", "10");
     await page.click("#exp-start");
     await waitFor(async () => (await hook.status(page)).mode === "abstraction", { timeoutMs: 5000, what: "status mode abstraction" });
-    await sleep(7000);
+    // Measure when cycle 1 is complete and the probe is back at 0 N (early in cycle 2's hold at
+    // zero), so the path is one closed loop plus its start. rt-loop's cycle: hold 0 N (1.5 s),
+    // ramp up to 5 N at 6.2 N/s, hold (1 s), ramp down: about 4.1 s.
+    const t0 = Date.now();
+    await waitFor(async () => (await hook.status(page)).experiment_cycle >= 2 || Date.now() - t0 > 4800, { timeoutMs: 15000, what: "cycle 2 reached" });
+    await sleep(400);
     const xy = await hook.xy(page);
     const xr = Math.max(...xy.x) - Math.min(...xy.x);
     const yr = Math.max(...xy.y) - Math.min(...xy.y);
