@@ -5,6 +5,7 @@
 import { after, before, describe, test } from "node:test";
 import assert from "node:assert/strict";
 import { mkdir, readFile } from "node:fs/promises";
+import { createRequire } from "node:module";
 import { dirname, join } from "node:path";
 import { fileURLToPath } from "node:url";
 import { startFakeServer } from "../dev/fake-server.mjs";
@@ -199,6 +200,29 @@ describe("page against the fake server", () => {
     await waitFor(async () => (await hook.counts(page)).held > 300, { what: "new data after clear" });
     const p = await hook.points(page, "rtob_force");
     assert.ok(p.t[0] >= before.lastTime - 0.05, "nothing from before the clear is drawn");
+  });
+
+  test("accessibility: no WCAG 2.1 A/AA or best-practice violations found by axe-core", async () => {
+    const axe = await readFile(createRequire(import.meta.url).resolve("axe-core/axe.min.js"), "utf8");
+    await page.addScriptTag({ content: axe });
+    const violations = await page.evaluate(async () => {
+      const r = await window.axe.run(document, { runOnly: { type: "tag", values: ["wcag2a", "wcag2aa", "wcag21a", "wcag21aa", "best-practice"] } });
+      return r.violations.map((v) => `${v.id} (${v.impact}): ${v.help} at ${v.nodes.map((n) => n.target.join(" ")).join(", ")}`);
+    });
+    assert.deepEqual(violations, []);
+  });
+
+  test("keyboard only: Tab reaches a model's Activate button and Enter swaps", async () => {
+    const target = (await hook.status(page)).active_model.name === "spring_damper2" ? "rf6" : "spring_damper2";
+    await page.focus("#models-refresh");
+    let found = false;
+    for (let i = 0; i < 12 && !found; i++) {
+      await page.keyboard.press("Tab");
+      found = await page.evaluate((t) => document.activeElement?.closest("tr")?.dataset.model === t && document.activeElement.tagName === "BUTTON", target);
+    }
+    assert.ok(found, `Tab reached the Activate button of ${target}`);
+    await page.keyboard.press("Enter");
+    await waitFor(async () => (await hook.status(page)).active_model?.name === target, { what: `${target} active by keyboard` });
   });
 
   test("frame times while drawing 10 kHz telemetry (printed, not asserted)", async () => {
