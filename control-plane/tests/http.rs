@@ -232,7 +232,9 @@ async fn token_origin_and_upload_limit() {
 
 /// A strict reader of the Prometheus text format: every sample belongs to a family declared
 /// with HELP and TYPE before it, names and labels are well-formed, values are numbers.
-fn parse_prometheus(text: &str) -> Vec<(String, Vec<(String, String)>, f64)> {
+type Sample = (String, Vec<(String, String)>, f64);
+
+fn parse_prometheus(text: &str) -> Vec<Sample> {
     let name_ok = |n: &str| {
         !n.is_empty()
             && n.chars().enumerate().all(|(i, c)| {

@@ -18,10 +18,13 @@ async fn connect(s: &TestServer, fps: u32) -> Ws {
     tokio_tungstenite::connect_async(url).await.unwrap().0
 }
 
+/// t, (min, max) of F_res, (min, max) of F_pred.
+type BucketSeen = (f64, (f32, f32), (f32, f32));
+
 #[derive(Default)]
 struct Collected {
     /// (t, min/max of F_res) of every bucket, in order.
-    buckets: Vec<(f64, (f32, f32), (f32, f32))>,
+    buckets: Vec<BucketSeen>,
     frames: usize,
     statuses: Vec<serde_json::Value>,
 }

@@ -1,4 +1,401 @@
-fn main() {
-    eprintln!("hapticctl: not built yet");
-    std::process::exit(2);
+//! hapticctl: the command-line client of infer-server's control plane (gRPC `haptics.v1`).
+mod client;
+mod output;
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use clap::{Parser, Subcommand};
+use control_plane::pb;
+
+use client::{connect, explain, CliError, Client, EXIT_USAGE};
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "hapticctl",
+    version,
+    about = "Control infer-server: models, hot swap, experiments, status and telemetry",
+    after_help = "Examples:\n  hapticctl models\n  hapticctl swap rf6.onnx\n  hapticctl swap ./new/lstm.onnx      (uploads a local file, then swaps)\n  hapticctl status --watch\n  hapticctl experiment start abstraction --ramp-rate 2.1 --cycles 10\n  hapticctl telemetry --decimation 1000"
+)]
+struct Cli {
+    /// gRPC address of infer-server.
+    #[arg(
+        long,
+        global = true,
+        env = "HAPTICS_ADDR",
+        default_value = "http://127.0.0.1:50051"
+    )]
+    addr: String,
+    /// Bearer token for changes (load, swap, unload, experiments), when the server has one.
+    #[arg(long, global = true, env = "HAPTICS_TOKEN", hide_env_values = true)]
+    token: Option<String>,
+    /// Print JSON instead of text (one object per line for streams).
+    #[arg(long, global = true)]
+    json: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// List the models in the model directory and in memory, with their state.
+    Models,
+    /// Validate, warm and keep a model loaded (not active).
+    Load {
+        /// A model file name in the server's model directory.
+        #[arg(required_unless_present = "file", conflicts_with = "file")]
+        name: Option<String>,
+        /// Upload this local file instead.
+        #[arg(long)]
+        file: Option<PathBuf>,
+        /// The name to give the upload (default: the file's name).
+        #[arg(long, requires = "file")]
+        r#as: Option<String>,
+    },
+    /// Make a model the active one (loading or uploading it first when needed) and print the
+    /// step at which the swap took effect.
+    Swap {
+        /// A name in the server's model directory, or a path to a local .onnx file to upload.
+        model: String,
+    },
+    /// Drop a loaded model from the server's memory (not the active one).
+    Unload { name: String },
+    /// Show the active model.
+    Active,
+    /// Show the loop and server status.
+    Status {
+        /// Refresh until interrupted.
+        #[arg(long)]
+        watch: bool,
+        /// Seconds between refreshes with --watch.
+        #[arg(long, default_value_t = 1.0)]
+        interval: f64,
+        /// Stop after this many refreshes with --watch.
+        #[arg(long, hide = true)]
+        count: Option<u64>,
+    },
+    /// Start or stop an experiment on the loop.
+    Experiment {
+        #[command(subcommand)]
+        action: ExperimentAction,
+    },
+    /// Stream live telemetry (min/max per bucket of `decimation` steps) until interrupted.
+    Telemetry {
+        /// Loop steps per printed sample.
+        #[arg(long, default_value_t = 1000)]
+        decimation: u32,
+        /// Stop after this many samples.
+        #[arg(long)]
+        count: Option<u64>,
+    },
+}
+
+#[derive(Subcommand, Debug)]
+enum ExperimentAction {
+    /// Start an experiment: abstraction, reproduction, shadow or position-replay.
+    Start {
+        kind: String,
+        /// Force ramp rate, N/s.
+        #[arg(long)]
+        ramp_rate: Option<f64>,
+        /// Number of ramp cycles.
+        #[arg(long)]
+        cycles: Option<u32>,
+        /// Peak force of the first cycle, N.
+        #[arg(long)]
+        f_max_start: Option<f64>,
+        /// Peak force added each cycle, N.
+        #[arg(long)]
+        f_max_step: Option<f64>,
+    },
+    /// Stop the running experiment.
+    Stop,
+}
+
+#[tokio::main(flavor = "current_thread")]
+async fn main() {
+    let cli = Cli::parse();
+    if let Err(e) = run(cli).await {
+        eprintln!("hapticctl: {}", e.message);
+        std::process::exit(e.code);
+    }
+}
+
+fn print_json(v: &serde_json::Value) {
+    println!("{v}");
+}
+
+async fn run(cli: Cli) -> Result<(), CliError> {
+    let mut c = connect(&cli.addr, cli.token.as_deref()).await?;
+    let addr = c.addr.clone();
+    let fail = |s: tonic::Status| explain(&s, &addr);
+    match cli.command {
+        Command::Models => {
+            let list = c
+                .models
+                .list_models(pb::ListModelsRequest {})
+                .await
+                .map_err(fail)?
+                .into_inner();
+            if cli.json {
+                print_json(&serde_json::Value::Array(
+                    list.models.iter().map(output::model_json).collect(),
+                ));
+            } else {
+                print!("{}", output::models_table(&list.models));
+            }
+        }
+        Command::Load { name, file, r#as } => {
+            let model = match (name, file) {
+                (Some(name), _) => load(&mut c, name, None).await?,
+                (None, Some(path)) => upload(&mut c, &path, r#as).await?,
+                (None, None) => unreachable!("clap requires one"),
+            };
+            if cli.json {
+                print_json(&output::model_json(&model));
+            } else {
+                println!("loaded {}", output::model_line(&model));
+            }
+        }
+        Command::Swap { model } => {
+            let (model, step) = swap(&mut c, &model).await?;
+            if cli.json {
+                print_json(
+                    &serde_json::json!({ "model": output::model_json(&model), "effective_step": step }),
+                );
+            } else {
+                println!("{} is active from step {step}", model.name);
+            }
+        }
+        Command::Unload { name } => {
+            c.models
+                .unload_model(pb::UnloadModelRequest { name: name.clone() })
+                .await
+                .map_err(fail)?;
+            if cli.json {
+                print_json(&serde_json::json!({ "unloaded": name }));
+            } else {
+                println!("unloaded {name}");
+            }
+        }
+        Command::Active => {
+            match c
+                .models
+                .get_active_model(pb::GetActiveModelRequest {})
+                .await
+            {
+                Ok(m) => {
+                    let m = m.into_inner();
+                    if cli.json {
+                        print_json(&output::model_json(&m));
+                    } else {
+                        println!(
+                            "{} (since step {})",
+                            output::model_line(&m),
+                            m.active_since_step
+                        );
+                    }
+                }
+                Err(s) if s.code() == tonic::Code::NotFound => {
+                    if cli.json {
+                        print_json(&serde_json::Value::Null);
+                    } else {
+                        println!("no active model: the loop renders its fallback");
+                    }
+                }
+                Err(s) => return Err(fail(s)),
+            }
+        }
+        Command::Status {
+            watch,
+            interval,
+            count,
+        } => {
+            if !(interval.is_finite() && interval > 0.0) {
+                return Err(CliError::new("--interval must be > 0 seconds", EXIT_USAGE));
+            }
+            let mut shown = 0u64;
+            loop {
+                let s = c
+                    .looper
+                    .get_status(pb::GetStatusRequest {})
+                    .await
+                    .map_err(fail)?
+                    .into_inner();
+                if cli.json {
+                    print_json(&output::status_json(&s));
+                } else {
+                    if watch && shown > 0 {
+                        println!();
+                    }
+                    print!("{}", output::status_text(&s));
+                }
+                shown += 1;
+                if !watch || count.is_some_and(|n| shown >= n) {
+                    break;
+                }
+                tokio::select! {
+                    _ = tokio::time::sleep(Duration::from_secs_f64(interval)) => {}
+                    _ = tokio::signal::ctrl_c() => break,
+                }
+            }
+        }
+        Command::Experiment { action } => match action {
+            ExperimentAction::Start {
+                kind,
+                ramp_rate,
+                cycles,
+                f_max_start,
+                f_max_step,
+            } => {
+                c.looper
+                    .start_experiment(pb::StartExperimentRequest {
+                        kind: kind.clone(),
+                        ramp_rate,
+                        cycles,
+                        f_max_start,
+                        f_max_step,
+                    })
+                    .await
+                    .map_err(fail)?;
+                if cli.json {
+                    print_json(&serde_json::json!({ "started": kind }));
+                } else {
+                    println!("started {kind}");
+                }
+            }
+            ExperimentAction::Stop => {
+                c.looper
+                    .stop_experiment(pb::StopExperimentRequest {})
+                    .await
+                    .map_err(fail)?;
+                if cli.json {
+                    print_json(&serde_json::json!({ "stopped": true }));
+                } else {
+                    println!("stopped");
+                }
+            }
+        },
+        Command::Telemetry { decimation, count } => {
+            let mut stream = c
+                .looper
+                .stream_telemetry(pb::StreamTelemetryRequest { decimation })
+                .await
+                .map_err(fail)?
+                .into_inner();
+            if !cli.json {
+                println!("{}", output::SAMPLE_HEADER);
+            }
+            let mut n = 0u64;
+            while count.is_none_or(|c| n < c) {
+                let next = tokio::select! {
+                    next = stream.message() => next,
+                    _ = tokio::signal::ctrl_c() => break,
+                };
+                let Some(x) = next.map_err(fail)? else {
+                    eprintln!("hapticctl: the server ended the stream (shutting down?)");
+                    break;
+                };
+                if cli.json {
+                    print_json(&output::sample_json(&x));
+                } else {
+                    println!("{}", output::sample_line(&x));
+                }
+                n += 1;
+            }
+        }
+    }
+    Ok(())
+}
+
+async fn load(
+    c: &mut Client,
+    name: String,
+    bytes: Option<Vec<u8>>,
+) -> Result<pb::ModelInfo, CliError> {
+    let r = c
+        .models
+        .load_model(pb::LoadModelRequest {
+            name,
+            onnx: bytes.unwrap_or_default(),
+        })
+        .await
+        .map_err(|s| explain(&s, &c.addr))?;
+    r.into_inner()
+        .model
+        .ok_or_else(|| CliError::new("the server answered without the model", client::EXIT_SERVER))
+}
+
+/// Uploads a local file, after checking it against the server's limit (so a large file is not
+/// sent for nothing).
+async fn upload(
+    c: &mut Client,
+    path: &Path,
+    name: Option<String>,
+) -> Result<pb::ModelInfo, CliError> {
+    let bytes = std::fs::read(path)
+        .map_err(|e| CliError::new(format!("cannot read {}: {e}", path.display()), EXIT_USAGE))?;
+    if bytes.is_empty() {
+        return Err(CliError::new(
+            format!("{} is empty", path.display()),
+            EXIT_USAGE,
+        ));
+    }
+    let name = match name {
+        Some(n) => n,
+        None => path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .ok_or_else(|| {
+                CliError::new(format!("{} has no file name", path.display()), EXIT_USAGE)
+            })?,
+    };
+    let status = c
+        .looper
+        .get_status(pb::GetStatusRequest {})
+        .await
+        .map_err(|s| explain(&s, &c.addr))?
+        .into_inner();
+    let limit = status.max_upload_bytes;
+    if limit > 0 && bytes.len() as u64 > limit {
+        return Err(CliError::new(
+            format!(
+                "{} is {} bytes, over the server's upload limit of {limit} bytes: put it in the \
+                 server's model directory and load it by name, or raise the limit",
+                path.display(),
+                bytes.len()
+            ),
+            client::EXIT_SERVER,
+        ));
+    }
+    load(c, name, Some(bytes)).await
+}
+
+/// `swap NAME` activates a model of the server's directory (loading it if needed); `swap PATH`
+/// (a path with a `/`, or a bare name the server does not have but that exists here) uploads the
+/// local file first.
+async fn swap(c: &mut Client, model: &str) -> Result<(pb::ModelInfo, u64), CliError> {
+    let local = Path::new(model);
+    let name = if model.contains('/') {
+        upload(c, local, None).await?.name
+    } else {
+        model.to_string()
+    };
+    let activate = |name: String| pb::ActivateModelRequest {
+        name,
+        load_if_needed: true,
+    };
+    let r = match c.models.activate_model(activate(name.clone())).await {
+        Err(s) if s.code() == tonic::Code::NotFound && local.is_file() && !model.contains('/') => {
+            let name = upload(c, local, None).await?.name;
+            c.models.activate_model(activate(name)).await
+        }
+        r => r,
+    }
+    .map_err(|s| explain(&s, &c.addr))?
+    .into_inner();
+    let model = r.model.ok_or_else(|| {
+        CliError::new("the server answered without the model", client::EXIT_SERVER)
+    })?;
+    Ok((model, r.effective_step))
 }

@@ -1,0 +1,117 @@
+//! The connection to infer-server's control plane, with the token on every call, and errors
+//! turned into sentences a user can act on.
+use std::time::Duration;
+
+use control_plane::pb::loop_service_client::LoopServiceClient;
+use control_plane::pb::model_service_client::ModelServiceClient;
+use tonic::metadata::MetadataValue;
+use tonic::service::interceptor::InterceptedService;
+use tonic::transport::{Channel, Endpoint};
+use tonic::{Code, Request, Status};
+
+#[derive(Clone)]
+pub struct AddToken(Option<MetadataValue<tonic::metadata::Ascii>>);
+
+impl tonic::service::Interceptor for AddToken {
+    fn call(&mut self, mut request: Request<()>) -> Result<Request<()>, Status> {
+        if let Some(token) = &self.0 {
+            request
+                .metadata_mut()
+                .insert("authorization", token.clone());
+        }
+        Ok(request)
+    }
+}
+
+pub type Models = ModelServiceClient<InterceptedService<Channel, AddToken>>;
+pub type Loop = LoopServiceClient<InterceptedService<Channel, AddToken>>;
+
+pub struct Client {
+    pub models: Models,
+    pub looper: Loop,
+    pub addr: String,
+}
+
+/// A failure, already worded for the user; `code` is the process exit status.
+#[derive(Debug)]
+pub struct CliError {
+    pub message: String,
+    pub code: i32,
+}
+
+impl CliError {
+    pub fn new(message: impl Into<String>, code: i32) -> Self {
+        Self {
+            message: message.into(),
+            code,
+        }
+    }
+}
+
+pub const EXIT_SERVER: i32 = 1;
+pub const EXIT_USAGE: i32 = 2;
+pub const EXIT_CONNECT: i32 = 3;
+
+/// "127.0.0.1:50051" and "http://127.0.0.1:50051" both work.
+pub fn normalize_addr(addr: &str) -> String {
+    if addr.contains("://") {
+        addr.to_string()
+    } else {
+        format!("http://{addr}")
+    }
+}
+
+pub async fn connect(addr: &str, token: Option<&str>) -> Result<Client, CliError> {
+    let addr = normalize_addr(addr);
+    let endpoint = Endpoint::from_shared(addr.clone())
+        .map_err(|e| CliError::new(format!("bad --addr {addr:?}: {e}"), EXIT_USAGE))?
+        .connect_timeout(Duration::from_secs(3));
+    let channel = endpoint.connect().await.map_err(|e| {
+        let mut cause = String::new();
+        let mut source: Option<&dyn std::error::Error> = Some(&e);
+        while let Some(s) = source {
+            cause = s.to_string();
+            source = s.source();
+        }
+        CliError::new(
+            format!(
+                "cannot reach infer-server at {addr}: {cause}. Is infer-server running? \
+                 (start it, or point --addr / HAPTICS_ADDR at its gRPC address)"
+            ),
+            EXIT_CONNECT,
+        )
+    })?;
+    let token = match token {
+        Some(t) => Some(format!("Bearer {t}").parse().map_err(|_| {
+            CliError::new("the token has characters a header cannot carry", EXIT_USAGE)
+        })?),
+        None => None,
+    };
+    let add = AddToken(token);
+    Ok(Client {
+        models: ModelServiceClient::with_interceptor(channel.clone(), add.clone())
+            .max_decoding_message_size(64 << 20),
+        looper: LoopServiceClient::with_interceptor(channel, add),
+        addr,
+    })
+}
+
+/// Words a failed call.
+pub fn explain(status: &Status, addr: &str) -> CliError {
+    let msg = status.message();
+    let message = match status.code() {
+        Code::Unauthenticated => format!(
+            "{msg}\nThis server requires a token for changes: pass --token TOKEN or set \
+             HAPTICS_TOKEN."
+        ),
+        Code::Unavailable => {
+            format!("infer-server at {addr} is unavailable: {msg}. Is infer-server running?")
+        }
+        Code::OutOfRange | Code::ResourceExhausted => format!("upload refused: {msg}"),
+        Code::NotFound => format!("not found: {msg}"),
+        Code::InvalidArgument => format!("refused: {msg}"),
+        Code::FailedPrecondition => format!("not possible now: {msg}"),
+        code => format!("{code:?}: {msg}"),
+    };
+    CliError::new(message, EXIT_SERVER)
+}

@@ -1,0 +1,241 @@
+//! Human-readable and JSON renderings of the control plane's messages.
+use control_plane::pb;
+use serde_json::{json, Value};
+
+pub fn state_name(m: &pb::ModelInfo) -> &'static str {
+    match m.state() {
+        pb::ModelState::Unspecified => "unknown",
+        pb::ModelState::Available => "available",
+        pb::ModelState::Loaded => "loaded",
+        pb::ModelState::Active => "active",
+        pb::ModelState::Failed => "failed",
+    }
+}
+
+pub fn model_json(m: &pb::ModelInfo) -> Value {
+    json!({
+        "name": m.name,
+        "state": state_name(m),
+        "kind": m.kind,
+        "features": m.features,
+        "units": m.units,
+        "error": (!m.error.is_empty()).then_some(&m.error),
+        "size_bytes": m.size_bytes,
+        "model_id": m.model_id,
+        "active_since_step": (m.state() == pb::ModelState::Active).then_some(m.active_since_step),
+        "provenance": serde_json::from_str::<Value>(&m.provenance_json).unwrap_or(Value::Null),
+    })
+}
+
+pub fn models_table(models: &[pb::ModelInfo]) -> String {
+    if models.is_empty() {
+        return "no models in the model directory (load one with `hapticctl load --file PATH`)\n"
+            .into();
+    }
+    let width = models
+        .iter()
+        .map(|m| m.name.len())
+        .max()
+        .unwrap_or(4)
+        .max(4);
+    let mut out = format!(
+        "{:<width$}  {:<9}  {:<9}  {:>9}  FEATURES\n",
+        "NAME", "STATE", "KIND", "SIZE"
+    );
+    for m in models {
+        let mut line = format!(
+            "{:<width$}  {:<9}  {:<9}  {:>9}  {}",
+            m.name,
+            state_name(m),
+            if m.kind.is_empty() { "-" } else { &m.kind },
+            human_bytes(m.size_bytes),
+            if m.features.is_empty() {
+                "-".to_string()
+            } else {
+                m.features.join(",")
+            },
+        );
+        if m.state() == pb::ModelState::Active {
+            line.push_str(&format!("  (since step {})", m.active_since_step));
+        }
+        if !m.error.is_empty() {
+            line.push_str(&format!("  error: {}", m.error));
+        }
+        out.push_str(line.trim_end());
+        out.push('\n');
+    }
+    out
+}
+
+pub fn model_line(m: &pb::ModelInfo) -> String {
+    format!(
+        "{} ({}, {}, features: {}, id {})",
+        m.name,
+        state_name(m),
+        if m.kind.is_empty() {
+            "kind unknown"
+        } else {
+            &m.kind
+        },
+        m.features.join(", "),
+        m.model_id
+    )
+}
+
+fn human_bytes(n: u64) -> String {
+    if n >= 1 << 20 {
+        format!("{:.1} MiB", n as f64 / f64::from(1 << 20))
+    } else if n >= 1 << 10 {
+        format!("{:.1} KiB", n as f64 / 1024.0)
+    } else {
+        format!("{n} B")
+    }
+}
+
+fn latency_json(l: Option<&pb::LatencyPercentiles>) -> Value {
+    let l = l.cloned().unwrap_or_default();
+    json!({ "p50_us": l.p50_us, "p99_us": l.p99_us, "p999_us": l.p999_us, "max_us": l.max_us, "count": l.count })
+}
+
+pub fn status_json(s: &pb::Status) -> Value {
+    let e = s.experiment.clone().unwrap_or_default();
+    json!({
+        "loop": {
+            "alive": s.loop_alive,
+            "mode": s.mode,
+            "clock": s.clock,
+            "board": s.board,
+            "rate_hz": s.rate_hz,
+            "step": s.step,
+            "fallbacks": s.fallbacks,
+            "deadline_misses": s.deadline_misses,
+            "scheduling": s.scheduling,
+            "recorder": s.recorder,
+            "telemetry_drops": s.telemetry_drops,
+            "experiment": { "kind": e.kind, "running": e.running, "cycle": e.cycle, "phase": e.phase },
+            "round_trip_latency": latency_json(s.round_trip_latency.as_ref()),
+        },
+        "server": {
+            "version": s.server_version,
+            "uptime_s": s.uptime_s,
+            "predictions": s.predictions,
+            "inference_latency": latency_json(s.inference_latency.as_ref()),
+            "token_required": s.token_required,
+            "max_upload_bytes": s.max_upload_bytes,
+        },
+        "active_model": s.active_model.as_ref().map(model_json),
+    })
+}
+
+pub fn status_text(s: &pb::Status) -> String {
+    let mut out = String::new();
+    let lat = |l: Option<&pb::LatencyPercentiles>| match l {
+        Some(l) if l.count > 0 => format!(
+            "p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us ({} samples)",
+            l.p50_us, l.p99_us, l.p999_us, l.max_us, l.count
+        ),
+        _ => "no samples".into(),
+    };
+    if s.loop_alive {
+        out.push_str(&format!(
+            "loop:        running, {} clock, {} board, {:.1} Hz, step {}\n",
+            s.clock, s.board, s.rate_hz, s.step
+        ));
+    } else {
+        out.push_str("loop:        not attached (no rt-loop, or its heartbeat stopped)\n");
+    }
+    let e = s.experiment.clone().unwrap_or_default();
+    if e.running {
+        out.push_str(&format!(
+            "experiment:  {} (cycle {}, {})\n",
+            e.kind, e.cycle, e.phase
+        ));
+    } else {
+        out.push_str("experiment:  idle\n");
+    }
+    match &s.active_model {
+        Some(m) => out.push_str(&format!(
+            "model:       {} ({}, since step {})\n",
+            m.name,
+            if m.kind.is_empty() {
+                "kind unknown"
+            } else {
+                &m.kind
+            },
+            m.active_since_step
+        )),
+        None => out.push_str("model:       none (the loop renders its fallback)\n"),
+    }
+    out.push_str(&format!(
+        "fallbacks:   {}    deadline misses: {}    telemetry drops: {}\n",
+        s.fallbacks, s.deadline_misses, s.telemetry_drops
+    ));
+    out.push_str(&format!(
+        "round trip:  {}\n",
+        lat(s.round_trip_latency.as_ref())
+    ));
+    out.push_str(&format!(
+        "inference:   {}\n",
+        lat(s.inference_latency.as_ref())
+    ));
+    out.push_str(&format!("scheduling:  {}\n", or_dash(&s.scheduling)));
+    out.push_str(&format!("recorder:    {}\n", or_dash(&s.recorder)));
+    out.push_str(&format!(
+        "server:      {} up {:.0} s, {} predictions{}\n",
+        or_dash(&s.server_version),
+        s.uptime_s,
+        s.predictions,
+        if s.token_required {
+            ", token required for changes"
+        } else {
+            ""
+        }
+    ));
+    out
+}
+
+fn or_dash(s: &str) -> &str {
+    if s.is_empty() {
+        "-"
+    } else {
+        s
+    }
+}
+
+pub fn sample_json(x: &pb::TelemetrySample) -> Value {
+    let num = |v: f64| if v.is_finite() { json!(v) } else { Value::Null };
+    json!({
+        "step": x.step,
+        "time_s": x.time_s,
+        "steps": x.steps,
+        "f_ref": num(x.f_ref),
+        "f_res_min": num(x.f_res_min),
+        "f_res_max": num(x.f_res_max),
+        "f_pred": num(x.f_pred),
+        "position_x": num(x.position_x),
+        "velocity": num(x.velocity),
+        "acceleration": num(x.acceleration),
+        "f_true": num(x.f_true),
+        "fallbacks": x.fallbacks,
+        "min": x.min.iter().map(|v| num(*v)).collect::<Vec<_>>(),
+        "max": x.max.iter().map(|v| num(*v)).collect::<Vec<_>>(),
+    })
+}
+
+pub const SAMPLE_HEADER: &str =
+    "      step    time_s     F_ref  F_res[min      max]    F_pred   x [mm]  v [mm/s]  fallbacks";
+
+pub fn sample_line(x: &pb::TelemetrySample) -> String {
+    format!(
+        "{:>10} {:>9.4} {:>9.3} {:>9.3} {:>8.3} {:>9.3} {:>8.3} {:>9.2} {:>10}",
+        x.step,
+        x.time_s,
+        x.f_ref,
+        x.f_res_min,
+        x.f_res_max,
+        x.f_pred,
+        x.position_x * 1e3,
+        x.velocity * 1e3,
+        x.fallbacks
+    )
+}
