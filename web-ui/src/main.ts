@@ -30,10 +30,10 @@ const PLOTS: PlotDef[] = [
     yLabel: "force (N)",
     height: 250,
     signals: [
-      { series: S.F_ref, label: "command F_ref", unit: "N", color: C.cmd, dash: [6, 4] },
-      { series: S.rtob_force, label: "RFOB response", unit: "N", color: C.res },
-      { series: S.F_pred, label: "predicted", unit: "N", color: C.pred },
-      { series: S.F_true, label: "true (sim)", unit: "N", color: C.truth },
+      { series: S.F_ref, label: "command F_ref", short: "F_ref", unit: "N", color: C.cmd, dash: [6, 4] },
+      { series: S.rtob_force, label: "RFOB response", short: "F_res", unit: "N", color: C.res },
+      { series: S.F_pred, label: "predicted", short: "F_pred", unit: "N", color: C.pred },
+      { series: S.F_true, label: "true (sim)", short: "F_true", unit: "N", color: C.truth },
     ],
   },
   {
@@ -41,7 +41,7 @@ const PLOTS: PlotDef[] = [
     title: "Compression depth",
     yLabel: "depth (mm)",
     height: 170,
-    signals: [{ series: S.position_x, label: "depth x", unit: "mm", color: C.depth }],
+    signals: [{ series: S.position_x, label: "depth x", short: "x", unit: "mm", color: C.depth }],
   },
   {
     id: "motion",
@@ -50,8 +50,8 @@ const PLOTS: PlotDef[] = [
     y2Label: "acceleration (m/s²)",
     height: 190,
     signals: [
-      { series: S.velocity, label: "velocity", unit: "mm/s", color: C.vel },
-      { series: S.acceleration, label: "acceleration (right axis)", unit: "m/s²", color: C.acc, scale: "y2" },
+      { series: S.velocity, label: "velocity", short: "v", unit: "mm/s", color: C.vel },
+      { series: S.acceleration, label: "acceleration (right axis)", short: "a", unit: "m/s²", color: C.acc, scale: "y2" },
     ],
   },
 ];
@@ -105,7 +105,7 @@ const timePlots: TimePlot[] = PLOTS.map((def) => {
       setPaused(true, "zoomed");
     },
     onResetZoom: () => goLive(),
-  });
+  }, document.getElementById(`readout-${def.id}`));
   const fs = $(`toggles-${def.id}`);
   def.signals.forEach((sig, k) => {
     const lab = document.createElement("label");

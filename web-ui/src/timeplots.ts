@@ -7,6 +7,8 @@ export interface Signal {
   /** Index of the series in the telemetry frame. */
   series: number;
   label: string;
+  /** Name in the cursor readout. */
+  short: string;
   unit: string;
   color: string;
   /** "y" (left axis) or "y2" (right axis). */
@@ -54,6 +56,7 @@ export class TimePlot {
     container: HTMLElement,
     syncKey: string,
     hooks: TimePlotHooks,
+    private readonly readout: HTMLElement | null = null,
   ) {
     this.visible = def.signals.map((s) => !s.hidden);
     const series: uPlot.Series[] = [{ label: "t (s)" }];
@@ -144,9 +147,35 @@ export class TimePlot {
             u.over.addEventListener("dblclick", () => hooks.onResetZoom());
           },
         ],
+        // The values under the cursor (synchronised across the plots), as PlotJuggler shows them.
+        setCursor: [(u) => this.showReadout(u)],
       },
     };
     this.u = new uPlot(opts, emptyData(def.signals.length), container);
+  }
+
+  private showReadout(u: uPlot): void {
+    const el = this.readout;
+    if (!el) return;
+    const i = u.cursor.idx;
+    const xs = u.data[0] as ArrayLike<number>;
+    if (i === null || i === undefined || i >= xs.length) {
+      el.textContent = "";
+      return;
+    }
+    const parts = [`t ${xs[i].toFixed(3)} s`];
+    this.def.signals.forEach((sig, k) => {
+      if (!this.visible[k]) return;
+      const hi = (u.data[1 + 2 * k] as ArrayLike<number | null>)[i];
+      const lo = (u.data[2 + 2 * k] as ArrayLike<number | null>)[i];
+      if (hi === null || lo === null || hi === undefined || lo === undefined) return;
+      const a = fmtVal(lo);
+      const b = fmtVal(hi);
+      const v = a === b ? a : `${a}…${b}`;
+      parts.push(`${sig.short} ${v} ${sig.unit}`);
+    });
+    el.textContent = parts.join(" · ");
+    el.title = el.textContent;
   }
 
   private bands(): uPlot.Band[] {
@@ -188,6 +217,11 @@ export class TimePlot {
     // batch() draws now rather than in a microtask, so the page's draw-time figure is honest.
     this.u.batch(() => this.u.setData(data, true));
   }
+}
+
+function fmtVal(v: number): string {
+  const a = Math.abs(v);
+  return v.toFixed(a >= 100 ? 0 : a >= 10 ? 1 : a >= 0.1 ? 2 : 4);
 }
 
 function emptyData(nSignals: number): uPlot.AlignedData {
