@@ -22,6 +22,8 @@ pub struct Config {
     pub shutdown_grace: Duration,
     /// Worker threads of the runtime `serve` creates (the control plane needs few).
     pub worker_threads: usize,
+    /// Trigger the shutdown on SIGINT or SIGTERM (for a main that has no handler of its own).
+    pub stop_on_signals: bool,
     /// Reported as the server version.
     pub version: String,
 }
@@ -38,6 +40,7 @@ impl Default for Config {
             ws_max_buckets_per_frame: 400,
             shutdown_grace: Duration::from_secs(2),
             worker_threads: 2,
+            stop_on_signals: false,
             version: env!("CARGO_PKG_VERSION").to_string(),
         }
     }

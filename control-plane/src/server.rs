@@ -135,6 +135,9 @@ pub async fn serve_async(
     backend: Arc<dyn Backend>,
     shutdown: Shutdown,
 ) -> Result<()> {
+    if config.stop_on_signals {
+        trigger_on_signals(shutdown.clone())?;
+    }
     let bound = bind(config, backend, shutdown).await?;
     eprintln!(
         "control plane: gRPC on {}, HTTP on http://{}",
@@ -142,6 +145,23 @@ pub async fn serve_async(
         bound.http_addr()
     );
     bound.run().await
+}
+
+/// Triggers `shutdown` on the first SIGINT or SIGTERM.
+fn trigger_on_signals(shutdown: Shutdown) -> Result<()> {
+    use tokio::signal::unix::{signal, SignalKind};
+    let mut int = signal(SignalKind::interrupt()).context("SIGINT handler")?;
+    let mut term = signal(SignalKind::terminate()).context("SIGTERM handler")?;
+    tokio::spawn(async move {
+        tokio::select! {
+            _ = int.recv() => {}
+            _ = term.recv() => {}
+            _ = shutdown.wait() => return,
+        }
+        eprintln!("control plane: signal received, shutting down");
+        shutdown.trigger();
+    });
+    Ok(())
 }
 
 /// The entry point for infer-server's main: creates a small multi-thread tokio runtime whose
