@@ -164,6 +164,16 @@ describe("page against the fake server", () => {
     assert.ok(Math.abs(w.range[1] - w.range[0] - 10) < 1e-9);
   });
 
+  test("the cursor readout shows the values under the cursor on every time plot", async () => {
+    const box = await page.locator("#plot-force .u-over").boundingBox();
+    await page.mouse.move(box.x + box.width * 0.7, box.y + box.height / 2);
+    await waitFor(async () => /^t [\d.]+ s · F_ref [-\d.]+(…[-\d.]+)? N · F_res/.test(await page.textContent("#readout-force")), { what: "force readout" });
+    // Synchronised: the depth plot's readout names the same time.
+    const tf = (await page.textContent("#readout-force")).split(" s ")[0];
+    assert.equal((await page.textContent("#readout-depth")).split(" s ")[0], tf);
+    await page.mouse.move(0, 0);
+  });
+
   test("per-series toggles hide and show a series, by keyboard too", async () => {
     await page.focus("#toggle-force-0");
     await page.keyboard.press("Space");
