@@ -8,6 +8,8 @@
 //!   thread reads.
 //! - [`handoff`]: hands a freshly validated engine to the inference thread between two steps.
 //! - [`serve`]: the inference thread over rt-loop's shared-memory segment.
+//! - [`server`]: [`server::Server`], the control side (validate, activate, revalidate, stats)
+//!   that `serve`, gRPC and the web page call.
 
 pub mod contract;
 pub mod engine;
@@ -16,6 +18,7 @@ pub mod latency;
 pub mod model;
 pub mod runtime;
 pub mod serve;
+pub mod server;
 
 pub use contract::{FeatureSchema, ModelKind};
 pub use engine::{StepEngine, StepError};

@@ -7,8 +7,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use clap::{Parser, Subcommand};
-use infer_server::handoff;
-use infer_server::serve::{InferenceThread, ServeConfig};
+use infer_server::serve::ServeConfig;
+use infer_server::server::{MaintenanceEvent, Server};
 use infer_server::{FeatureSchema, ModelError, Runtime, RuntimeError, SessionConfig, StepEngine};
 use shm_ring::{SegmentName, WaitStrategy};
 
@@ -188,9 +188,8 @@ fn serve(
         libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
     }
     let segment = cfg.segment.clone();
-    let (mut activator, taker) = handoff::channel();
-    let thread = match InferenceThread::spawn(cfg, taker) {
-        Ok(t) => t,
+    let server = match Server::start(rt, cfg, session) {
+        Ok(s) => s,
         Err(e) => {
             eprintln!("infer-server: {e}");
             return ExitCode::from(EXIT_REFUSED);
@@ -201,53 +200,62 @@ fn serve(
         model.display(),
         rt.version()
     );
-    let mut served_schema: Option<FeatureSchema> = None;
+    let mut activated = false;
     let mut last_report = Instant::now();
     let mut exit = ExitCode::SUCCESS;
-    while !STOP.load(Ordering::Relaxed) && !thread.is_finished() {
+    while !STOP.load(Ordering::Relaxed) && !server.is_finished() {
         std::thread::sleep(Duration::from_millis(20));
-        activator.collect_retired();
-        if let Some(schema) = thread.segment_schema() {
-            if served_schema.as_ref() != Some(&schema) {
-                match StepEngine::load(rt, model, &schema, &session) {
-                    Ok(engine) => {
-                        let generation = activator.offer(engine);
-                        eprintln!(
-                            "infer-server: attached to {segment}; schema [{}]; model generation {generation} active",
-                            schema.names().join(", ")
-                        );
-                    }
+        if !activated {
+            // Activate once the segment's schema is known, so the first validation is the
+            // real one; later schema changes are handled by `maintain`.
+            if let Some(schema) = server_schema_if_attached(&server) {
+                match server.activate(model) {
+                    Ok(a) => eprintln!(
+                        "infer-server: attached to {segment}; schema [{}]; model generation {} active",
+                        schema.names().join(", "),
+                        a.generation
+                    ),
                     Err(e) => {
-                        // The loop keeps rendering on its fallback (answers carry
-                        // SCHEMA_MISMATCH or NO_MODEL); say why once per schema.
                         report_model_error(model, &e, false);
                         exit = ExitCode::from(EXIT_REFUSED);
                     }
                 }
-                served_schema = Some(schema);
+                activated = true;
             }
         }
+        match server.maintain() {
+            Some(MaintenanceEvent::Revalidated(a)) => eprintln!(
+                "infer-server: new loop schema [{}]; model revalidated, generation {} active",
+                a.info.schema.join(", "),
+                a.generation
+            ),
+            Some(MaintenanceEvent::RevalidationFailed { path, error }) => {
+                // The loop keeps rendering on its fallback (answers carry SCHEMA_MISMATCH).
+                report_model_error(&path, &error, false);
+                exit = ExitCode::from(EXIT_REFUSED);
+            }
+            None => {}
+        }
         if stats_every > 0.0 && last_report.elapsed().as_secs_f64() >= stats_every {
-            report_stats(&thread);
+            report_stats(&server);
             last_report = Instant::now();
         }
     }
-    report_stats(&thread);
-    let result = if thread.is_finished() {
-        thread.join()
-    } else {
-        thread.stop()
-    };
-    if let Err(e) = result {
+    report_stats(&server);
+    if let Err(e) = server.shutdown() {
         eprintln!("infer-server: inference thread: {e}");
         return ExitCode::from(EXIT_REFUSED);
     }
     exit
 }
 
-fn report_stats(thread: &InferenceThread) {
-    let s = thread.stats().snapshot();
-    let l = thread.latency().snapshot();
+fn server_schema_if_attached(server: &Server) -> Option<FeatureSchema> {
+    server.stats().attached.then(|| server.schema())
+}
+
+fn report_stats(server: &Server) {
+    let s = server.stats();
+    let l = server.latency().snapshot();
     eprintln!(
         "infer-server: answered {} (model {}, no model {}, errors {}, schema mismatch {}, non-finite {}), resets {}, attachments {}; ring-to-ring p50 {} ns p99 {} ns p99.9 {} ns max {} ns",
         s.answered,

@@ -230,3 +230,109 @@ fn a_model_for_another_schema_is_not_fed_wrong_columns() {
     assert_eq!(thread.stats().snapshot().schema_mismatch, 1);
     thread.stop().unwrap();
 }
+
+#[test]
+fn server_activates_refuses_and_revalidates_when_a_new_loop_brings_another_schema() {
+    use infer_server::server::{MaintenanceEvent, Server};
+    let Some(dir) = common::fixtures() else {
+        return;
+    };
+    let rt = common::runtime();
+    let name = segment_name("server");
+    let first: Vec<String> = ["position_x", "velocity"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let mut lp = Segment::create(
+        &name,
+        &Config {
+            feature_names: first,
+            ..Config::default()
+        },
+    )
+    .unwrap()
+    .loop_side()
+    .unwrap();
+    lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
+    let server = Server::start(
+        rt,
+        ServeConfig {
+            segment: name.clone(),
+            wait: WaitStrategy::Park,
+            cpu: None,
+            exit_when_loop_gone: false, // wait for the next loop
+        },
+        SessionConfig::default(),
+    )
+    .unwrap();
+    let end = std::time::Instant::now() + TIMEOUT;
+    while !server.stats().attached {
+        assert!(std::time::Instant::now() < end);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert_eq!(server.schema().names(), ["position_x", "velocity"]);
+
+    let a = server.activate(&dir.join("linear.onnx")).unwrap();
+    assert_eq!(a.info.input_map, [1, 0]);
+    // A model that needs a feature this loop lacks is refused; the linear model stays.
+    let e = server.activate(&dir.join("tree.onnx")).unwrap_err();
+    assert!(
+        matches!(e, infer_server::ModelError::MissingFeature { ref name, .. } if name == "f_previous_x"),
+        "{e}"
+    );
+    assert_eq!(server.active().unwrap().generation, a.generation);
+    let f = round_trip(&mut lp, features(1, 1, FeatureMsg::RUN_START, &[0.2, 0.7]));
+    assert!(
+        (f.force - (2.0 * 0.7 - 3.0 * 0.2 + 0.5)).abs() < 1e-6,
+        "{f:?}"
+    );
+    assert_eq!(f.model_id as u64, a.generation);
+
+    // The loop restarts with another schema order; the server re-attaches by itself and
+    // `maintain` revalidates the model for the new columns.
+    drop(lp);
+    while server.stats().attached {
+        assert!(std::time::Instant::now() < end + TIMEOUT);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let second: Vec<String> = ["cycle_no", "velocity", "position_x"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let mut lp = Segment::create(
+        &name,
+        &Config {
+            feature_names: second,
+            ..Config::default()
+        },
+    )
+    .unwrap()
+    .loop_side()
+    .unwrap();
+    lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
+    let revalidated = loop {
+        assert!(
+            std::time::Instant::now() < end + 2 * TIMEOUT,
+            "no revalidation"
+        );
+        match server.maintain() {
+            Some(MaintenanceEvent::Revalidated(a)) => break a,
+            Some(other) => panic!("{other:?}"),
+            None => std::thread::sleep(Duration::from_millis(5)),
+        }
+    };
+    assert_eq!(revalidated.info.input_map, [1, 2]);
+    let f = round_trip(
+        &mut lp,
+        features(1, 7, FeatureMsg::RUN_START, &[3.0, 0.7, 0.2]),
+    );
+    assert_eq!(f.flags, 0, "{f:?}");
+    assert_eq!(f.model_id as u64, revalidated.generation);
+    assert!(
+        (f.force - (2.0 * 0.7 - 3.0 * 0.2 + 0.5)).abs() < 1e-6,
+        "{f:?}"
+    );
+    assert_eq!(server.stats().attachments, 2);
+    drop(lp);
+    server.shutdown().unwrap();
+}

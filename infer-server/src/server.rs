@@ -1,0 +1,192 @@
+//! The control side in one object: the inference thread, the active model, validation and
+//! activation. This is what `infer-server serve` runs and what the gRPC and web layers call
+//! (share it as `Arc<Server>`: every method takes `&self`).
+//!
+//! Activation: load and validate on the caller's thread (never the inference thread), against
+//! the schema of the segment the thread is attached to (the standard nine while detached), then
+//! hand the engine over with one atomic swap ([`crate::handoff`]). A refused model leaves the
+//! active one in place, and the error says why.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::time::Duration;
+
+use crate::contract::FeatureSchema;
+use crate::engine::StepEngine;
+use crate::handoff::{self, Activator};
+use crate::latency::LatencyReader;
+use crate::model::{ModelError, ModelInfo, SessionConfig};
+use crate::runtime::Runtime;
+use crate::serve::{InferenceThread, ServeConfig, ServeError, StatsSnapshot};
+
+/// The model the control side last activated.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ActiveModel {
+    pub generation: u64,
+    pub path: PathBuf,
+    pub info: ModelInfo,
+}
+
+/// What [`Server::maintain`] did.
+#[derive(Debug)]
+pub enum MaintenanceEvent {
+    /// A loop with another feature schema attached; the active model was revalidated against it
+    /// and re-activated.
+    Revalidated(ActiveModel),
+    /// ... and the active model does not fit the new schema. The inference thread answers
+    /// NaN + SCHEMA_MISMATCH (the loop renders its fallback) until another model is activated.
+    RevalidationFailed { path: PathBuf, error: ModelError },
+}
+
+struct Control {
+    activator: Activator,
+    active: Option<ActiveModel>,
+}
+
+pub struct Server {
+    rt: &'static Runtime,
+    session: SessionConfig,
+    thread: InferenceThread,
+    control: Mutex<Control>,
+}
+
+impl Server {
+    /// Starts the inference thread (it attaches to `cfg.segment` by itself, and again whenever
+    /// a new loop creates it). No model is active yet.
+    pub fn start(
+        rt: &'static Runtime,
+        cfg: ServeConfig,
+        session: SessionConfig,
+    ) -> Result<Self, ServeError> {
+        let (activator, taker) = handoff::channel();
+        let thread = InferenceThread::spawn(cfg, taker)?;
+        Ok(Self {
+            rt,
+            session,
+            thread,
+            control: Mutex::new(Control {
+                activator,
+                active: None,
+            }),
+        })
+    }
+
+    /// The schema models are validated against now: the attached segment's, else the nine.
+    pub fn schema(&self) -> FeatureSchema {
+        self.thread
+            .segment_schema()
+            .unwrap_or_else(FeatureSchema::standard)
+    }
+
+    /// Validates `path` against the current schema without activating it.
+    pub fn validate(&self, path: &Path) -> Result<ModelInfo, ModelError> {
+        StepEngine::load(self.rt, path, &self.schema(), &self.session).map(|e| e.info().clone())
+    }
+
+    /// Loads, validates and activates `path`. The inference thread switches before its next
+    /// step; a refused model leaves the active one running.
+    pub fn activate(&self, path: &Path) -> Result<ActiveModel, ModelError> {
+        let schema = self.schema();
+        let engine = StepEngine::load(self.rt, path, &schema, &self.session)?;
+        let info = engine.info().clone();
+        let mut control = self.control.lock().unwrap_or_else(|p| p.into_inner());
+        let generation = control.activator.offer(engine);
+        let active = ActiveModel {
+            generation,
+            path: path.to_path_buf(),
+            info,
+        };
+        control.active = Some(active.clone());
+        Ok(active)
+    }
+
+    /// Waits (sleeping) until the inference thread runs `generation` or later.
+    pub fn wait_active(&self, generation: u64, timeout: Duration) -> bool {
+        let deadline = std::time::Instant::now() + timeout;
+        loop {
+            if self.thread.stats().snapshot().model_generation >= generation
+                || self
+                    .control
+                    .lock()
+                    .map(|c| c.activator.active_generation() >= generation)
+                    .unwrap_or(false)
+            {
+                return true;
+            }
+            if std::time::Instant::now() >= deadline {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
+    /// The model last activated (it becomes the running one at the inference thread's next
+    /// step; [`Server::stats`]`.model_generation` says which one answered last).
+    pub fn active(&self) -> Option<ActiveModel> {
+        self.control
+            .lock()
+            .map(|c| c.active.clone())
+            .unwrap_or(None)
+    }
+
+    /// Housekeeping, every few tens of milliseconds from any control thread: drops the engine
+    /// the inference thread gave back, and revalidates the active model when a loop with a
+    /// different feature schema has attached.
+    pub fn maintain(&self) -> Option<MaintenanceEvent> {
+        let (path, validated_for) = {
+            let mut control = self.control.lock().unwrap_or_else(|p| p.into_inner());
+            control.activator.collect_retired();
+            let active = control.active.as_ref()?;
+            (active.path.clone(), active.info.schema.clone())
+        };
+        let schema = self.thread.segment_schema()?;
+        if schema.names() == validated_for.as_slice() {
+            return None;
+        }
+        match StepEngine::load(self.rt, &path, &schema, &self.session) {
+            Ok(engine) => {
+                let info = engine.info().clone();
+                let mut control = self.control.lock().unwrap_or_else(|p| p.into_inner());
+                let generation = control.activator.offer(engine);
+                let active = ActiveModel {
+                    generation,
+                    path,
+                    info,
+                };
+                control.active = Some(active.clone());
+                Some(MaintenanceEvent::Revalidated(active))
+            }
+            Err(error) => {
+                // Remember the schema it failed for, so the failure is reported once.
+                let mut control = self.control.lock().unwrap_or_else(|p| p.into_inner());
+                if let Some(a) = control.active.as_mut() {
+                    a.info.schema = schema.names().to_vec();
+                }
+                Some(MaintenanceEvent::RevalidationFailed { path, error })
+            }
+        }
+    }
+
+    pub fn stats(&self) -> StatsSnapshot {
+        self.thread.stats().snapshot()
+    }
+
+    /// Ring-to-ring latency of every answered step (ns); snapshot it without stopping the thread.
+    pub fn latency(&self) -> &LatencyReader {
+        self.thread.latency()
+    }
+
+    /// Whether the inference thread has ended (only with `exit_when_loop_gone`, or on an error).
+    pub fn is_finished(&self) -> bool {
+        self.thread.is_finished()
+    }
+
+    /// Stops the inference thread (or collects its end) and reports how it ended.
+    pub fn shutdown(self) -> Result<(), ServeError> {
+        if self.thread.is_finished() {
+            self.thread.join()
+        } else {
+            self.thread.stop()
+        }
+    }
+}
