@@ -21,6 +21,7 @@ use crate::engine::StepEngine;
 use crate::model::ModelInfo;
 
 /// An engine on its way, with the generation number the control side gave it.
+#[derive(Debug)]
 pub struct Offered {
     pub engine: StepEngine,
     pub generation: u64,
@@ -80,8 +81,10 @@ pub fn channel() -> (Activator, Taker) {
 impl Activator {
     /// Offers a validated engine; the inference thread switches to it before its next step.
     /// Returns its generation. An earlier offer not yet taken is withdrawn and dropped here.
-    pub fn offer(&mut self, engine: StepEngine) -> u64 {
+    pub fn offer(&mut self, mut engine: StepEngine) -> u64 {
         self.collect_retired();
+        // An engine that served before (kept by a registry) starts again from a zero state.
+        engine.reset();
         let generation = self.next_generation;
         self.next_generation += 1;
         let info = engine.info().clone();
@@ -101,16 +104,16 @@ impl Activator {
         self.slots.active_generation.load(Ordering::Acquire)
     }
 
-    /// Drops the engine the inference thread has given back, if any. Call it now and then (every
-    /// `offer` does); until it is called, the inference thread will not take a newer offer.
-    pub fn collect_retired(&mut self) -> Option<u64> {
+    /// Takes back the engine the inference thread has replaced, if any (drop it, or keep it to
+    /// activate again later). Call it now and then (every `offer` does); until it is called,
+    /// the inference thread will not take a newer offer.
+    pub fn collect_retired(&mut self) -> Option<Box<Offered>> {
         let p = self.slots.retired.swap(ptr::null_mut(), Ordering::AcqRel);
         if p.is_null() {
             return None;
         }
         // SAFETY: the inference thread put it there with Box::into_raw and forgot it.
-        let old = unsafe { Box::from_raw(p) };
-        Some(old.generation)
+        Some(unsafe { Box::from_raw(p) })
     }
 
     /// The info of the engine now active, as far as this side knows (updated when the inference

@@ -73,6 +73,10 @@ pub struct ServerStats {
     pub last_seq: AtomicU64,
     /// Generation of the model the thread runs (0: none).
     pub model_generation: AtomicU64,
+    /// The first step (`FeatureMsg::seq`) a newly activated model answered, and that model's
+    /// generation (written in that order; read the generation first, with Acquire).
+    pub effective_seq: AtomicU64,
+    pub effective_generation: AtomicU64,
     pub attached: AtomicBool,
     /// CPU the thread is pinned to, -1 when not pinned (not asked, or not permitted).
     pub pinned_cpu: AtomicI64,
@@ -98,6 +102,8 @@ pub struct StatsSnapshot {
     pub skipped_on_attach: u64,
     pub last_seq: u64,
     pub model_generation: u64,
+    pub effective_seq: u64,
+    pub effective_generation: u64,
     pub attached: bool,
     pub pinned_cpu: i64,
 }
@@ -118,6 +124,8 @@ impl ServerStats {
             skipped_on_attach: l(&self.skipped_on_attach),
             last_seq: l(&self.last_seq),
             model_generation: l(&self.model_generation),
+            effective_generation: self.effective_generation.load(Ordering::Acquire),
+            effective_seq: l(&self.effective_seq),
             attached: self.attached.load(Ordering::Relaxed),
             pinned_cpu: self.pinned_cpu.load(Ordering::Relaxed),
         }
@@ -364,6 +372,12 @@ impl Worker {
             };
             if side.forces_tx.send(answer).is_err() {
                 break Ok(false); // the loop's process is gone
+            }
+            if generation != 0 && generation != stats.effective_generation.load(Ordering::Relaxed) {
+                stats.effective_seq.store(msg.seq, Ordering::Relaxed);
+                stats
+                    .effective_generation
+                    .store(generation, Ordering::Release);
             }
             self.recorder.record(t0.elapsed().as_nanos() as u64);
             bump(&stats.answered);

@@ -8,6 +8,7 @@
 //! active one in place, and the error says why.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
 use std::sync::Mutex;
 use std::time::Duration;
 
@@ -88,6 +89,11 @@ impl Server {
     pub fn activate(&self, path: &Path) -> Result<ActiveModel, ModelError> {
         let schema = self.schema();
         let engine = StepEngine::load(self.rt, path, &schema, &self.session)?;
+        Ok(self.activate_engine(engine, path))
+    }
+
+    /// Activates an engine loaded earlier (e.g. kept by a model registry). Its state is reset.
+    pub fn activate_engine(&self, engine: StepEngine, path: &Path) -> ActiveModel {
         let info = engine.info().clone();
         let mut control = self.control.lock().unwrap_or_else(|p| p.into_inner());
         let generation = control.activator.offer(engine);
@@ -97,7 +103,29 @@ impl Server {
             info,
         };
         control.active = Some(active.clone());
-        Ok(active)
+        active
+    }
+
+    /// The first step (`FeatureMsg::seq`) that `generation` answered, once it has answered one.
+    pub fn effective_step(&self, generation: u64) -> Option<u64> {
+        let s = self.thread.stats();
+        (s.effective_generation.load(Ordering::Acquire) == generation)
+            .then(|| s.effective_seq.load(Ordering::Relaxed))
+    }
+
+    /// Waits (sleeping) until `generation` has answered a step, up to `timeout`; returns that
+    /// step. `None` at the timeout (e.g. no loop is attached, or a newer model replaced it).
+    pub fn wait_effective(&self, generation: u64, timeout: Duration) -> Option<u64> {
+        let deadline = std::time::Instant::now() + timeout;
+        loop {
+            if let Some(step) = self.effective_step(generation) {
+                return Some(step);
+            }
+            if std::time::Instant::now() >= deadline {
+                return None;
+            }
+            std::thread::sleep(Duration::from_micros(500));
+        }
     }
 
     /// Waits (sleeping) until the inference thread runs `generation` or later.

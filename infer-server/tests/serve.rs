@@ -287,6 +287,11 @@ fn server_activates_refuses_and_revalidates_when_a_new_loop_brings_another_schem
         "{f:?}"
     );
     assert_eq!(f.model_id as u64, a.generation);
+    assert_eq!(
+        server.wait_effective(a.generation, TIMEOUT),
+        Some(1),
+        "first step it answered"
+    );
 
     // The loop restarts with another schema order; the server re-attaches by itself and
     // `maintain` revalidates the model for the new columns.
