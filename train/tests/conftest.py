@@ -13,7 +13,7 @@ from haptics_train.synthetic import write_dataset
 
 REPO = Path(__file__).resolve().parents[2]
 
-torch.set_num_threads(2)
+torch.set_num_threads(1)  # 2 threads on a busy 2-core box run ~10x slower
 
 
 def binary(name: str, env: str) -> Path | None:

@@ -81,7 +81,6 @@ def test_lstm_stateful_export_carries_its_state(trained, synth):
 
 def test_learned_models_beat_the_mean_on_held_out_data(trained, synth):
     rec = synth.test[0]
-    y = rec.target()
     for name, (m, om) in trained.items():
         res, _ = evaluate(m, om, rec, CFG, closed_loop=False)
         assert res["one_step"]["r2"] > 0.5, (name, res["one_step"])
@@ -94,8 +93,10 @@ def test_closed_loop_evaluation_uses_the_onnx_model_fed_back(trained, synth):
     assert not res["closed_loop_same_as_one_step"]
     assert not np.allclose(preds["closed_loop"], preds["one_step"])
     # the closed loop is exactly a simulation with the framework model stepped row by row
-    fw = simulate(_FrameworkStepper(m), rec, m.features)
-    np.testing.assert_allclose(preds["closed_loop"], fw, atol=2e-3)
+    # (checked on a causal prefix: torch row by row is slow)
+    n = 3000
+    fw = simulate(_FrameworkStepper(m), rec.head(n), m.features)
+    np.testing.assert_allclose(preds["closed_loop"][:n], fw, atol=2e-3)
 
 
 class _FrameworkStepper:
@@ -146,3 +147,19 @@ def test_feature_sets_and_presets():
         make_model("rf", "seven")
     with pytest.raises(ValueError, match="unknown algorithm"):
         make_model("xgb", "six")
+
+
+def test_network_survives_extreme_ratio_features(trained):
+    """Near-zero velocities make F/v ~ 1e20-1e30 in real recordings: still finite, in parity."""
+    m, om = trained["dnn_six"]
+    from haptics_train.closed_loop import session
+
+    x = np.array([
+        [0.01, 1e-22, 1e-25, 300.0, 5e22, 4e25],
+        [0.01, -1e-30, 1e-3, 300.0, -3e30, 3e3],
+        [0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+    ])  # fmt: skip
+    ref = m.predict_matrix(x)
+    got = session(om).run(None, {"features": x.astype(np.float32)})[0][:, 0]
+    assert np.isfinite(ref).all() and np.isfinite(got).all()
+    np.testing.assert_allclose(got, ref, atol=1e-3)

@@ -57,7 +57,13 @@ def _train_opts(p: argparse.ArgumentParser) -> None:
     p.add_argument("--svr-rows", type=int, help="SVR training subsample (default 5000)")
     p.add_argument("--dnn-epochs", type=int)
     p.add_argument("--lstm-iterations", type=int)
-    p.add_argument("--threads", type=int, default=2, help="torch threads (default 2)")
+    p.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch threads (default 1: on a busy 2-core machine more threads "
+        "oversubscribe and run ~10x slower)",
+    )
 
 
 def _hyper(a: argparse.Namespace) -> dict[str, dict]:
@@ -224,7 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> None:
     a = build_parser().parse_args(argv)
-    torch.set_num_threads(getattr(a, "threads", 2) or 2)
+    torch.set_num_threads(getattr(a, "threads", 1) or 1)
     try:
         a.fn(a)
     except (DataError, FileNotFoundError, ValueError, RuntimeError) as e:

@@ -36,6 +36,12 @@ class Recording:
     def __len__(self) -> int:
         return len(self.columns["time"])
 
+    def head(self, n: int) -> Recording:
+        """The first n control steps (a causal prefix: closed loop on it equals the prefix of
+        the closed loop on the whole recording)."""
+        cols = {k: v[:n] for k, v in self.columns.items()}
+        return Recording(self.name, cols, self.meta, self.source, self.sha256)
+
     def column(self, name: str) -> np.ndarray:
         try:
             return self.columns[name]
