@@ -24,7 +24,6 @@ from ..features import RATIO_DIVISORS
 from .base import ForceModel, TrainConfig, stacked
 from .torch_export import export_stateful, export_stateless
 
-
 #: |z / s| beyond this is clipped before asinh (asinh(1e15) = 35.2; (1e15)^2 fits float32)
 ASINH_CLIP = 1e15
 
