@@ -183,12 +183,16 @@ function render(): void {
     const s = S[name];
     const has = cols.max[s].some((v) => v !== null);
     const nd = document.getElementById(`nodata-${name}`);
-    if (nd) nd.textContent = has ? "" : "(none)";
+    const want = has ? "" : "(none)";
+    // Only touch the DOM on a change: a write per frame would cost a style and layout pass.
+    if (nd && nd.textContent !== want) nd.textContent = want;
   }
   renderXY(t1);
-  $("view-info").textContent = frozen
+  const info = frozen
     ? `${paused && pauseReason === "zoomed" ? "Zoomed" : "Paused"}: ${t0.toFixed(2)}–${t1.toFixed(2)} s`
     : `Live: last ${windowS} s`;
+  const vi = $("view-info");
+  if (vi.textContent !== info) vi.textContent = info;
 }
 
 /** Force-depth points of the last xyWindowS seconds ending at t1, at most ~1500 points. */

@@ -1,7 +1,7 @@
 // Shared helpers for the browser tests: Debian's Chromium driven by playwright-core (no browser
 // download, ever), a fresh profile per run, and the page's read-only test hook.
 import { mkdtemp, rm } from "node:fs/promises";
-import { existsSync } from "node:fs";
+import { existsSync, readdirSync, readFileSync } from "node:fs";
 import { tmpdir } from "node:os";
 import { join } from "node:path";
 import { chromium } from "playwright-core";
@@ -37,6 +37,7 @@ export async function openBrowser({ width = 1440, height = 1000 } = {}) {
     page,
     requests,
     consoleErrors,
+    userDataDir,
     async close() {
       await context.close().catch(() => {});
       await rm(userDataDir, { recursive: true, force: true }).catch(() => {});
@@ -88,11 +89,13 @@ export function enclosedArea(x, y) {
 }
 
 /** The frame-time figures every browser test prints: rAF deltas and draw times over a period. */
-export async function measureFrames(page, ms = 5000) {
+export async function measureFrames(page, ms = 5000, userDataDir = null) {
   const before = (await hook.frameTimes(page)).length;
   const beforeDraw = (await hook.drawTimes(page)).length;
   const c0 = await hook.counts(page);
+  const cpu0 = userDataDir ? chromiumCpuSeconds(userDataDir) : NaN;
   await sleep(ms);
+  const cpu1 = userDataDir ? chromiumCpuSeconds(userDataDir) : NaN;
   const ft = await hook.frameTimes(page);
   const dt = await hook.drawTimes(page);
   const c1 = await hook.counts(page);
@@ -106,5 +109,48 @@ export async function measureFrames(page, ms = 5000) {
     drawMs: percentiles(dr),
     dataFrames: c1.frames - c0.frames,
     buckets: c1.buckets - c0.buckets,
+    /** Chromium's CPU use over the period, in % of one core, and per drawn frame (ms). */
+    cpuPct: (100 * (cpu1 - cpu0)) / (ms / 1000),
+    cpuMsPerFrame: (1000 * (cpu1 - cpu0)) / Math.max(1, fr.length),
   };
+}
+
+/**
+ * CPU seconds (user + system) used so far by this test's Chromium: the browser process (found by
+ * its --user-data-dir) and all its descendants (renderer, GPU, utility). Unlike frame times this
+ * does not depend on how busy the rest of the machine is. Linux only; NaN elsewhere.
+ */
+export function chromiumCpuSeconds(userDataDir) {
+  try {
+    const hz = 100; // USER_HZ on Linux
+    const procs = new Map();
+    for (const d of readdirSync("/proc")) {
+      if (!/^\d+$/.test(d)) continue;
+      try {
+        const stat = readFileSync(`/proc/${d}/stat`, "utf8");
+        const f = stat.slice(stat.lastIndexOf(")") + 2).split(" ");
+        procs.set(Number(d), { ppid: Number(f[1]), cpu: (Number(f[11]) + Number(f[12])) / hz, cmd: null });
+      } catch {
+        /* gone meanwhile */
+      }
+    }
+    const roots = [...procs.keys()].filter((pid) => {
+      try {
+        return readFileSync(`/proc/${pid}/cmdline`, "utf8").includes(`--user-data-dir=${userDataDir}`);
+      } catch {
+        return false;
+      }
+    });
+    const mine = new Set(roots);
+    let grew = true;
+    while (grew) {
+      grew = false;
+      for (const [pid, p] of procs) if (!mine.has(pid) && mine.has(p.ppid)) mine.add(pid), (grew = true);
+    }
+    let total = 0;
+    for (const pid of mine) total += procs.get(pid).cpu;
+    return mine.size ? total : NaN;
+  } catch {
+    return NaN;
+  }
 }

@@ -4,6 +4,7 @@
 // same checks against the real infer-server + rt-loop are in tests/system.test.mjs.
 import { after, before, describe, test } from "node:test";
 import assert from "node:assert/strict";
+import { cpus, loadavg } from "node:os";
 import { mkdir, readFile } from "node:fs/promises";
 import { createRequire } from "node:module";
 import { dirname, join } from "node:path";
@@ -238,8 +239,8 @@ describe("page against the fake server", () => {
   test("frame times while drawing 10 kHz telemetry (printed, not asserted)", async () => {
     await page.click("#live");
     await page.selectOption("#window", "10");
-    const m = await measureFrames(page, 5000);
-    console.log(`page frame times (fake server, 10 kHz, 1 ms buckets, 10 s window): ${m.fps.toFixed(1)} fps, rAF delta p50 ${m.frameDelta.p50.toFixed(1)} ms p99 ${m.frameDelta.p99.toFixed(1)} ms; draw p50 ${m.drawMs.p50.toFixed(2)} ms p99 ${m.drawMs.p99.toFixed(2)} ms over ${m.draws} draws; ${m.dataFrames} data frames, ${m.buckets} buckets`);
+    const m = await measureFrames(page, 5000, b.userDataDir);
+    console.log(`page frame times (fake server, 10 kHz, 1 ms buckets, 10 s window): ${m.fps.toFixed(1)} fps, rAF delta p50 ${m.frameDelta.p50.toFixed(1)} ms p99 ${m.frameDelta.p99.toFixed(1)} ms; draw p50 ${m.drawMs.p50.toFixed(2)} ms p99 ${m.drawMs.p99.toFixed(2)} ms over ${m.draws} draws; Chromium CPU ${m.cpuPct.toFixed(0)} % of a core (${m.cpuMsPerFrame.toFixed(1)} ms per frame); ${m.dataFrames} data frames, ${m.buckets} buckets; load ${loadavg()[0].toFixed(1)} on ${cpus().length} cores`);
     assert.ok(m.frames > 20, "the page kept drawing");
     assert.ok(m.draws > 20, "new data was drawn");
     await page.screenshot({ path: join(outDir, "page-fake.png") });

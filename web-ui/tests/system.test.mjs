@@ -20,7 +20,7 @@ import { spawn, spawnSync } from "node:child_process";
 import { existsSync, readdirSync, readFileSync } from "node:fs";
 import { mkdtemp, rm } from "node:fs/promises";
 import { createServer } from "node:net";
-import { tmpdir } from "node:os";
+import { cpus, loadavg, tmpdir } from "node:os";
 import { dirname, join, resolve } from "node:path";
 import { fileURLToPath } from "node:url";
 import { enclosedArea, finite, hook, measureFrames, openBrowser, sleep, waitFor } from "./harness.mjs";
@@ -279,8 +279,8 @@ describe("page against the real rt-loop and infer-server", () => {
 
   it("frame times during the 10 kHz run (printed; the bar is a benchmark, not this test)", async () => {
     const page = ctx.page;
-    const m = await measureFrames(page, 5000);
-    console.log(`page frame times (real infer-server, 10 kHz loop): ${m.fps.toFixed(1)} fps, rAF delta p50 ${m.frameDelta.p50.toFixed(1)} ms p99 ${m.frameDelta.p99.toFixed(1)} ms; draw p50 ${m.drawMs.p50.toFixed(2)} ms p99 ${m.drawMs.p99.toFixed(2)} ms over ${m.draws} draws; ${m.dataFrames} data frames, ${m.buckets} buckets`);
+    const m = await measureFrames(page, 5000, ctx.b.userDataDir);
+    console.log(`page frame times (real infer-server, 10 kHz loop): ${m.fps.toFixed(1)} fps, rAF delta p50 ${m.frameDelta.p50.toFixed(1)} ms p99 ${m.frameDelta.p99.toFixed(1)} ms; draw p50 ${m.drawMs.p50.toFixed(2)} ms p99 ${m.drawMs.p99.toFixed(2)} ms over ${m.draws} draws; Chromium CPU ${m.cpuPct.toFixed(0)} % of a core (${m.cpuMsPerFrame.toFixed(1)} ms per frame); ${m.dataFrames} data frames, ${m.buckets} buckets; load ${loadavg()[0].toFixed(1)} on ${cpus().length} cores`);
     assert.ok(m.draws > 10, "the page drew new data");
     await page.screenshot({ path: join(repo, "docs", "web-ui.png"), fullPage: true });
   });
