@@ -177,7 +177,6 @@ fn drain(
 ) -> RecorderReport {
     let mut report = RecorderReport::default();
     let mut error: Option<String> = None;
-    let mut buffered = 0u64;
     loop {
         let finishing = done.load(Ordering::Acquire);
         let n = consumer.slots();
@@ -194,14 +193,14 @@ fn drain(
         if error.is_none() {
             for rows in [a, b] {
                 if let Err(e) = sink.push(rows) {
+                    report.rows_written = sink.rows_flushed();
                     error = Some(format!(
-                        "write failed after {} rows: {e}",
-                        report.rows_written
+                        "write failed after {} of {} rows reached the file: {e}",
+                        report.rows_written, report.rows_received
                     ));
                     failed.store(true, Ordering::Relaxed);
                     break;
                 }
-                buffered += rows.len() as u64;
             }
             if error.is_none() {
                 // rows are durable in the writer once flushed in batches; count what it took
@@ -210,7 +209,6 @@ fn drain(
         }
         chunk.commit_all();
     }
-    let _ = buffered;
     if error.is_none() {
         match sink.finish() {
             Ok(bytes) => {

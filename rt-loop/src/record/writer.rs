@@ -132,7 +132,8 @@ fn properties(metadata_json: &str) -> WriterProperties {
         .set_compression(Compression::ZSTD(
             ZstdLevel::try_new(3).expect("valid level"),
         ))
-        .set_max_row_group_size(1 << 20)
+        // 128 Ki rows per row group: memory stays bounded and a full disk shows up early
+        .set_max_row_group_size(1 << 17)
         .set_key_value_metadata(Some(vec![KeyValue::new(
             "haptics.run".to_string(),
             metadata_json.to_string(),

@@ -1,0 +1,255 @@
+//! The recorder: columns and metadata as docs/recording-format.md says, temp-then-rename,
+//! write failures reported without touching the loop, offline features equal to online ones.
+
+mod common;
+
+use rt_loop::config::RunConfig;
+use rt_loop::record::read::{read_columns, read_metadata};
+use rt_loop::record::{partial_path, Format, RecorderHandle, Row, Target, COLUMNS};
+use std::io::Write;
+
+fn record(cfg: &RunConfig) -> rt_loop::run::RunSummary {
+    rt_loop::run::run(cfg, None, None).expect("run")
+}
+
+#[test]
+fn parquet_recording_has_the_contract_columns_metadata_and_every_step() {
+    let dir = common::tmpdir("parquet");
+    let path = dir.join("run.parquet");
+    let mut cfg = common::short_cfg(2, 6.0, 2.0);
+    cfg.record = Some(path.clone());
+    let s = record(&cfg);
+    assert!(s.ok(), "{s:?}");
+    let rep = s.recorder.as_ref().unwrap();
+    assert_eq!(rep.rows_written, s.steps);
+    assert_eq!(rep.rows_received, s.steps);
+    assert_eq!(s.drops, 0);
+    assert!(path.exists() && !partial_path(&path).exists());
+
+    let f = std::fs::File::open(&path).unwrap();
+    let b = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(f).unwrap();
+    let names: Vec<_> = b
+        .schema()
+        .fields()
+        .iter()
+        .map(|f| f.name().clone())
+        .collect();
+    assert_eq!(
+        names,
+        COLUMNS.iter().map(|c| c.to_string()).collect::<Vec<_>>()
+    );
+    let meta: serde_json::Value =
+        serde_json::from_str(&read_metadata(&path).unwrap().unwrap()).unwrap();
+    assert_eq!(meta["experiment"], "abstraction");
+    assert_eq!(meta["seed"], 1);
+    assert_eq!(meta["ramp_rate"], 6.0);
+    assert!(meta["material"].as_str().unwrap().contains("[equilibrium]"));
+    assert_eq!(meta["config"]["params"]["k_fn"], 24.0);
+    assert!(meta["rt_loop_version"].is_string());
+
+    let cols = read_columns(&path, &["step"]).unwrap();
+    assert_eq!(cols[0].len() as u64, s.steps);
+    assert!(
+        cols[0].windows(2).all(|w| w[1] == w[0] + 1.0),
+        "no step lost"
+    );
+}
+
+/// Offline features computed from a recording (Parquet and CSV) equal the online ones, bit
+/// for bit, velocity and acceleration included.
+#[test]
+fn offline_features_equal_online_values() {
+    let dir = common::tmpdir("offline");
+    for name in ["run.parquet", "run.csv"] {
+        let path = dir.join(name);
+        let mut cfg = common::short_cfg(3, 5.0, 3.0);
+        cfg.record = Some(path.clone());
+        let s = record(&cfg);
+        assert!(s.ok(), "{s:?}");
+        if name.ends_with(".csv") {
+            assert!(rt_loop::record::sidecar_path(&path).exists());
+            assert!(read_metadata(&path).unwrap().unwrap().contains("\"seed\""));
+        }
+        let names = [
+            "position_x",
+            "dt",
+            "rtob_force",
+            "velocity",
+            "acceleration",
+            "f_previous_x",
+            "f_previous_v",
+            "f_previous_a",
+            "cycle_no",
+            "deformation",
+            "area_fx",
+        ];
+        let c = read_columns(&path, &names).unwrap();
+        let off = rt_loop::features::compute_offline(
+            &c[0],
+            &c[1],
+            &c[2],
+            cfg.params.g_v,
+            cfg.params.g_a,
+            &cfg.features,
+        );
+        assert_eq!(off.len(), c[0].len());
+        let mut cycles_seen = 0;
+        for (i, o) in off.iter().enumerate() {
+            let f = &o.features;
+            let want = [
+                o.velocity,
+                o.acceleration,
+                f.f_previous_x,
+                f.f_previous_v,
+                f.f_previous_a,
+                f.cycle_no as f64,
+                f.deformation,
+                f.area_fx,
+            ];
+            for (k, w) in want.iter().enumerate() {
+                assert_eq!(
+                    w.to_bits(),
+                    c[3 + k][i].to_bits(),
+                    "{name}: column {} row {i}: offline {w} online {}",
+                    names[3 + k],
+                    c[3 + k][i]
+                );
+            }
+            cycles_seen = cycles_seen.max(f.cycle_no);
+        }
+        assert!(cycles_seen >= 3, "the comparison covered several cycles");
+    }
+}
+
+/// A writer that accepts `budget` bytes, then fails like a full disk.
+struct FillsUp {
+    budget: usize,
+}
+
+impl Write for FillsUp {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        if self.budget == 0 {
+            return Err(std::io::Error::from_raw_os_error(libc::ENOSPC));
+        }
+        let n = b.len().min(self.budget);
+        self.budget -= n;
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+/// The disk fills during a run: the loop goes on (never blocked, never failing), the recorder
+/// reports the error and how many rows it received and wrote.
+#[test]
+fn full_disk_mid_run_is_reported_and_the_loop_stays_safe() {
+    for format in [Format::Csv, Format::Parquet] {
+        let mut rec = RecorderHandle::start(
+            Target::Writer(Box::new(FillsUp { budget: 3_000_000 })),
+            format,
+            "{}".into(),
+            4096,
+        )
+        .unwrap();
+        // 4 N at 0.5 N/s: ~170 k steps, more than one Parquet row group
+        let mut cfg = common::short_cfg(1, 0.5, 0.0);
+        cfg.ramp.f_max_start = 4.0;
+        let mut rig = rt_loop::run::build_rig(&cfg, None).unwrap();
+        let mut steps = 0u64;
+        while let Ok(row) = rig.step() {
+            rec.push_or_drop(row);
+            steps += 1;
+            if steps % 2000 == 0 {
+                std::thread::sleep(std::time::Duration::from_millis(2));
+            }
+        }
+        assert!(steps > 150_000);
+        // the recorder may still be catching up: the failure becomes visible to the loop
+        let t = std::time::Instant::now();
+        while !rec.failed() && t.elapsed().as_secs() < 10 {
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        assert!(
+            rec.failed(),
+            "{format:?}: the failure is visible to the loop"
+        );
+        let pushed = rec.pushed();
+        let dropped = rec.dropped();
+        let rep = rec.finish();
+        assert_eq!(pushed + dropped, steps, "every step is accounted for");
+        assert_eq!(rep.rows_received, pushed);
+        let err = rep.error.clone().expect("error reported");
+        assert!(
+            err.contains("No space left") || err.contains("os error 28"),
+            "{err}"
+        );
+        assert!(rep.rows_written < rep.rows_received, "{format:?}: {rep:?}");
+        if format == Format::Csv {
+            assert!(
+                rep.rows_written > 0,
+                "CSV rows before the failure are on disk"
+            );
+        }
+    }
+}
+
+/// /dev/full is a real ENOSPC from the kernel.
+#[test]
+fn dev_full_is_reported() {
+    let f = std::fs::OpenOptions::new().write(true).open("/dev/full");
+    let Ok(f) = f else {
+        eprintln!("no /dev/full here; skipped");
+        return;
+    };
+    let mut rec =
+        RecorderHandle::start(Target::Writer(Box::new(f)), Format::Csv, "{}".into(), 1024).unwrap();
+    for i in 0..50_000u64 {
+        rec.push_wait(Row {
+            step: i,
+            ..Row::default()
+        });
+    }
+    let rep = rec.finish();
+    assert_eq!(rep.rows_received, 50_000);
+    assert!(rep.error.is_some());
+    assert_eq!(rep.rows_written, 0);
+}
+
+/// A run whose recording fails ends early with zero current and says so; the partial file
+/// keeps its temporary name.
+#[test]
+fn run_with_unwritable_target_fails_clearly_before_starting() {
+    let mut cfg = common::short_cfg(1, 8.0, 0.0);
+    cfg.record = Some("/nonexistent-dir-rt-loop/x.parquet".into());
+    let err = rt_loop::run::run(&cfg, None, None).unwrap_err().to_string();
+    assert!(err.contains("cannot create recording"), "{err}");
+}
+
+/// Realtime-style pushes into a ring that nobody drains fast enough: drops are counted, the
+/// loop is never blocked.
+#[test]
+fn full_queue_drops_are_counted_not_blocking() {
+    let dir = common::tmpdir("drops");
+    let mut rec = RecorderHandle::start(
+        Target::File(dir.join("d.csv")),
+        Format::Csv,
+        "{}".into(),
+        16,
+    )
+    .unwrap();
+    let t = std::time::Instant::now();
+    for i in 0..200_000u64 {
+        rec.push_or_drop(Row {
+            step: i,
+            ..Row::default()
+        });
+    }
+    assert!(t.elapsed().as_secs_f64() < 5.0);
+    let (p, d) = (rec.pushed(), rec.dropped());
+    let rep = rec.finish();
+    assert_eq!(p + d, 200_000);
+    assert!(d > 0, "a 16-row ring must overflow");
+    assert_eq!(rep.rows_written, p);
+    assert!(rep.error.is_none());
+}
