@@ -41,4 +41,4 @@ pub use config::Config;
 pub use error::ControlError;
 pub use server::{bind, serve, serve_async, Bound};
 pub use shutdown::Shutdown;
-pub use telemetry::{Bucket, TelemetryBatch};
+pub use telemetry::{Bucket, TelemetryBatch, TelemetryHub};

@@ -100,7 +100,11 @@ impl Bound {
             );
 
         let http_shutdown = shutdown.clone();
-        let http = axum::serve(self.http, crate::http::router(core.clone()))
+        // Small frames at 30-60 fps: no Nagle delay.
+        let listener = axum::serve::ListenerExt::tap_io(self.http, |tcp| {
+            let _ = tcp.set_nodelay(true);
+        });
+        let http = axum::serve(listener, crate::http::router(core.clone()))
             .with_graceful_shutdown(async move { http_shutdown.wait().await });
 
         let grpc = with_grace(grpc, &shutdown, grace);

@@ -43,6 +43,37 @@ pub struct Bucket {
 /// What a backend publishes: consecutive buckets in step order, shared by every subscriber.
 pub type TelemetryBatch = Arc<[Bucket]>;
 
+/// The broadcast a backend publishes its telemetry on: `publish` never blocks and never fails
+/// (no subscriber, or a slow one, is not the publisher's problem).
+#[derive(Debug, Clone)]
+pub struct TelemetryHub {
+    sender: tokio::sync::broadcast::Sender<TelemetryBatch>,
+}
+
+impl TelemetryHub {
+    /// `capacity` batches are kept for slow subscribers (1024 is plenty at one batch per 2 ms).
+    pub fn new(capacity: usize) -> Self {
+        Self {
+            sender: tokio::sync::broadcast::channel(capacity.max(1)).0,
+        }
+    }
+
+    pub fn publish(&self, buckets: Vec<Bucket>) {
+        if !buckets.is_empty() {
+            let _ = self.sender.send(TelemetryBatch::from(buckets));
+        }
+    }
+
+    /// For `Backend::subscribe_telemetry`.
+    pub fn subscribe(&self) -> tokio::sync::broadcast::Receiver<TelemetryBatch> {
+        self.sender.subscribe()
+    }
+
+    pub fn subscribers(&self) -> usize {
+        self.sender.receiver_count()
+    }
+}
+
 impl Bucket {
     /// One loop step. NaN values (F_pred without a model, F_true on a real board) are allowed.
     pub fn step(step: u64, time_s: f64, values: [f64; N_SERIES], fallback: bool) -> Self {

@@ -15,7 +15,7 @@ use tokio::sync::broadcast;
 
 use crate::backend::*;
 use crate::error::ControlError;
-use crate::telemetry::{series, Bucket, TelemetryBatch, N_SERIES};
+use crate::telemetry::{series, Bucket, TelemetryBatch, TelemetryHub, N_SERIES};
 
 /// Features the simulated loop provides.
 pub const SCHEMA: [&str; 5] = [
@@ -84,7 +84,7 @@ struct State {
 
 struct Inner {
     state: Mutex<State>,
-    tx: broadcast::Sender<TelemetryBatch>,
+    hub: TelemetryHub,
     stop: AtomicBool,
     rate_hz: f64,
     started: Instant,
@@ -98,7 +98,6 @@ pub struct SimBackend {
 impl SimBackend {
     /// A loop at `rate_hz` with the given "files" in its model directory.
     pub fn new(rate_hz: f64, directory: Vec<(String, Vec<u8>)>) -> Arc<Self> {
-        let (tx, _) = broadcast::channel(1024);
         let inner = Arc::new(Inner {
             state: Mutex::new(State {
                 directory: directory.into_iter().collect(),
@@ -117,7 +116,7 @@ impl SimBackend {
                 swaps: Vec::new(),
                 run_start: Instant::now(),
             }),
-            tx,
+            hub: TelemetryHub::new(1024),
             stop: AtomicBool::new(false),
             rate_hz,
             started: Instant::now(),
@@ -309,8 +308,7 @@ fn run_loop(inner: &Inner) {
         }
         s.step = target;
         drop(s);
-        // No subscriber is fine: nobody watches.
-        let _ = inner.tx.send(TelemetryBatch::from(batch));
+        inner.hub.publish(batch);
     }
 }
 
@@ -475,6 +473,6 @@ impl Backend for SimBackend {
     }
 
     fn subscribe_telemetry(&self) -> broadcast::Receiver<TelemetryBatch> {
-        self.inner.tx.subscribe()
+        self.inner.hub.subscribe()
     }
 }

@@ -596,3 +596,83 @@ async fn health_reports_serving() {
     assert_eq!(err.code(), Code::NotFound);
     s.stop().await;
 }
+
+/// 100 swaps while the simulated loop runs at 10 kHz and a client streams every step: no step
+/// is missing from the stream, and every step is answered by the model that the reported
+/// effective steps say (a.onnx has gain 1, b.onnx gain 2).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hundred_swaps_report_the_step_they_take_effect() {
+    let s = start().await;
+    let (mut models, mut looper) = clients(&s).await;
+    for name in ["a.onnx", "b.onnx"] {
+        models
+            .load_model(pb::LoadModelRequest {
+                name: name.into(),
+                onnx: vec![],
+            })
+            .await
+            .unwrap();
+    }
+    let mut stream = looper
+        .stream_telemetry(pb::StreamTelemetryRequest { decimation: 1 })
+        .await
+        .unwrap()
+        .into_inner();
+    let first = stream.message().await.unwrap().unwrap().step;
+    let mut swaps = Vec::new();
+    for i in 0..100 {
+        let name = if i % 2 == 0 { "a.onnx" } else { "b.onnx" };
+        let r = models
+            .activate_model(pb::ActivateModelRequest {
+                name: name.into(),
+                load_if_needed: false,
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        swaps.push((r.effective_step, if i % 2 == 0 { 1.0 } else { 2.0 }));
+        tokio::time::sleep(Duration::from_millis(3)).await;
+    }
+    let last_swap = swaps.last().unwrap().0;
+    assert!(swaps.windows(2).all(|w| w[1].0 >= w[0].0));
+    let mut expected_step = first + 1;
+    let mut checked = 0;
+    while expected_step < last_swap + 100 {
+        let x = tokio::time::timeout(Duration::from_secs(5), stream.message())
+            .await
+            .expect("telemetry keeps up")
+            .unwrap()
+            .unwrap();
+        assert_eq!(x.step, expected_step, "no lost step");
+        expected_step += 1;
+        // The model answering this step: the last swap effective at or before it.
+        let gain = swaps
+            .iter()
+            .rev()
+            .find(|(eff, _)| *eff <= x.step)
+            .map(|(_, g)| *g);
+        match gain {
+            None => assert!(
+                x.f_pred.is_nan() && x.fallback,
+                "step {} before any swap",
+                x.step
+            ),
+            Some(g) => {
+                assert!(!x.fallback);
+                assert_eq!(
+                    x.f_pred,
+                    g * x.f_true,
+                    "step {} answered by gain {g}",
+                    x.step
+                );
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 100);
+    assert_eq!(
+        s.backend.swaps(),
+        swaps.iter().map(|(e, _)| *e).collect::<Vec<_>>()
+    );
+    s.stop().await;
+}
