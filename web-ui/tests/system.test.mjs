@@ -10,7 +10,7 @@
 // whitespace-split; {instance} is unique to this run so a developer's own loop is not touched):
 //   HAPTICS_RT_LOOP_ARGS        default: serve --clock realtime --rate-hz 10000 --instance {instance}
 //   HAPTICS_INFER_SERVER_ARGS   default: serve --models {models} --instance {instance} --grpc {grpc} --http {http}
-//   HAPTICS_HAPTICCTL_ARGS      default: --addr http://{grpc} status
+//   HAPTICS_HAPTICCTL_ARGS      default: --addr http://{grpc} --json status
 //   HAPTICS_MODELS_DIR          default: fixture models written by
 //                               infer-server/tests/fixtures/make_models.py with .venv's python,
 //                               or else ./models
@@ -253,10 +253,17 @@ describe("page against the real rt-loop and infer-server", () => {
     await waitFor(async () => (await getJson(`${ctx.url}/api/status`)).active_model?.name === target.name, { timeoutMs: 10000, what: `${target.name} active on the server` });
     await waitFor(async () => (await page.textContent("#f-model")).startsWith(target.name), { what: "figures show the new model" });
     if (existsSync(bin("hapticctl"))) {
-      const args = fill(process.env.HAPTICS_HAPTICCTL_ARGS ?? "--addr http://{grpc} status", ctx.vars);
+      const args = fill(process.env.HAPTICS_HAPTICCTL_ARGS ?? "--addr http://{grpc} --json status", ctx.vars);
       const r = spawnSync(bin("hapticctl"), args, { encoding: "utf8", timeout: 10000 });
       assert.equal(r.status, 0, `hapticctl ${args.join(" ")}: ${r.stderr}`);
-      assert.match(r.stdout, new RegExp(target.name), "hapticctl status names the model chosen on the page");
+      let reported;
+      try {
+        reported = JSON.parse(r.stdout).active_model?.name;
+      } catch {
+        // Text output: "model:       NAME (kind, since step N)".
+        reported = r.stdout.match(/^model:\s+(\S+)/m)?.[1];
+      }
+      assert.equal(reported, target.name, `hapticctl status names the model chosen on the page:\n${r.stdout}`);
     } else {
       console.log(`(hapticctl not built at ${bin("hapticctl")}: checked /api/status only)`);
     }
