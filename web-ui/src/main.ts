@@ -8,7 +8,7 @@ import { TelemetryConnection, type ConnState } from "./connection";
 import { decodeFrame, normalizeModels, normalizeStatus, SERIES, type ModelInfo, type Status } from "./protocol";
 import { readColumns, TelemetryStore, toCsv, type Columns } from "./store";
 import { TimePlot, type PlotDef } from "./timeplots";
-import { enclosedArea, XYPlot } from "./xyplot";
+import { enclosedArea, XYPlot, type XYTrace } from "./xyplot";
 
 const $ = <T extends HTMLElement = HTMLElement>(id: string): T => {
   const el = document.getElementById(id);
@@ -169,7 +169,8 @@ let lastCols: Columns | null = null;
 function render(): void {
   const r = viewRange();
   if (!r) {
-    for (const p of timePlots) p.update(readColumns(store, 0, -1, 1, DISPLAY_SCALE), 0, 1);
+    lastCols = readColumns(store, 0, -1, 1, DISPLAY_SCALE);
+    for (const p of timePlots) p.update(lastCols, 0, 1);
     xy.draw([]);
     xyPoints = { x: [], y: [], pred: [] };
     return;
@@ -224,8 +225,8 @@ function renderXY(t1: number): void {
     pred.push(ap / cnt);
   }
   xyPoints = { x, y, pred };
-  const traces = [{ label: "RFOB response", color: C.res, x, y }];
-  if (pred.some(Number.isFinite)) traces.push({ label: "predicted", color: C.pred, x, y: pred, dash: [5, 3] } as never);
+  const traces: XYTrace[] = [{ label: "RFOB response", color: C.res, x, y }];
+  if (pred.some(Number.isFinite)) traces.push({ label: "predicted", color: C.pred, x, y: pred, dash: [5, 3] });
   xy.draw(traces);
 }
 
