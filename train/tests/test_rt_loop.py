@@ -11,16 +11,42 @@ from haptics_train.features import F_PREVIOUS, FEEDBACK_FEATURES
 from haptics_train.models import TrainConfig, make_model
 
 
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory, rt_loop):
-    out = tmp_path_factory.mktemp("rt") / "r.parquet"
+def _record(rt_loop, out, decimate=1):
     subprocess.run(
         [str(rt_loop), "run", "--experiment", "abstraction", "--clock", "lockstep",
          "--seed", "3", "--ramp-rate", "6.2", "--cycles", "3", "--record", str(out),
-         "--no-progress"],
+         "--decimate", str(decimate), "--no-progress"],
         check=True, capture_output=True, cwd=rt_loop.parents[2], timeout=120,
     )  # fmt: skip
     return load_recording(out)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory, rt_loop):
+    return _record(rt_loop, tmp_path_factory.mktemp("rt") / "r.parquet")
+
+
+def test_previous_force_is_the_previous_control_step_even_in_decimated_recordings(
+    recording, rt_loop, tmp_path
+):
+    full = recording
+    assert full.row_step == 1
+    f = full.column("rtob_force")
+    np.testing.assert_allclose(full.column(F_PREVIOUS)[1:], f[:-1], rtol=1e-12, atol=1e-12)
+    dec = _record(rt_loop, tmp_path / "d.parquet", decimate=3)  # lockstep: same run
+    assert dec.row_step == 3
+    steps = dec.column("step").astype(int)
+    moving = (steps > 0) & (
+        (dec.column("position_x") != 0) | (dec.column("velocity") != 0)
+        | (dec.column("acceleration") != 0)
+    )  # fmt: skip
+    # exact wherever the loop had a non-zero divisor ...
+    np.testing.assert_allclose(dec.column(F_PREVIOUS)[moving], f[steps[moving] - 1],
+                               rtol=1e-12, atol=1e-12)  # fmt: skip
+    # ... interpolated between rows where the probe is exactly at rest
+    rest = (steps > 0) & ~moving
+    assert rest.any()
+    np.testing.assert_allclose(dec.column(F_PREVIOUS)[rest], f[steps[rest] - 1], atol=2e-3)
 
 
 def test_closed_loop_feature_twin_matches_rt_loop_exactly(recording):

@@ -16,6 +16,7 @@ from sklearn.feature_selection import f_regression, mutual_info_regression  # no
 
 from .data import Dataset, Recording  # noqa: E402
 from .features import NINE, TARGET_DEFAULT  # noqa: E402
+from .models.base import row_stride  # noqa: E402
 
 DPI = 80
 
@@ -105,8 +106,8 @@ def analyze(
     out.mkdir(parents=True, exist_ok=True)
     names = list(NINE)
     recs = dataset.train
-    x = np.concatenate([r.matrix(NINE, decimate) for r in recs])
-    y = np.concatenate([r.target(TARGET_DEFAULT, decimate) for r in recs])
+    x = np.concatenate([r.matrix(NINE, row_stride(r, decimate)) for r in recs])
+    y = np.concatenate([r.target(TARGET_DEFAULT, row_stride(r, decimate)) for r in recs])
     ok = np.isfinite(x).all(axis=1) & np.isfinite(y)
     x, y = x[ok], y[ok]
     allx = np.column_stack([x, y])
@@ -119,11 +120,12 @@ def analyze(
     )
     md += ["", "## Recordings", ""]
     md.append(md_table(
-        ["split", "name", "rows (loop rate)", "duration [s]", "ramp rate [N/s]", "sha256"],
-        [[d["split"], d["name"], str(d["rows"]), f"{d['duration_s']:.1f}", str(d["ramp_rate"]),
-          d["sha256"]] for d in dataset.describe()],
+        ["split", "name", "rows", "control steps per row", "duration [s]", "ramp rate [N/s]",
+         "sha256"],
+        [[d["split"], d["name"], str(d["rows"]), str(d["row_step"]), f"{d['duration_s']:.1f}",
+          str(d["ramp_rate"]), d["sha256"]] for d in dataset.describe()],
     ))  # fmt: skip
-    _loops(recs + dataset.test, out / "loops.png", max(decimate, 1))
+    _loops(recs + dataset.test, out / "loops.png", 20)
     md += ["", "![force-displacement loops](loops.png)", ""]
 
     md += ["## Item statistics (thesis Table 3.2)", ""]

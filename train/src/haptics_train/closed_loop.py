@@ -12,7 +12,10 @@ the model's prediction. `FeatureTracker` below is its line-for-line Python twin:
   of F dx since the previous cycle end), `deformation` (x at that step) and `cycle_no` + 1;
 - f_previous(t) = F(t-1) (train/'s better-conditioned extra feature, 0 before the first).
 
-The kinematics (x, v, a) come from the recording. `tests/test_rt_loop_parity.py` checks that
+The kinematics (x, v, a) come from the recording. A recording made with rt-loop's
+`--decimate k` has only every k-th control step; the closed loop then steps through the rows it
+has, so "previous" is the previous *row* (k steps back), an approximation of the loop (record
+with DECIMATE=1 for the exact closed loop). `tests/test_rt_loop_parity.py` checks that
 the twin reproduces the columns rt-loop wrote when fed the recorded force.
 """
 

@@ -33,6 +33,11 @@ class Recording:
     source: str = ""
     sha256: str = ""
 
+    @property
+    def row_step(self) -> int:
+        """Control steps per row (rt-loop's recorder decimation)."""
+        return row_step(self.columns)
+
     def __len__(self) -> int:
         return len(self.columns["time"])
 
@@ -68,12 +73,39 @@ class Recording:
 
 
 def add_previous_force(columns: dict[str, np.ndarray], target: str = TARGET_DEFAULT) -> None:
-    """`f_previous`: the force response one control step earlier (0 before the first step)."""
+    """`f_previous`: the force response of the previous *control step*, F(t-1).
+
+    rt-loop may record only every k-th step (`--decimate`), so the previous row is not
+    necessarily the previous step. The ratio features hold F(t-1) exactly as the loop saw it:
+    F(t-1) = f_previous_x * x (or * v, or * a, whichever divisor is non-zero). Only where all
+    three divisors are zero (the loop held every ratio: the probe at rest) does this fall back
+    to the previous row's force response (interpolated towards this row's when rows are k > 1
+    steps apart). Before the first committed force the ratios are 0, and so is this.
+    """
     f = columns[target]
-    prev = np.empty_like(f)
-    prev[0] = 0.0
-    prev[1:] = f[:-1]
+    prev = np.full(len(f), np.nan)
+    for ratio, div in (("f_previous_x", "position_x"), ("f_previous_v", "velocity"),
+                       ("f_previous_a", "acceleration")):  # fmt: skip
+        if ratio in columns and div in columns:
+            ok = np.isnan(prev) & (columns[div] != 0)
+            prev[ok] = columns[ratio][ok] * columns[div][ok]
+    miss = np.isnan(prev)
+    shifted = np.concatenate([[0.0], f[:-1]])
+    k = row_step(columns)
+    if k > 1:
+        # rows k steps apart: F(t-1) interpolated between the previous row (t-k) and this one
+        shifted = shifted + (k - 1) / k * (f - shifted)
+    prev[miss] = shifted[miss]
     columns[F_PREVIOUS] = prev
+
+
+def row_step(columns: dict[str, np.ndarray]) -> int:
+    """Control steps between consecutive rows (1 unless rt-loop recorded with --decimate)."""
+    st = columns.get("step")
+    if st is None or len(st) < 2:
+        return 1
+    d = np.diff(st[: min(len(st), 10_000)])
+    return max(int(np.median(d)), 1)
 
 
 def _sha256(path: Path) -> str:
@@ -164,6 +196,7 @@ class Dataset:
                         "rows": len(r),
                         "duration_s": float(r.columns["time"][-1] - r.columns["time"][0]),
                         "ramp_rate": r.ramp_rate,
+                        "row_step": r.row_step,
                         "sha256": r.sha256[:16],
                     }
                 )

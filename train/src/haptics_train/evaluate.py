@@ -40,6 +40,7 @@ def evaluate(
     res: dict = {
         "recording": rec.name,
         "rows": int(len(y)),
+        "row_step": rec.row_step,
         "one_step": regression_metrics(y, one),
         "one_step_seconds": round(time.perf_counter() - t0, 2),
     }

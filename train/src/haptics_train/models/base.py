@@ -16,7 +16,8 @@ from ..features import TARGET_DEFAULT
 class TrainConfig:
     """What every model shares: which rows, which target, which seed."""
 
-    #: keep every `decimate`-th row of the loop-rate recordings for stateless training
+    #: stateless models train on one row every `decimate` control steps (a recording made
+    #: with rt-loop's --decimate k has one row per k steps: the stride is decimate / k rows)
     decimate: int = 20
     target: str = TARGET_DEFAULT
     seed: int = 0
@@ -27,12 +28,17 @@ class TrainConfig:
         return asdict(self)
 
 
+def row_stride(rec: Recording, decimate: int) -> int:
+    return max(1, round(decimate / rec.row_step))
+
+
 def stacked(
     recs: list[Recording], features: tuple[str, ...], cfg: TrainConfig
 ) -> tuple[np.ndarray, np.ndarray]:
     """Decimated rows of all recordings: X [n, f] float64 and y [n], non-finite rows dropped."""
-    xs = [r.matrix(features, cfg.decimate) for r in recs]
-    ys = [r.target(cfg.target, cfg.decimate) for r in recs]
+    strides = [row_stride(r, cfg.decimate) for r in recs]
+    xs = [r.matrix(features, k) for r, k in zip(recs, strides, strict=True)]
+    ys = [r.target(cfg.target, k) for r, k in zip(recs, strides, strict=True)]
     x = np.concatenate(xs)
     y = np.concatenate(ys)
     ok = np.isfinite(x).all(axis=1) & np.isfinite(y)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 
 import numpy as np
 import onnx
@@ -289,6 +290,15 @@ class LSTMModel(ForceModel):
             InputScaler(self.features, xs), int(h["hidden"]),
             TargetScaler(float(ys.mean()), float(ys.std()) or 1.0),
         )  # fmt: skip
+        steps = {r.row_step for r in recs}
+        if steps != {1}:
+            # The served LSTM is stepped once per control step; rows k steps apart teach it a
+            # k-times longer time step. Train on full-rate recordings (DECIMATE=1) for serving.
+            warnings.warn(
+                f"{self.name}: recordings have {sorted(steps)} control steps per row; the LSTM "
+                "learns that time step, but is served once per control step",
+                stacklevel=2,
+            )
         series = []
         with torch.no_grad():
             for r in recs:
@@ -342,6 +352,7 @@ class LSTMModel(ForceModel):
         net.eval()
         self.net = net
         self.train_info = {
+            "row_step": sorted(steps),
             "steps_seen": iters * n_streams * chunk,
             "fit_seconds": round(time.perf_counter() - t0, 2),
             "final_train_loss_scaled": float(np.mean(losses[-50:])),
