@@ -2,6 +2,7 @@
 mod client;
 mod output;
 
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -224,6 +225,10 @@ async fn run(cli: Cli) -> Result<(), CliError> {
                     .into_inner();
                 if cli.json {
                     print_json(&output::status_json(&s));
+                } else if watch && std::io::stdout().is_terminal() {
+                    // Redraw in place, like `watch`.
+                    print!("\x1b[H\x1b[2J{}", output::status_text(&s));
+                    println!("\n(refreshing every {interval} s; Ctrl-C to stop)");
                 } else {
                     if watch && shown > 0 {
                         println!();
