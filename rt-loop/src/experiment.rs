@@ -167,7 +167,7 @@ impl Trajectory {
         if t.len() != x.len() || t.len() < 2 {
             return Err("a trajectory needs at least two (time, position) samples".into());
         }
-        if t.windows(2).any(|w| !(w[1] >= w[0])) || x.iter().any(|v| !v.is_finite()) {
+        if t.windows(2).any(|w| w[1] < w[0] || w[1].is_nan()) || x.iter().any(|v| !v.is_finite()) {
             return Err("trajectory time must be non-decreasing and positions finite".into());
         }
         Ok(Trajectory { t, x, cursor: 0 })

@@ -33,13 +33,13 @@ pub struct SpringDamper {
 }
 
 impl Default for SpringDamper {
-    /// Fitted to a 1.8 N/s abstraction recording of `materials/sponge.toml` with
-    /// `rt-loop fit` (see docs/rt-loop.md).
+    /// Fitted (least squares on rtob_force) to the 1.8 N/s training recording of
+    /// `materials/sponge.toml` made by scripts/record-dataset.sh, with `rt-loop fit`.
     fn default() -> Self {
         SpringDamper {
-            k1: 120.0,
-            k2: 12_000.0,
-            b: 20.0,
+            k1: 191.0,
+            k2: 5200.0,
+            b: 192.0,
         }
     }
 }
@@ -85,6 +85,7 @@ impl SpringDamper {
     }
 }
 
+#[allow(clippy::needless_range_loop)] // index form mirrors the textbook elimination
 fn solve3(mut a: [[f64; 3]; 3], mut b: [f64; 3]) -> Option<[f64; 3]> {
     // Column-scaled Gaussian elimination with partial pivoting.
     for col in 0..3 {

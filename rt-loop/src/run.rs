@@ -236,7 +236,7 @@ pub fn run(
             Err(Stop::BoardFault(m)) => break format!("board-fault: {m}"),
         }
     };
-    if let Some(p) = progress.as_deref_mut() {
+    if let Some(p) = progress {
         p.finish();
     }
     let wall_s = wall.elapsed().as_secs_f64();

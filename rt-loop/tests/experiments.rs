@@ -172,6 +172,8 @@ fn realtime_clock_runs_at_its_rate() {
     cfg.max_duration_s = Some(0.3);
     cfg.realtime.priority = 0; // tests leave the scheduler alone
     cfg.realtime.lock_memory = false;
+    // a loaded test machine may stall the process for many ms; the watchdog is tested elsewhere
+    cfg.params.watchdog_us = 5_000_000;
     cfg.record = Some(dir.join("rt.parquet"));
     let s = rt_loop::run::run(&cfg, None, None).unwrap();
     assert_eq!(s.stop, "time-limit");

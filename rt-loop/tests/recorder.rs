@@ -160,7 +160,7 @@ fn full_disk_mid_run_is_reported_and_the_loop_stays_safe() {
         while let Ok(row) = rig.step() {
             rec.push_or_drop(row);
             steps += 1;
-            if steps % 2000 == 0 {
+            if steps.is_multiple_of(2000) {
                 std::thread::sleep(std::time::Duration::from_millis(2));
             }
         }

@@ -54,6 +54,7 @@ pub fn schema() -> Arc<Schema> {
 /// Rows are buffered this many at a time before they become an Arrow batch.
 const BATCH: usize = 65_536;
 
+#[allow(clippy::large_enum_variant)] // one per recording, never moved in a hot path
 pub enum Sink {
     Parquet {
         writer: ArrowWriter<CountingWriter>,

@@ -1,0 +1,197 @@
+//! The command line as other engineers call it: `rt-loop run ...` and `rt-loop features ...`.
+
+mod common;
+
+use rt_loop::record::read::{read_columns, read_metadata};
+use std::process::Command;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_rt-loop"))
+}
+
+#[test]
+fn run_records_with_the_documented_flags_and_a_config_file() {
+    let dir = common::tmpdir("cli-run");
+    let cfgfile = dir.join("c.toml");
+    std::fs::write(
+        &cfgfile,
+        "[ramp]\nhold_zero_s = 0.2\nhold_max_s = 0.2\nfinal_hold_s = 0.2\n[params]\nk_p = 2.5\n",
+    )
+    .unwrap();
+    let out = dir.join("r.csv");
+    let o = bin()
+        .args([
+            "run",
+            "--experiment",
+            "abstraction",
+            "--clock",
+            "lockstep",
+            "--rate-hz",
+            "10000",
+        ])
+        .args([
+            "--seed",
+            "3",
+            "--ramp-rate",
+            "6",
+            "--cycles",
+            "2",
+            "--f-max-start",
+            "1",
+        ])
+        .args(["--f-max-step", "2", "--format", "csv", "--no-progress"])
+        .arg("--material")
+        .arg(common::material())
+        .arg("--config")
+        .arg(&cfgfile)
+        .arg("--record")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("stop: finished") && err.contains("0 dropped"),
+        "{err}"
+    );
+    let meta: serde_json::Value =
+        serde_json::from_str(&read_metadata(&out).unwrap().unwrap()).unwrap();
+    assert_eq!(meta["seed"], 3);
+    assert_eq!(meta["config"]["params"]["k_p"], 2.5);
+    assert_eq!(meta["f_max_schedule"], serde_json::json!([1.0, 3.0]));
+    let c = read_columns(&out, &["F_ref"]).unwrap();
+    let peak = c[0].iter().cloned().fold(0.0, f64::max);
+    assert!((peak - 3.0).abs() < 1e-9);
+}
+
+#[test]
+fn bad_input_gets_a_clear_error() {
+    let o = bin()
+        .args(["run", "--ramp-rate=-1", "--no-progress"])
+        .arg("--material")
+        .arg(common::material())
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("ramp rate must be > 0"));
+    let o = bin()
+        .args(["run", "--material", "/nonexistent.toml", "--no-progress"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("cannot read material file"));
+}
+
+/// A series measured elsewhere (ms, mm, N, other column names) becomes a recording whose
+/// kinematics and features are those the loop computes for the same series.
+#[test]
+fn features_imports_a_foreign_series() {
+    let dir = common::tmpdir("cli-features");
+    let input = dir.join("measured.csv");
+    let mut s = String::from("t_ms,depth_mm,force\n");
+    let mut t = vec![];
+    let mut x = vec![];
+    let mut f = vec![];
+    for i in 0..20_000 {
+        let tm = i as f64 * 0.5; // 2 kHz
+        let w = tm / 1000.0 * 0.5 * std::f64::consts::TAU;
+        let depth = 10.0 * w.sin().max(0.0); // mm, press-release cycles
+                                             // loading above unloading: a hysteretic loop
+        let force = if depth > 0.0 {
+            0.6 * depth + 0.5 * w.cos()
+        } else {
+            0.0
+        };
+        s += &format!("{tm},{depth},{force}\n");
+        t.push(tm * 1e-3); // the importer scales by multiplication
+        x.push(depth * 1e-3);
+        f.push(force);
+    }
+    std::fs::write(&input, s).unwrap();
+    let out = dir.join("imported.parquet");
+    let o = bin()
+        .args([
+            "features",
+            "--time-col",
+            "t_ms",
+            "--position-col",
+            "depth_mm",
+        ])
+        .args([
+            "--force-col",
+            "force",
+            "--time-unit",
+            "ms",
+            "--position-unit",
+            "mm",
+        ])
+        .args(["--force-unit", "N"])
+        .arg("--input")
+        .arg(&input)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let c = read_columns(
+        &out,
+        &[
+            "time",
+            "position_x",
+            "rtob_force",
+            "velocity",
+            "cycle_no",
+            "area_fx",
+            "F_ref",
+        ],
+    )
+    .unwrap();
+    assert_eq!(c[0].len(), 20_000);
+    assert!((c[0][19_999] - 9.9995).abs() < 1e-9);
+    assert!((c[1][400] - x[400]).abs() < 1e-15);
+    assert!(
+        c[6].iter().all(|v| v.is_nan()),
+        "no command in an imported series"
+    );
+    let spec = rt_loop::import::ImportSpec {
+        input: input.clone(),
+        time_col: String::new(),
+        position_col: String::new(),
+        force_col: String::new(),
+        time_unit: rt_loop::import::TimeUnit::S,
+        position_unit: rt_loop::import::PositionUnit::M,
+        force_unit: rt_loop::import::ForceUnit::N,
+        out: out.clone(),
+        g_v: 30.0,
+        g_a: 100.0,
+        meters_per_count: 5e-6,
+        features: Default::default(),
+    };
+    let rows = rt_loop::import::rows_from_series(&t, &x, &f, &spec).unwrap();
+    for i in 0..rows.len() {
+        assert_eq!(rows[i].velocity.to_bits(), c[3][i].to_bits());
+        assert_eq!(rows[i].area_fx.to_bits(), c[5][i].to_bits());
+    }
+    let cycles = c[4].iter().cloned().fold(0.0, f64::max);
+    assert!(cycles >= 5.0, "press-release cycles segmented: {cycles}");
+    assert!(c[5].iter().any(|&a| a > 0.0), "a hysteretic loop has area");
+
+    // a missing column is a clear error
+    let o = bin()
+        .args([
+            "features",
+            "--time-col",
+            "nope",
+            "--position-col",
+            "depth_mm",
+        ])
+        .args(["--force-col", "force"])
+        .arg("--input")
+        .arg(&input)
+        .arg("--out")
+        .arg(dir.join("x.parquet"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no column \"nope\""));
+}
