@@ -105,6 +105,7 @@ const timePlots: TimePlot[] = PLOTS.map((def) => {
       setPaused(true, "zoomed");
     },
     onResetZoom: () => goLive(),
+    onWheel: (t, dir, panOnly) => wheel(t, dir, panOnly),
   }, document.getElementById(`readout-${def.id}`));
   const fs = $(`toggles-${def.id}`);
   def.signals.forEach((sig, k) => {
@@ -302,6 +303,22 @@ function pan(dir: 1 | -1): void {
   const f = frozen ?? r;
   frozen = [f[0] + dir * span * 0.2, f[1] + dir * span * 0.2];
   dirty = true;
+}
+
+/** Wheel zoom around the time under the cursor (the view freezes there), or pan with shift. */
+function wheel(t: number, dir: number, panOnly: boolean): void {
+  const r = viewRange();
+  if (!r || !dir || !Number.isFinite(t)) return;
+  const span = r[1] - r[0];
+  if (panOnly) {
+    frozen = [r[0] + dir * span * 0.1, r[1] + dir * span * 0.1];
+  } else {
+    const f = dir > 0 ? 1.25 : 0.8;
+    const newSpan = Math.min(600, Math.max(0.002, span * f));
+    const k = (t - r[0]) / span;
+    frozen = [t - k * newSpan, t + (1 - k) * newSpan];
+  }
+  setPaused(true, "zoomed");
 }
 
 $("pause").addEventListener("click", () => setPaused(!paused));

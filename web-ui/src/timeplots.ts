@@ -32,6 +32,8 @@ export interface TimePlotHooks {
   onZoom(t0: number, t1: number): void;
   /** Double-click: back to the live window. */
   onResetZoom(): void;
+  /** Mouse wheel at time t: zoom in (dir < 0) or out (dir > 0) around t; with shift, pan. */
+  onWheel(t: number, dir: number, pan: boolean): void;
 }
 
 function alpha(hex: string, a: number): string {
@@ -145,6 +147,14 @@ export class TimePlot {
         ready: [
           (u) => {
             u.over.addEventListener("dblclick", () => hooks.onResetZoom());
+            u.over.addEventListener(
+              "wheel",
+              (e) => {
+                e.preventDefault();
+                hooks.onWheel(u.posToVal(e.offsetX, "x"), Math.sign(e.deltaY || e.deltaX), e.shiftKey || Math.abs(e.deltaX) > Math.abs(e.deltaY));
+              },
+              { passive: false },
+            );
           },
         ],
         // The values under the cursor (synchronised across the plots), as PlotJuggler shows them.

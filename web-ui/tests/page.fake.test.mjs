@@ -135,9 +135,7 @@ describe("page against the fake server", () => {
     assert.ok(cb.buckets > ca.buckets + 500, "data still received while paused");
     await page.keyboard.press("Space");
     await waitFor(async () => !(await hook.paused(page)), { what: "resumed by keyboard" });
-    await sleep(300);
-    const c = await hook.points(page, "rtob_force");
-    assert.ok(c.t.at(-1) > bb.t.at(-1) + 0.9, "resume jumps to the newest data");
+    await waitFor(async () => (await hook.points(page, "rtob_force")).t.at(-1) > bb.t.at(-1) + 0.9, { timeoutMs: 3000, what: "resume jumps to the newest data" });
   });
 
   test("dragging over a plot zooms into that range; Escape returns to live", async () => {
@@ -165,7 +163,27 @@ describe("page against the fake server", () => {
     assert.ok(Math.abs(w.range[1] - w.range[0] - 10) < 1e-9);
   });
 
+  test("the mouse wheel zooms around the cursor and shift+wheel pans", async () => {
+    const box = await page.locator("#plot-force .u-over").boundingBox();
+    await page.mouse.move(box.x + box.width * 0.5, box.y + box.height / 2);
+    await page.mouse.wheel(0, -100);
+    const v = await page.evaluate(() => window.__haptics.view());
+    assert.equal(v.frozen, true);
+    const span = v.range[1] - v.range[0];
+    assert.ok(Math.abs(span - 8) < 1e-6, `10 s * 0.8 = 8 s, got ${span}`);
+    await page.keyboard.down("Shift");
+    await page.mouse.wheel(0, 100);
+    await page.keyboard.up("Shift");
+    const w = await page.evaluate(() => window.__haptics.view());
+    assert.ok(Math.abs(w.range[0] - v.range[0] - 0.8) < 1e-6, `panned by a tenth: ${w.range[0] - v.range[0]}`);
+    assert.ok(Math.abs(w.range[1] - w.range[0] - 8) < 1e-6, "same span");
+    await page.click("#live");
+    assert.equal((await page.evaluate(() => window.__haptics.view())).frozen, false);
+  });
+
   test("the cursor readout shows the values under the cursor on every time plot", async () => {
+    // Paused, so the plots do not scroll between the two readouts.
+    await page.click("#pause");
     const box = await page.locator("#plot-force .u-over").boundingBox();
     await page.mouse.move(box.x + box.width * 0.7, box.y + box.height / 2);
     await waitFor(async () => /^t [\d.]+ s · F_ref [-\d.]+(…[-\d.]+)? N · F_res/.test(await page.textContent("#readout-force")), { what: "force readout" });
@@ -173,6 +191,7 @@ describe("page against the fake server", () => {
     const tf = (await page.textContent("#readout-force")).split(" s ")[0];
     assert.equal((await page.textContent("#readout-depth")).split(" s ")[0], tf);
     await page.mouse.move(0, 0);
+    await page.click("#live");
   });
 
   test("per-series toggles hide and show a series, by keyboard too", async () => {
