@@ -9,7 +9,8 @@
 //!
 //! Both sides spin (WaitStrategy::Spin) by default: on a two-core machine that takes both
 //! cores, which is allowed in a benchmark only. BENCH_WAIT=park|spin-park to compare.
-//! BENCH_STEPS (default 100000), BENCH_SERVER_CPU / BENCH_LOOP_CPU to pin.
+//! BENCH_SPINS (spin-park's spin budget), BENCH_STEPS (default 100000), BENCH_SERVER_CPU / BENCH_LOOP_CPU to pin, BENCH_RT_PRIO=N to
+//! run both threads SCHED_FIFO at N (use with park or spin-park: never spin FIFO on two cores).
 //! Models come from benches/make_bench_models.py (see step_latency.rs).
 
 use std::path::{Path, PathBuf};
@@ -81,7 +82,12 @@ fn input(t: u64, msg: &mut FeatureMsg) {
 fn wait_env() -> WaitStrategy {
     match std::env::var("BENCH_WAIT").as_deref() {
         Ok("park") => WaitStrategy::Park,
-        Ok("spin-park") => WaitStrategy::DEFAULT_SPIN_THEN_PARK,
+        Ok("spin-park") => match env_usize("BENCH_SPINS") {
+            Some(spins) => WaitStrategy::SpinThenPark {
+                spins: spins as u32,
+            },
+            None => WaitStrategy::DEFAULT_SPIN_THEN_PARK,
+        },
         _ => WaitStrategy::Spin,
     }
 }
@@ -104,8 +110,15 @@ fn main() {
             println!("loop thread not pinned: {e}");
         }
     }
+    let rt_prio = env_usize("BENCH_RT_PRIO").map(|p| p as i32);
+    if let Some(p) = rt_prio {
+        // The "loop" thread gets the same SCHED_FIFO priority as the inference thread.
+        if let Err(e) = infer_server::serve::set_fifo_priority(p) {
+            println!("loop thread not SCHED_FIFO: {e}");
+        }
+    }
     println!(
-        "shared-memory round trip vs in-process call, ns; {steps} steps per row; wait {wait:?}; load average {}",
+        "shared-memory round trip vs in-process call, ns; {steps} steps per row; wait {wait:?}; SCHED_FIFO {rt_prio:?}; load average {}",
         std::fs::read_to_string("/proc/loadavg")
             .unwrap_or_default()
             .split(' ')
@@ -162,6 +175,7 @@ fn main() {
                 segment: seg.clone(),
                 wait,
                 cpu: env_usize("BENCH_SERVER_CPU"),
+                rt_priority: rt_prio,
                 exit_when_loop_gone: true,
             },
             taker,
@@ -202,13 +216,21 @@ fn main() {
         }
         row(&format!("{label}: shm lockstep"), &mut samples, None);
 
-        // Paced at 10 kHz with a 50 us deadline (the loop spins to its next tick).
+        // Paced at 10 kHz with a 50 us deadline. With a spinning wait strategy the loop spins to
+        // its next tick; otherwise it sleeps to 30 us before it and spins the rest, as a loop
+        // that leaves the other core to the server must.
         let period = Duration::from_micros(100);
         let deadline = 50_000u64;
         samples.clear();
         let mut misses = 0u64;
         let mut next = Instant::now() + period;
         for _ in 0..steps {
+            if wait != WaitStrategy::Spin {
+                let now = Instant::now();
+                if next > now + Duration::from_micros(30) {
+                    std::thread::sleep(next - now - Duration::from_micros(30));
+                }
+            }
             while Instant::now() < next {
                 std::hint::spin_loop();
             }

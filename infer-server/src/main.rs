@@ -75,6 +75,10 @@ enum Command {
         /// Pin the inference thread to this CPU (ignored with a warning where not permitted).
         #[arg(long)]
         cpu: Option<usize>,
+        /// SCHED_FIFO priority (1-99) for the inference thread (reported and ignored where not
+        /// permitted). Use with --wait park or spin-park on a two-core machine.
+        #[arg(long)]
+        rt_priority: Option<i32>,
         /// Let ONNX Runtime's threads spin (off by default; only matters with --ort-threads > 1).
         #[arg(long)]
         ort_spin: bool,
@@ -112,6 +116,7 @@ fn main() -> ExitCode {
             wait,
             spins,
             cpu,
+            rt_priority,
             ort_spin,
             ort_threads,
             exit_when_loop_gone,
@@ -137,6 +142,7 @@ fn main() -> ExitCode {
                 segment: name,
                 wait,
                 cpu,
+                rt_priority,
                 exit_when_loop_gone,
             };
             let session = SessionConfig {

@@ -46,6 +46,9 @@ pub struct ServeConfig {
     pub wait: WaitStrategy,
     /// CPU to pin the thread to (`None`: not pinned).
     pub cpu: Option<usize>,
+    /// SCHED_FIFO priority (1-99) for the thread (`None`: the default scheduler). Only with a
+    /// parking wait strategy on a small machine: a spinning FIFO thread owns its core.
+    pub rt_priority: Option<i32>,
     /// Return when the loop goes away instead of waiting for the next one.
     pub exit_when_loop_gone: bool,
 }
@@ -80,6 +83,8 @@ pub struct ServerStats {
     pub attached: AtomicBool,
     /// CPU the thread is pinned to, -1 when not pinned (not asked, or not permitted).
     pub pinned_cpu: AtomicI64,
+    /// SCHED_FIFO priority obtained, 0 when running on the default scheduler.
+    pub rt_priority: AtomicI64,
 }
 
 #[inline(always)]
@@ -106,6 +111,7 @@ pub struct StatsSnapshot {
     pub effective_generation: u64,
     pub attached: bool,
     pub pinned_cpu: i64,
+    pub rt_priority: i64,
 }
 
 impl ServerStats {
@@ -128,6 +134,7 @@ impl ServerStats {
             effective_seq: l(&self.effective_seq),
             attached: self.attached.load(Ordering::Relaxed),
             pinned_cpu: self.pinned_cpu.load(Ordering::Relaxed),
+            rt_priority: self.rt_priority.load(Ordering::Relaxed),
         }
     }
 }
@@ -254,6 +261,14 @@ impl Worker {
                 Err(e) => {
                     eprintln!("infer-server: not pinned to CPU {cpu} ({e}); running unpinned")
                 }
+            }
+        }
+        if let Some(prio) = self.cfg.rt_priority {
+            match set_fifo_priority(prio) {
+                Ok(()) => self.stats.rt_priority.store(prio as i64, Ordering::Relaxed),
+                Err(e) => eprintln!(
+                    "infer-server: SCHED_FIFO priority {prio} not permitted ({e}); default scheduler"
+                ),
             }
         }
         let mut active: Option<Box<Offered>> = None;
@@ -410,6 +425,24 @@ pub fn pin_current_thread(cpu: usize) -> std::io::Result<()> {
         if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
             return Err(std::io::Error::last_os_error());
         }
+    }
+    Ok(())
+}
+
+/// Puts the calling thread in SCHED_FIFO at `priority` (1-99).
+pub fn set_fifo_priority(priority: i32) -> std::io::Result<()> {
+    if !(1..=99).contains(&priority) {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("priority {priority} is not in 1..=99"),
+        ));
+    }
+    let param = libc::sched_param {
+        sched_priority: priority,
+    };
+    // SAFETY: pid 0 is the calling thread; `param` is initialised.
+    if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } != 0 {
+        return Err(std::io::Error::last_os_error());
     }
     Ok(())
 }

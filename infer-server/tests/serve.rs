@@ -81,6 +81,7 @@ fn serves_every_step_in_order_swaps_models_and_resets_state() {
             segment: name.clone(),
             wait: WaitStrategy::Park, // never busy-spin in tests (two cores)
             cpu: None,
+            rt_priority: None,
             exit_when_loop_gone: true,
         },
         taker,
@@ -208,6 +209,7 @@ fn a_model_for_another_schema_is_not_fed_wrong_columns() {
             segment: name,
             wait: WaitStrategy::Park,
             cpu: None,
+            rt_priority: None,
             exit_when_loop_gone: true,
         },
         taker,
@@ -260,6 +262,7 @@ fn server_activates_refuses_and_revalidates_when_a_new_loop_brings_another_schem
             segment: name.clone(),
             wait: WaitStrategy::Park,
             cpu: None,
+            rt_priority: None,
             exit_when_loop_gone: false, // wait for the next loop
         },
         SessionConfig::default(),
