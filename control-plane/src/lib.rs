@@ -16,6 +16,7 @@ pub mod config;
 mod core;
 pub mod error;
 pub mod grpc;
+pub mod grpc_auth;
 pub mod http;
 pub mod server;
 pub mod shutdown;

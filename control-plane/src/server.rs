@@ -84,6 +84,7 @@ impl Bound {
         let grpc_shutdown = shutdown.clone();
         let health_on_shutdown = health.clone();
         let grpc = tonic::transport::Server::builder()
+            .layer(crate::grpc_auth::AuthLayer::new(core.auth.clone()))
             .add_service(health_svc)
             .add_service(reflection_v1)
             .add_service(reflection_v1alpha)

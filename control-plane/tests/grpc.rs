@@ -358,6 +358,19 @@ async fn mutating_calls_need_the_token_when_one_is_set() {
             assert_eq!(code, Code::Unauthenticated, "{what} with {token:?}");
         }
     }
+    // An upload far over the decoding limit is refused for its missing token, before its body
+    // is read (a decoded one would fail with OUT_OF_RANGE instead).
+    let err = models
+        .load_model(with(
+            pb::LoadModelRequest {
+                name: "big.onnx".into(),
+                onnx: vec![0; 80 << 20],
+            },
+            None,
+        ))
+        .await
+        .unwrap_err();
+    assert_eq!(err.code(), Code::Unauthenticated, "{err:?}");
     assert!(s.backend.swaps().is_empty(), "nothing reached the backend");
     assert!(s.backend.last_experiment().is_none());
     // Reading needs no token.
