@@ -36,12 +36,16 @@ FEATURES = [
 N = len(FEATURES)
 
 
-def set_meta(model: onnx.ModelProto, kind: str, name: str, extra: dict[str, str] | None = None) -> None:
+def set_meta(
+    model: onnx.ModelProto, kind: str, name: str, extra: dict[str, str] | None = None
+) -> None:
     props = {
         "haptics.features": ",".join(FEATURES),
         "haptics.kind": kind,
         "haptics.units": "N",
-        "haptics.provenance": json.dumps({"model": name, "trainer": "infer-server benches", "seed": 0}),
+        "haptics.provenance": json.dumps(
+            {"model": name, "trainer": "infer-server benches", "seed": 0}
+        ),
     }
     props.update(extra or {})
     del model.metadata_props[:]
@@ -91,7 +95,9 @@ def write_torch(out: Path) -> None:
     class Dense(nn.Module):
         def __init__(self) -> None:
             super().__init__()
-            self.net = nn.Sequential(nn.Linear(N, 150), nn.ReLU(), nn.Linear(150, 25), nn.ReLU(), nn.Linear(25, 1))
+            self.net = nn.Sequential(
+                nn.Linear(N, 150), nn.ReLU(), nn.Linear(150, 25), nn.ReLU(), nn.Linear(25, 1)
+            )
 
         def forward(self, features: torch.Tensor) -> torch.Tensor:
             return self.net(features)
