@@ -11,6 +11,8 @@ use control_plane::pb;
 
 use client::{connect, explain, CliError, Client, EXIT_USAGE};
 
+const DEFAULT_ADDR: &str = "http://127.0.0.1:50051";
+
 #[derive(Parser, Debug)]
 #[command(
     name = "hapticctl",
@@ -95,6 +97,7 @@ enum Command {
 enum ExperimentAction {
     /// Start an experiment: abstraction, reproduction, shadow or position-replay.
     Start {
+        /// abstraction | reproduction | shadow | position-replay
         kind: String,
         /// Force ramp rate, N/s.
         #[arg(long)]
@@ -127,7 +130,13 @@ fn print_json(v: &serde_json::Value) {
 }
 
 async fn run(cli: Cli) -> Result<(), CliError> {
-    let mut c = connect(&cli.addr, cli.token.as_deref()).await?;
+    // An empty HAPTICS_ADDR or HAPTICS_TOKEN counts as unset.
+    let addr = match cli.addr.trim() {
+        "" => DEFAULT_ADDR,
+        a => a,
+    };
+    let token = cli.token.as_deref().filter(|t| !t.is_empty());
+    let mut c = connect(addr, token).await?;
     let addr = c.addr.clone();
     let fail = |s: tonic::Status| explain(&s, &addr);
     match cli.command {
