@@ -25,6 +25,11 @@ import { dirname, join, resolve } from "node:path";
 import { fileURLToPath } from "node:url";
 import { enclosedArea, finite, hook, measureFrames, openBrowser, sleep, waitFor } from "./harness.mjs";
 
+// How the processes are started: the one place to change when their command lines change.
+const DEFAULT_RT_LOOP_ARGS = "serve --clock realtime --rate-hz 10000 --instance {instance}";
+const DEFAULT_INFER_SERVER_ARGS = "serve --models {models} --instance {instance} --grpc {grpc} --http {http}";
+const DEFAULT_HAPTICCTL_ARGS = "--addr http://{grpc} --json status";
+
 const here = dirname(fileURLToPath(import.meta.url));
 const repo = resolve(here, "..", "..");
 const binDir = process.env.HAPTICS_BIN_DIR ? resolve(process.env.HAPTICS_BIN_DIR) : join(repo, "target", "release");
@@ -145,10 +150,10 @@ describe("page against the real rt-loop and infer-server", () => {
     ctx.models = modelsDir(ctx.tmp);
     const vars = { http: `127.0.0.1:${ctx.http}`, grpc: `127.0.0.1:${ctx.grpc}`, models: ctx.models, bin: binDir, tmp: ctx.tmp, instance: `webtest-${process.pid}` };
     ctx.vars = vars;
-    ctx.rtArgs = fill(process.env.HAPTICS_RT_LOOP_ARGS ?? "serve --clock realtime --rate-hz 10000 --instance {instance}", vars);
+    ctx.rtArgs = fill(process.env.HAPTICS_RT_LOOP_ARGS ?? DEFAULT_RT_LOOP_ARGS, vars);
     ctx.loop = start("rt-loop", bin("rt-loop"), ctx.rtArgs);
     await sleep(500);
-    ctx.server = start("infer-server", bin("infer-server"), fill(process.env.HAPTICS_INFER_SERVER_ARGS ?? "serve --models {models} --instance {instance} --grpc {grpc} --http {http}", vars));
+    ctx.server = start("infer-server", bin("infer-server"), fill(process.env.HAPTICS_INFER_SERVER_ARGS ?? DEFAULT_INFER_SERVER_ARGS, vars));
     ctx.url = `http://127.0.0.1:${ctx.http}`;
     try {
       await waitFor(
@@ -253,7 +258,7 @@ describe("page against the real rt-loop and infer-server", () => {
     await waitFor(async () => (await getJson(`${ctx.url}/api/status`)).active_model?.name === target.name, { timeoutMs: 10000, what: `${target.name} active on the server` });
     await waitFor(async () => (await page.textContent("#f-model")).startsWith(target.name), { what: "figures show the new model" });
     if (existsSync(bin("hapticctl"))) {
-      const args = fill(process.env.HAPTICS_HAPTICCTL_ARGS ?? "--addr http://{grpc} --json status", ctx.vars);
+      const args = fill(process.env.HAPTICS_HAPTICCTL_ARGS ?? DEFAULT_HAPTICCTL_ARGS, ctx.vars);
       const r = spawnSync(bin("hapticctl"), args, { encoding: "utf8", timeout: 10000 });
       assert.equal(r.status, 0, `hapticctl ${args.join(" ")}: ${r.stderr}`);
       let reported;
