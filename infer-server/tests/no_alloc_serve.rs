@@ -1,0 +1,111 @@
+//! The inference thread's steady state allocates nothing: a global counting allocator is armed
+//! while 5000 steps go through a real segment (this binary holds this one test only, so no
+//! other test thread allocates meanwhile; the test's own loop side allocates nothing either).
+
+mod common;
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Duration;
+
+use infer_server::handoff;
+use infer_server::serve::{InferenceThread, ServeConfig};
+use infer_server::{FeatureSchema, SessionConfig, StepEngine};
+use shm_ring::{Config, FeatureMsg, Segment, SegmentName, WaitStrategy};
+
+struct Counting;
+static ARMED: AtomicBool = AtomicBool::new(false);
+static ALLOCS: AtomicU64 = AtomicU64::new(0);
+
+// SAFETY: forwards to the system allocator; counting is two atomics.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        if ARMED.load(Ordering::Relaxed) {
+            ALLOCS.fetch_add(1, Ordering::Relaxed);
+        }
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        if ARMED.load(Ordering::Relaxed) {
+            ALLOCS.fetch_add(1, Ordering::Relaxed);
+        }
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn the_inference_thread_allocates_nothing_per_step() {
+    let Some(dir) = common::fixtures() else {
+        return;
+    };
+    let rt = common::runtime();
+    let name = SegmentName::new(&format!("/infer-server-noalloc-{}", std::process::id())).unwrap();
+    let mut lp = Segment::create(&name, &Config::default())
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
+    let (mut activator, taker) = handoff::channel();
+    let thread = InferenceThread::spawn(
+        ServeConfig {
+            segment: name,
+            wait: WaitStrategy::Park,
+            cpu: None,
+            rt_priority: None,
+            exit_when_loop_gone: true,
+        },
+        taker,
+    )
+    .unwrap();
+    let engine = StepEngine::load(
+        rt,
+        &dir.join("lstm.onnx"),
+        &FeatureSchema::standard(),
+        &SessionConfig::default(),
+    )
+    .unwrap();
+    let g = activator.offer(engine);
+    assert!(activator.wait_active(g, Duration::from_secs(10)));
+    while thread.segment_schema().is_none() {
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let mut msg = FeatureMsg {
+        len: 9,
+        run_id: 1,
+        flags: FeatureMsg::RUN_START,
+        ..FeatureMsg::default()
+    };
+    let mut step = |seq: u64, msg: &mut FeatureMsg| {
+        msg.seq = seq;
+        msg.values[0] = (seq % 100) as f64 * 0.01;
+        msg.values[3] = (seq % 37) as f64 * 0.1 - 1.0;
+        lp.features_tx.try_send(*msg).unwrap();
+        let a = lp.forces_rx.recv_timeout(Duration::from_secs(10)).unwrap();
+        msg.flags = 0;
+        if a.seq != seq || a.flags != 0 || !a.force.is_finite() {
+            panic!("bad answer {a:?} to step {seq}");
+        }
+    };
+    for seq in 1..=200 {
+        step(seq, &mut msg);
+    }
+    ARMED.store(true, Ordering::SeqCst);
+    for seq in 201..=5200 {
+        if seq % 1000 == 0 {
+            msg.run_id += 1; // a reset on the way
+        }
+        step(seq, &mut msg);
+    }
+    ARMED.store(false, Ordering::SeqCst);
+    let n = ALLOCS.load(Ordering::SeqCst);
+    assert_eq!(
+        n, 0,
+        "{n} allocations while 5000 steps went through the inference thread"
+    );
+    assert!(thread.stats().snapshot().resets >= 5);
+    drop(lp);
+    thread.join().unwrap();
+}
