@@ -76,6 +76,11 @@ FEATURE_SETS: dict[str, FeatureSet] = {
         FeatureSet("x_v", ("position_x", "velocity"), "position and velocity (Table 6.10)"),
         FeatureSet("nine", NINE, "all nine features of Table 3.1"),
         FeatureSet(
+            "xva",
+            ("position_x", "velocity", "acceleration"),
+            "kinematics only: no force feedback (closed loop = one-step)",
+        ),
+        FeatureSet(
             "xva_f",
             ("position_x", "velocity", "acceleration", F_PREVIOUS),
             "x, v, a and the previous force itself (well-conditioned alternative to the ratios)",

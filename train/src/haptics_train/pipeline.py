@@ -18,6 +18,7 @@ import joblib
 import numpy as np
 import onnx
 
+from .contract import ContractError
 from .data import Dataset
 from .evaluate import evaluate
 from .export import parity, provenance, save_onnx, to_contract_onnx
@@ -63,7 +64,12 @@ def train_models(
                 m.max_rows = hyper[algo]["max_rows"]  # type: ignore[attr-defined]
         t0 = time.perf_counter()
         print(f"[train] {m.name} on {len(dataset.train)} recordings ...", flush=True)
-        m.fit(dataset.train, cfg)
+        try:
+            m.fit(dataset.train, cfg)
+        except (ValueError, RuntimeError, FloatingPointError) as e:
+            # one model failing (e.g. a diverging network) must not lose the others
+            print(f"[train] {m.name} FAILED: {e}", flush=True)
+            continue
         m.train_info.setdefault("fit_seconds", round(time.perf_counter() - t0, 2))
         joblib.dump({"model": m, "config": cfg}, out / f"{m.name}.joblib")
         print(f"[train] {m.name}: {m.train_info}", flush=True)
@@ -111,7 +117,14 @@ def evaluate_models(
     (folder / "predictions").mkdir(parents=True, exist_ok=True)
     for model, cfg in models:
         print(f"[evaluate] {model.name}", flush=True)
-        draft = to_contract_onnx(model, provenance(model, cfg, dataset, None))
+        try:
+            draft = to_contract_onnx(model, provenance(model, cfg, dataset, None))
+        except ContractError as e:
+            print(f"[evaluate] {model.name} FAILED: its export breaks the contract: {e}")
+            results[model.name] = {"algo": model.algo, "feature_set": model.feature_set,
+                                   "error": f"export breaks the contract: {e}"}  # fmt: skip
+            _save_results(folder, results)
+            continue
         evals = []
         preds = {}
         for rec in dataset.test:
@@ -121,6 +134,7 @@ def evaluate_models(
                 preds[f"{rec.name}:{k}"] = v.astype(np.float32)
         np.savez_compressed(folder / "predictions" / f"{model.name}.npz", **preds)
         entry = results.get(model.name, {})
+        entry.pop("error", None)
         entry.update({
             "algo": model.algo,
             "feature_set": model.feature_set,
@@ -149,6 +163,9 @@ def export_models(
     results = load_results(folder)
     for model, cfg in models:
         entry = results.setdefault(model.name, {})
+        if "error" in entry:
+            print(f"[export] {model.name} skipped: {entry['error']}", flush=True)
+            continue
         metrics = {
             e["recording"]: {"one_step": e["one_step"], "closed_loop": e.get("closed_loop")}
             for e in entry.get("test", [])

@@ -108,11 +108,64 @@ def _rmse_bars(results: dict, names: list[str], out: Path) -> str:
     return "rmse.png"
 
 
+def _goals(results: dict) -> list[str]:
+    """The issue's three goals, checked on the numbers above (whatever they are)."""
+
+    def rm(n: str, kind: str) -> float:
+        return results[n]["test"][0][kind]["rmse"]
+
+    out = ["## Goals (issue 7), checked", ""]
+    if "rf_six" in results:
+        v = rm("rf_six", "one_step")
+        verdict = "met" if v <= 0.34 else "NOT met"
+        out.append(
+            "- Random forest on the six features, one-step RMSE on the held-out ramp: "
+            f"**{v:.3f} N** (thesis 0.34 N): {verdict}."
+        )
+    if "sd_poly2" in results:
+        ref = rm("sd_poly2", "one_step")
+        learned = [n for n in results if results[n]["algo"] not in ("sd",)]
+        worse = [n for n in learned if not rm(n, "one_step") < ref]
+        behind = ", ".join(f"`{n}` ({rm(n, 'one_step'):.3f})" for n in worse)
+        out.append(
+            f"- Learned models ahead of the 2nd-order spring-damper ({ref:.3f} N) one-step: "
+            f"{len(learned) - len(worse)} of {len(learned)}"
+            + (f"; behind: {behind}." if worse else " (all).")
+        )
+        worse_cl = [n for n in learned if not rm(n, "closed_loop") < ref]
+        out.append(
+            f"- ... in closed loop: {len(learned) - len(worse_cl)} of {len(learned)}"
+            + (f"; behind: {', '.join(f'`{n}`' for n in worse_cl)}" if worse_cl else " (all)")
+            + "."
+        )
+    rfs = [n for n in results if results[n]["algo"] == "rf"]
+    nets = [n for n in results if results[n]["algo"] in ("dnn", "lstm")]
+    if rfs and nets:
+        best_rf = min(rfs, key=lambda n: rm(n, "closed_loop"))
+        best_net = min(nets, key=lambda n: rm(n, "closed_loop"))
+        a, b = rm(best_net, "closed_loop"), rm(best_rf, "closed_loop")
+        out.append(
+            f"- Best network in closed loop `{best_net}` {a:.3f} N vs best random forest "
+            f"`{best_rf}` {b:.3f} N"
+            + (f"; on the six features: `rf_six` {rm('rf_six', 'closed_loop'):.3f} N"
+               if "rf_six" in results else "")
+            + f": {'met' if a < b else 'NOT met'}."
+        )  # fmt: skip
+    out.append("")
+    return out
+
+
 def write_report(
     folder: Path, dataset: Dataset, out: Path, plot_models: list[str] | None = None
 ) -> Path:
     """Writes `out/README.md` from `folder/results.json` (+ `analysis.md` if present)."""
     results = json.loads((folder / "results.json").read_text())
+    failed = {
+        n: r.get("error", "not evaluated and exported")
+        for n, r in results.items()
+        if "error" in r or "test" not in r or "parity" not in r
+    }
+    results = {n: r for n, r in results.items() if n not in failed and "parity" in r}
     out.mkdir(parents=True, exist_ok=True)
     names = _order(results)
     test = dataset.test[0].name
@@ -160,6 +213,7 @@ def write_report(
         rows,
     ))  # fmt: skip
     md += ["", f"![RMSE per model]({_rmse_bars(results, names, out)})", ""]
+    md += _goals(results)
 
     def sub(title: str, keys: list[str], note: str) -> None:
         keys = [k for k in keys if k in results]
@@ -182,11 +236,11 @@ def write_report(
         "F = k(x) x + b(x) v with constant, first- and second-order polynomial k and b, least "
         "squares on the training rows.")  # fmt: skip
     sub("Feature ablation with the random forest (thesis Table 6.10)",
-        ["rf_x", "rf_x_v", "rf_six", "rf_nine", "rf_xva_f",
+        ["rf_x", "rf_x_v", "rf_xva", "rf_six", "rf_nine", "rf_xva_f",
          "rf_memory"],
         "Feature sets: `x`; `x_v` = x, v; `six` = x, v, a, F(t-1)/x, F(t-1)/v, F(t-1)/a; "
-        "`xva_f` = x, v, a, F(t-1); `memory` = x, v, a, cycle_no, deformation, "
-        "area_fx.")  # fmt: skip
+        "`xva` = x, v, a; `xva_f` = x, v, a, F(t-1); `memory` = x, v, a, cycle_no, "
+        "deformation, area_fx.")  # fmt: skip
     sub("Algorithms on the six features (thesis Table 6.15)",
         ["lr_six", "svr_six", "rf_six", "dnn_six", "lstm_six"],
         "The thesis's networks were trained at learning rate 1e-6 and never converged; here "
@@ -195,6 +249,10 @@ def write_report(
     sub("Alternatives beyond the thesis", others,
         "Networks on the better-conditioned and memory-only feature sets.")  # fmt: skip
 
+    if failed:
+        md += ["## Models that failed", ""]
+        md += [f"- `{n}`: {e}" for n, e in failed.items()]
+        md.append("")
     md += ["## Hyperparameters and training", ""]
     md.append(md_table(
         ["model", "hyperparameters", "training"],

@@ -191,6 +191,8 @@ class DenseModel(ForceModel):
                 total += loss.item() * len(idx)
             losses.append(total / len(y))
             bar.set_postfix(loss=f"{losses[-1]:.4g}")
+            if not math.isfinite(losses[-1]):
+                raise FloatingPointError(f"{self.name}: training loss became {losses[-1]}")
         net.eval()
         self.net = net
         self.train_info = {
