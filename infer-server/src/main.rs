@@ -70,6 +70,8 @@ enum Command {
         /// spin-park (spin --spins times, then park).
         #[arg(long, default_value = "spin-park")]
         wait: WaitArg,
+        /// Spin budget of spin-park before parking (about 1-4 ns each); a budget covering the
+        /// loop's period keeps the thread awake between steps (best latency, one busy core).
         #[arg(long, default_value_t = 2000)]
         spins: u32,
         /// Pin the inference thread to this CPU (ignored with a warning where not permitted).
@@ -79,6 +81,10 @@ enum Command {
         /// permitted). Use with --wait park or spin-park on a two-core machine.
         #[arg(long)]
         rt_priority: Option<i32>,
+        /// Lock the process's memory (mlockall) so no page fault can stall a step later
+        /// (reported and ignored where not permitted).
+        #[arg(long)]
+        mlock: bool,
         /// Let ONNX Runtime's threads spin (off by default; only matters with --ort-threads > 1).
         #[arg(long)]
         ort_spin: bool,
@@ -117,6 +123,7 @@ fn main() -> ExitCode {
             spins,
             cpu,
             rt_priority,
+            mlock,
             ort_spin,
             ort_threads,
             exit_when_loop_gone,
@@ -150,6 +157,15 @@ fn main() -> ExitCode {
                 spinning: ort_spin,
                 ..SessionConfig::default()
             };
+            if mlock {
+                // SAFETY: plain syscall on this process.
+                if unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) } != 0 {
+                    eprintln!(
+                        "infer-server: mlockall not permitted ({}); memory not locked",
+                        std::io::Error::last_os_error()
+                    );
+                }
+            }
             serve(cli.ort_lib.as_deref(), &model, cfg, session, stats_every)
         }
     }
