@@ -70,7 +70,7 @@ enum Command {
         /// spin-park (spin --spins times, then park).
         #[arg(long, default_value = "spin-park")]
         wait: WaitArg,
-        /// Spin budget of spin-park before parking (about 1-4 ns each); a budget covering the
+        /// Spin budget of spin-park before parking (2000: a few microseconds); a budget covering the
         /// loop's period keeps the thread awake between steps (best latency, one busy core).
         #[arg(long, default_value_t = 2000)]
         spins: u32,
