@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 
 use shm_ring::{FeatureMsg, ForceMsg, RecvError, Segment, SegmentName, WaitStrategy};
 
-use crate::contract::FeatureSchema;
+use crate::contract::{FeatureSchema, ModelKind};
 use crate::handoff::{Offered, Taker};
 use crate::latency::{self, LatencyReader, LatencyRecorder};
 
@@ -34,7 +34,8 @@ pub mod force_flags {
     /// The active model was validated against another feature schema than this segment's;
     /// the server waits for the control side to revalidate it: NaN.
     pub const SCHEMA_MISMATCH: u32 = 4;
-    /// The model itself returned NaN or an infinity (passed on as is).
+    /// The model itself returned NaN or an infinity (passed on as is). A stateful model's
+    /// state is reset after such a step (it would stay poisoned otherwise).
     pub const NON_FINITE: u32 = 8;
 }
 
@@ -369,6 +370,12 @@ impl Worker {
                         Ok(f) => {
                             bump(&stats.predicted);
                             bump(&stats.non_finite);
+                            if a.engine.kind() == ModelKind::Stateful {
+                                // A NaN/Inf force usually means a poisoned h/c: every later
+                                // step of the run would be NaN too. Start again from zero.
+                                a.engine.reset();
+                                bump(&stats.resets);
+                            }
                             (f as f64, force_flags::NON_FINITE, a.generation)
                         }
                         Err(_) => {

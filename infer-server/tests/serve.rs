@@ -126,7 +126,9 @@ fn serves_every_step_in_order_swaps_models_and_resets_state() {
     }
 
     // Swap to the LSTM between two steps; compare with a local engine stepping the same inputs.
-    let g2 = activator.offer(load("lstm"));
+    // The served one is the fixture LSTM plus a term that is exactly 0 while f_previous_x <= 10
+    // and NaN beyond (used below), so the two agree bit for bit on these inputs.
+    let g2 = activator.offer(load("lstm_nan_above_10"));
     let mut reference = load("lstm");
     let inputs: Vec<[f64; 3]> = (0..200)
         .map(|t| {
@@ -154,6 +156,21 @@ fn serves_every_step_in_order_swaps_models_and_resets_state() {
         assert_eq!(a.force, first_run[k], "run 3 step {k}");
     }
 
+    // A step that makes the model NaN poisons its state: the answer is passed on flagged
+    // NON_FINITE, and the server resets the state, so the next step is a fresh start rather
+    // than a run computed from NaN state.
+    let a = round_trip(&mut lp, features(seq, 3, 0, &[0.0, 11.0, 0.0]));
+    seq += 1;
+    assert_eq!(a.flags, force_flags::NON_FINITE);
+    assert!(a.force.is_nan());
+    let a = round_trip(&mut lp, features(seq, 3, 0, &inputs[0]));
+    seq += 1;
+    assert_eq!(a.flags, 0);
+    assert_eq!(
+        a.force, first_run[0],
+        "the state was reset after the NaN step"
+    );
+
     // A vector shorter than the schema gets a flagged NaN, not a crash.
     let a = round_trip(&mut lp, features(seq, 3, 0, &[0.1]));
     assert!(a.force.is_nan());
@@ -168,7 +185,8 @@ fn serves_every_step_in_order_swaps_models_and_resets_state() {
     assert_eq!(stats.answered, seq);
     assert_eq!(stats.no_model, 1);
     assert_eq!(stats.step_errors, 1);
-    assert_eq!(stats.predicted, 500 + 200 + 50);
+    assert_eq!(stats.predicted, 500 + 200 + 50 + 2);
+    assert_eq!(stats.non_finite, 1);
     assert_eq!(stats.switches, 2);
     assert!(stats.resets >= 1);
     assert_eq!(stats.last_seq, seq);
