@@ -22,6 +22,7 @@ pub struct Sponge {
     hyst: f64,
     set: f64,
     e_prev: f64,
+    feq_prev: f64,
     max_depth: f64,
     force: f64,
 }
@@ -45,6 +46,7 @@ impl Sponge {
             hyst: 0.0,
             set: 0.0,
             e_prev: 0.0,
+            feq_prev: 0.0,
             max_depth: 0.0,
             force: 0.0,
         }
@@ -52,31 +54,45 @@ impl Sponge {
 
     /// Equilibrium (fully relaxed, hysteresis-free) force at compression `e` (m).
     pub fn f_eq(&self, e: f64) -> f64 {
+        self.eq_and_tangent(e).0
+    }
+
+    /// Tangent stiffness dF_eq/de (N/m).
+    pub fn k_eq(&self, e: f64) -> f64 {
+        self.eq_and_tangent(e).1
+    }
+
+    /// F_eq(e) and its slope together, sharing the transcendental calls (one tanh, one
+    /// power): this is the sub-step's hot spot.
+    #[inline]
+    pub fn eq_and_tangent(&self, e: f64) -> (f64, f64) {
         if e <= 0.0 {
-            return 0.0;
+            let q = &self.m.equilibrium;
+            return (
+                0.0,
+                q.plateau_n / q.yield_m + q.densification_n * q.exponent / q.densification_m,
+            );
         }
         let q = &self.m.equilibrium;
         // Past 95 % of the densification strain the law continues linearly with its tangent:
         // the pole at e = densification_m is never reached.
         let e_cap = 0.95 * q.densification_m;
         let ec = e.min(e_cap);
-        let dens = (1.0 - ec / q.densification_m).powf(-q.exponent) - 1.0;
-        let f = q.plateau_n * (ec / q.yield_m).tanh() + q.densification_n * dens;
-        if e > e_cap {
-            f + self.k_eq(e_cap) * (e - e_cap)
+        let th = (ec / q.yield_m).tanh();
+        let u = 1.0 - ec / q.densification_m;
+        let p = if q.exponent == 2.0 {
+            1.0 / (u * u)
         } else {
-            f
+            u.powf(-q.exponent)
+        };
+        let f = q.plateau_n * th + q.densification_n * (p - 1.0);
+        let k = q.plateau_n / q.yield_m * (1.0 - th * th)
+            + q.densification_n * q.exponent / q.densification_m * p / u;
+        if e > e_cap {
+            (f + k * (e - e_cap), k)
+        } else {
+            (f, k)
         }
-    }
-
-    /// Tangent stiffness dF_eq/de (N/m).
-    pub fn k_eq(&self, e: f64) -> f64 {
-        let q = &self.m.equilibrium;
-        let ec = e.clamp(0.0, 0.95 * q.densification_m);
-        let sech = 1.0 / (ec / q.yield_m).cosh();
-        q.plateau_n / q.yield_m * sech * sech
-            + q.densification_n * q.exponent / q.densification_m
-                * (1.0 - ec / q.densification_m).powf(-q.exponent - 1.0)
     }
 
     /// Prepares the per-substep relaxation factors for a substep of `h` seconds (cached: the
@@ -108,8 +124,14 @@ impl Sponge {
             return 0.0;
         }
         let e0 = self.e_prev.max(0.0);
-        let feq1 = self.f_eq(e);
-        let df = feq1 - self.f_eq(e0);
+        let (feq1, k1) = self.eq_and_tangent(e);
+        // F_eq at the previous compression is cached from the previous sub-step
+        let df = feq1
+            - if self.e_prev > 0.0 {
+                self.feq_prev
+            } else {
+                0.0
+            };
         let mut branches = 0.0;
         for i in 0..self.n_branches {
             self.q[i] = self.q[i] * self.decay[i] + self.gains[i] * df;
@@ -118,12 +140,13 @@ impl Sponge {
         let hmax = self.m.hysteresis.fraction * feq1;
         let de = e - e0;
         if hmax > 0.0 && de != 0.0 {
-            let sig = self.m.hysteresis.stiffness_ratio * self.k_eq(e);
+            let sig = self.m.hysteresis.stiffness_ratio * k1;
             let s = de.signum();
             self.hyst += sig * de * (1.0 - s * self.hyst / hmax);
         }
         self.hyst = self.hyst.clamp(-hmax, hmax);
         self.e_prev = e;
+        self.feq_prev = feq1;
         // Unilateral contact: the sponge never pulls on the probe.
         self.force = (feq1 + self.hyst + branches).max(0.0);
         self.force
@@ -173,6 +196,21 @@ mod tests {
         ))
         .unwrap();
         Sponge::new(&Material::parse(&text).unwrap())
+    }
+
+    #[test]
+    fn tangent_is_the_derivative_of_the_law() {
+        let s = sponge();
+        for i in 1..40 {
+            let e = i as f64 * 1e-3;
+            let h = 1e-7;
+            let num = (s.f_eq(e + h) - s.f_eq(e - h)) / (2.0 * h);
+            assert!(
+                (num - s.k_eq(e)).abs() < 1e-4 * num.abs().max(1.0),
+                "e {e}: {num} vs {}",
+                s.k_eq(e)
+            );
+        }
     }
 
     #[test]
