@@ -51,6 +51,10 @@ impl FeatureValue for f64 {
 pub enum StepError {
     /// The vector handed in is shorter than the schema the model was validated against.
     SchemaLength { expected: usize, got: usize },
+    /// A feature the model uses is NaN or infinite (or beyond f32's range): the model is not
+    /// run. (ONNX Runtime's activations clamp NaN, so a model fed NaN may well answer a
+    /// plausible-looking number; refusing here is the only reliable signal.)
+    NonFiniteFeature { schema_index: usize },
     /// ONNX Runtime's `Run` failed with this error code.
     Run { code: i32 },
 }
@@ -62,6 +66,9 @@ impl std::fmt::Display for StepError {
                 f,
                 "feature vector has {got} values, the schema has {expected}"
             ),
+            StepError::NonFiniteFeature { schema_index } => {
+                write!(f, "feature #{schema_index} of the schema is not finite")
+            }
             StepError::Run { code } => write!(f, "ONNX Runtime Run failed (code {code})"),
         }
     }
@@ -364,7 +371,11 @@ impl StepEngine {
         // in `input_map` is < schema_len <= schema_values.len() (checked above and at load).
         unsafe {
             for (i, &src) in self.input_map.iter().enumerate() {
-                *self.features.add(i) = schema_values.get_unchecked(src).to_f32();
+                let v = schema_values.get_unchecked(src).to_f32();
+                if !v.is_finite() {
+                    return Err(StepError::NonFiniteFeature { schema_index: src });
+                }
+                *self.features.add(i) = v;
             }
         }
         self.run_raw()?;

@@ -279,13 +279,14 @@ fn report_stats(server: &Server) {
     let s = server.stats();
     let l = server.latency().snapshot();
     eprintln!(
-        "infer-server: answered {} (model {}, no model {}, errors {}, schema mismatch {}, non-finite {}), resets {}, attachments {}; ring-to-ring p50 {} ns p99 {} ns p99.9 {} ns max {} ns",
+        "infer-server: answered {} (model {}, no model {}, errors {}, schema mismatch {}, non-finite {}, bad features {}), resets {}, attachments {}; ring-to-ring p50 {} ns p99 {} ns p99.9 {} ns max {} ns",
         s.answered,
         s.predicted,
         s.no_model,
         s.step_errors,
         s.schema_mismatch,
         s.non_finite,
+        s.bad_features,
         s.resets,
         s.attachments,
         l.quantile(0.5),

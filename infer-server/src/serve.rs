@@ -22,6 +22,7 @@ use std::time::{Duration, Instant};
 use shm_ring::{FeatureMsg, ForceMsg, RecvError, Segment, SegmentName, WaitStrategy};
 
 use crate::contract::{FeatureSchema, ModelKind};
+use crate::engine::StepError;
 use crate::handoff::{Offered, Taker};
 use crate::latency::{self, LatencyReader, LatencyRecorder};
 
@@ -37,6 +38,8 @@ pub mod force_flags {
     /// The model itself returned NaN or an infinity (passed on as is). A stateful model's
     /// state is reset after such a step (it would stay poisoned otherwise).
     pub const NON_FINITE: u32 = 8;
+    /// A feature the model uses is NaN/Inf: the model was not run (its state is untouched): NaN.
+    pub const BAD_FEATURES: u32 = 16;
 }
 
 /// How the inference thread attaches and waits.
@@ -66,6 +69,8 @@ pub struct ServerStats {
     pub step_errors: AtomicU64,
     pub schema_mismatch: AtomicU64,
     pub non_finite: AtomicU64,
+    /// Steps refused because a feature the model uses was NaN/Inf.
+    pub bad_features: AtomicU64,
     /// Stateful-model resets (run starts / run id changes).
     pub resets: AtomicU64,
     /// Model switches picked up between steps.
@@ -102,6 +107,7 @@ pub struct StatsSnapshot {
     pub step_errors: u64,
     pub schema_mismatch: u64,
     pub non_finite: u64,
+    pub bad_features: u64,
     pub resets: u64,
     pub switches: u64,
     pub attachments: u64,
@@ -125,6 +131,7 @@ impl ServerStats {
             step_errors: l(&self.step_errors),
             schema_mismatch: l(&self.schema_mismatch),
             non_finite: l(&self.non_finite),
+            bad_features: l(&self.bad_features),
             resets: l(&self.resets),
             switches: l(&self.switches),
             attachments: l(&self.attachments),
@@ -377,6 +384,10 @@ impl Worker {
                                 bump(&stats.resets);
                             }
                             (f as f64, force_flags::NON_FINITE, a.generation)
+                        }
+                        Err(StepError::NonFiniteFeature { .. }) => {
+                            bump(&stats.bad_features);
+                            (f64::NAN, force_flags::BAD_FEATURES, a.generation)
                         }
                         Err(_) => {
                             bump(&stats.step_errors);

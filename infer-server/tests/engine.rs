@@ -63,6 +63,17 @@ fn any_schema_order_and_subset_works() {
     assert_eq!(engine.info().input_map, [0, 2]);
     let got = engine.step(&[0.7f32, 99.0, 0.2]).unwrap();
     assert!(close(got, 2.0 * 0.7 - 3.0 * 0.2 + 0.5, 1e-6), "{got}");
+    // A non-finite feature the model uses is refused; one it does not use is ignored.
+    assert_eq!(
+        engine.step(&[f32::NAN, 99.0, 0.2]).unwrap_err(),
+        StepError::NonFiniteFeature { schema_index: 0 }
+    );
+    assert_eq!(
+        engine.step(&[0.7f64, 99.0, 1e300]).unwrap_err(),
+        StepError::NonFiniteFeature { schema_index: 2 },
+        "beyond f32's range counts as infinite"
+    );
+    assert!(engine.step(&[0.7f32, f32::INFINITY, 0.2]).is_ok());
     // A vector shorter than the schema is refused without touching the model.
     assert_eq!(
         engine.step(&[0.7f32, 99.0]).unwrap_err(),

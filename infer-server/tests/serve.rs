@@ -156,6 +156,27 @@ fn serves_every_step_in_order_swaps_models_and_resets_state() {
         assert_eq!(a.force, first_run[k], "run 3 step {k}");
     }
 
+    // A NaN feature is refused before the model runs (flag BAD_FEATURES, state untouched: the
+    // next step continues the run as if the bad one had not happened).
+    let a = round_trip(&mut lp, features(seq, 3, 0, &[0.0, f64::NAN, 0.0]));
+    seq += 1;
+    assert_eq!(a.flags, force_flags::BAD_FEATURES);
+    assert!(a.force.is_nan());
+    // ... but a NaN in a column the model does not use (velocity) is no problem.
+    let x = inputs[50];
+    let a = round_trip(&mut lp, features(seq, 3, 0, &[f64::NAN, x[1], x[2]]));
+    seq += 1;
+    assert_eq!(a.flags, 0);
+    let mut check = load("lstm");
+    for x in &inputs[..50] {
+        check.step(x).unwrap();
+    }
+    assert_eq!(
+        a.force,
+        check.step(&x).unwrap() as f64,
+        "the state skipped the refused step"
+    );
+
     // A step that makes the model NaN poisons its state: the answer is passed on flagged
     // NON_FINITE, and the server resets the state, so the next step is a fresh start rather
     // than a run computed from NaN state.
@@ -185,7 +206,8 @@ fn serves_every_step_in_order_swaps_models_and_resets_state() {
     assert_eq!(stats.answered, seq);
     assert_eq!(stats.no_model, 1);
     assert_eq!(stats.step_errors, 1);
-    assert_eq!(stats.predicted, 500 + 200 + 50 + 2);
+    assert_eq!(stats.predicted, 500 + 200 + 50 + 3);
+    assert_eq!(stats.bad_features, 1);
     assert_eq!(stats.non_finite, 1);
     assert_eq!(stats.switches, 2);
     assert!(stats.resets >= 1);
