@@ -147,3 +147,24 @@ async fn loop_gone_and_back_without_reconnecting() {
     assert!(back.statuses.iter().any(|st| st["loop"]["alive"] == true));
     s.stop().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_page_of_another_site_cannot_open_the_socket() {
+    use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+    let s = start().await;
+    let url = format!("ws://{}/ws/telemetry", s.http);
+    let mut req = url.as_str().into_client_request().unwrap();
+    req.headers_mut()
+        .insert("origin", "https://evil.example".parse().unwrap());
+    match tokio_tungstenite::connect_async(req).await {
+        Err(tokio_tungstenite::tungstenite::Error::Http(resp)) => assert_eq!(resp.status(), 403),
+        other => panic!("expected 403, got {other:?}"),
+    }
+    let mut req = url.as_str().into_client_request().unwrap();
+    req.headers_mut()
+        .insert("origin", format!("http://{}", s.http).parse().unwrap());
+    tokio_tungstenite::connect_async(req)
+        .await
+        .expect("same origin is fine");
+    s.stop().await;
+}
