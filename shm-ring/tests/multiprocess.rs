@@ -314,4 +314,7 @@ fn killed_loop_is_noticed_its_segment_replaced_and_the_server_reattaches() {
     assert_eq!(sv.link.info().creator_pid, looper2.child.id());
     serve(&mut sv, 3000).unwrap();
     looper2.kill9();
+    // Leave nothing behind: replacing the stale segment and exiting cleanly removes it.
+    drop(Segment::create(&name, &Config::default()).unwrap());
+    assert!(!std::path::Path::new(&format!("/dev/shm{}", name.as_str())).exists());
 }
