@@ -163,3 +163,17 @@ def test_network_survives_extreme_ratio_features(trained):
     got = session(om).run(None, {"features": x.astype(np.float32)})[0][:, 0]
     assert np.isfinite(ref).all() and np.isfinite(got).all()
     np.testing.assert_allclose(got, ref, atol=1e-3)
+
+
+def test_perturb_previous_force_recomputes_ratios_and_holds_on_zero_divisors():
+    import torch
+
+    from haptics_train.models.networks import perturb_previous_force
+
+    feats = ("position_x", "f_previous_x", "f_previous_v", "f_previous")
+    x = torch.tensor([[0.01, 100.0, 20.0, 1.0], [0.0, 7.0, 5.0, 2.0]])
+    aux = torch.tensor([[1.0, 0.01, 0.05, 3.0], [2.0, 0.0, 0.4, 1.0]])  # F(t-1), x, v, a
+    out = perturb_previous_force(x, feats, aux, torch.tensor([0.5, -1.0]))
+    torch.testing.assert_close(out[0], torch.tensor([0.01, 1.5 / 0.01, 1.5 / 0.05, 1.5]))
+    # x = 0: f_previous_x keeps the recorded (held) value; v != 0: recomputed
+    torch.testing.assert_close(out[1], torch.tensor([0.0, 7.0, 1.0 / 0.4, 1.0]))

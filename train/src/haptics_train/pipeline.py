@@ -57,7 +57,7 @@ def train_models(
     models = []
     for spec in specs:
         m = parse_spec(spec, preset)
-        algo = spec.partition(":")[0]
+        algo = spec.partition(":")[0].strip().removesuffix("_fb")
         if hyper and algo in hyper:
             m.hyper.update(hyper[algo])
             if hasattr(m, "max_rows") and "max_rows" in hyper[algo]:

@@ -38,7 +38,7 @@ def _f(v: float | None, nd: int = 3) -> str:
 
 
 def _order(results: dict) -> list[str]:
-    algos = ["sd", "lr", "svr", "rf", "dnn", "lstm"]
+    algos = ["sd", "lr", "svr", "rf", "dnn", "dnn_fb", "lstm", "lstm_fb"]
     return sorted(
         results,
         key=lambda n: (algos.index(results[n]["algo"]) if results[n]["algo"] in algos else 9, n),
@@ -139,7 +139,7 @@ def _goals(results: dict) -> list[str]:
             + "."
         )
     rfs = [n for n in results if results[n]["algo"] == "rf"]
-    nets = [n for n in results if results[n]["algo"] in ("dnn", "lstm")]
+    nets = [n for n in results if results[n]["algo"] in ("dnn", "lstm", "dnn_fb", "lstm_fb")]
     if rfs and nets:
         best_rf = min(rfs, key=lambda n: rm(n, "closed_loop"))
         best_net = min(nets, key=lambda n: rm(n, "closed_loop"))

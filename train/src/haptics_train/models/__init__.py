@@ -8,7 +8,11 @@ from .networks import DNN_THESIS, LSTM_THESIS, DenseModel, LSTMModel
 from .sklearn_models import RF_THESIS, SVR_THESIS, ForestModel, LinearModel, SVRModel
 from .spring_damper import SpringDamper
 
-ALGOS = ("sd_const", "sd_poly1", "sd_poly2", "lr", "svr", "rf", "dnn", "lstm")
+ALGOS = ("sd_const", "sd_poly1", "sd_poly2", "lr", "svr", "rf", "dnn", "lstm", "dnn_fb", "lstm_fb")
+
+#: `dnn_fb` / `lstm_fb`: the same networks trained with feedback noise on the previous force
+#: (see networks.perturb_previous_force), for a closed loop that does not drift.
+FEEDBACK_NOISE_N = 1.0
 
 __all__ = ["ALGOS", "ForceModel", "TrainConfig", "make_model", "parse_spec"]
 
@@ -33,10 +37,16 @@ def make_model(
         return SVRModel(fs.features, fs.name, {**(SVR_THESIS if thesis else {}), **h})
     if algo == "rf":
         return ForestModel(fs.features, fs.name, {**(RF_THESIS if thesis else {}), **h})
-    if algo == "dnn":
-        return DenseModel(fs.features, fs.name, {**(DNN_THESIS if thesis else {}), **h})
-    if algo == "lstm":
-        return LSTMModel(fs.features, fs.name, {**(LSTM_THESIS if thesis else {}), **h})
+    if algo in ("dnn", "dnn_fb"):
+        fb = {"feedback_noise": FEEDBACK_NOISE_N} if algo == "dnn_fb" else {}
+        m = DenseModel(fs.features, fs.name, {**(DNN_THESIS if thesis else {}), **fb, **h})
+        m.algo = algo
+        return m
+    if algo in ("lstm", "lstm_fb"):
+        fb = {"feedback_noise": FEEDBACK_NOISE_N} if algo == "lstm_fb" else {}
+        m = LSTMModel(fs.features, fs.name, {**(LSTM_THESIS if thesis else {}), **fb, **h})
+        m.algo = algo
+        return m
     raise ValueError(f"unknown algorithm {algo!r} (known: {', '.join(ALGOS)})")
 
 

@@ -21,12 +21,40 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from ..data import Recording
-from ..features import RATIO_DIVISORS
+from ..features import F_PREVIOUS, PREVIOUS_FORCE_FEATURES, RATIO_DIVISORS
 from .base import ForceModel, TrainConfig, stacked
 from .torch_export import export_stateful, export_stateless
 
 #: |z / s| beyond this is clipped before asinh (asinh(1e15) = 35.2; (1e15)^2 fits float32)
 ASINH_CLIP = 1e15
+
+
+AUX = ("f_previous", "position_x", "velocity", "acceleration")
+
+
+def perturb_previous_force(
+    x: torch.Tensor, features: tuple[str, ...], aux: torch.Tensor, e: torch.Tensor
+) -> torch.Tensor:
+    """Raw features as if the previous force had been F(t-1) + e (the error a model's own
+    prediction carries in closed loop): ratios recomputed where their divisor is non-zero
+    (held otherwise), f_previous shifted. `aux` = [F(t-1), x, v, a] of the same rows."""
+    x = x.clone()
+    fp = aux[..., 0] + e
+    for j, f in enumerate(features):
+        if f == F_PREVIOUS:
+            x[..., j] = fp
+        elif f in RATIO_DIVISORS:
+            d = aux[..., 1 + ("position_x", "velocity", "acceleration").index(RATIO_DIVISORS[f])]
+            safe = torch.where(d != 0, d, torch.ones_like(d))
+            x[..., j] = torch.where(d != 0, fp / safe, x[..., j])
+    return x
+
+
+def feedback_noise(shape: tuple[int, ...], sigma: float, gen: torch.Generator) -> torch.Tensor:
+    """Errors of mixed size: sigma * N(0, 1) * U(0, 1), a quarter of them exactly zero (so the
+    measured-force case stays in the training set)."""
+    e = sigma * torch.randn(shape, generator=gen) * torch.rand(shape, generator=gen)
+    return e * (torch.rand(shape, generator=gen) > 0.25)
 
 
 class InputScaler(nn.Module):
@@ -90,6 +118,7 @@ DNN_DEFAULT = {
     "epochs": 20,
     "batch": 2048,
     "loss": "mse",
+    "feedback_noise": 0.0,
 }
 #: thesis: 150 sigmoid - dropout 0.2 - 25 tanh - dropout 0.2 - 1 sigmoid, MSE, lr 1e-6
 DNN_THESIS = {
@@ -156,10 +185,15 @@ class DenseModel(ForceModel):
     def fit(self, recs: list[Recording], cfg: TrainConfig) -> None:
         torch.manual_seed(cfg.seed)
         h = self.hyper
-        x, y = stacked(recs, self.features, cfg)
+        nf = len(self.features)
+        xa, y = stacked(recs, self.features + AUX, cfg)
+        x, aux = xa[:, :nf], xa[:, nf:]
         net = self._build(x, y)
         xt = torch.tensor(x, dtype=torch.float32)
+        auxt = torch.tensor(aux, dtype=torch.float32)
         yt = torch.tensor(net.out.encode(y), dtype=torch.float32).unsqueeze(1)
+        sigma = float(h.get("feedback_noise", 0.0))
+        noisy = sigma > 0 and any(f in PREVIOUS_FORCE_FEATURES for f in self.features)
         # Pre-scale once: the scaler is fixed, only the body learns.
         with torch.no_grad():
             zt = net.inp(xt)
@@ -182,8 +216,18 @@ class DenseModel(ForceModel):
             total = 0.0
             for i in range(0, len(y), batch):
                 idx = perm[i : i + batch]
+                if noisy:
+                    # Feedback-noise training: the previous force inside the features is
+                    # corrupted, the target is not, so the network learns to pull an erroneous
+                    # previous force back towards the truth: a contraction, which keeps its
+                    # closed loop (own predictions fed back) from drifting.
+                    with torch.no_grad():
+                        e = feedback_noise((len(idx),), sigma, gen)
+                        zb = net.inp(perturb_previous_force(xt[idx], self.features, auxt[idx], e))
+                else:
+                    zb = zt[idx]
                 opt.zero_grad()
-                loss = lossf(net.body(zt[idx]), yt[idx])
+                loss = lossf(net.body(zb), yt[idx])
                 loss.backward()
                 opt.step()
                 if sched is not None:
@@ -257,6 +301,7 @@ LSTM_DEFAULT = {
     "chunk": 50,
     "iterations": 600,
     "optimizer": "adam",
+    "feedback_noise": 0.0,
 }
 #: thesis: 100 units + dense 1, MAE loss, learning rate 1e-6
 LSTM_THESIS = {**LSTM_DEFAULT, "lr": 1e-6, "loss": "mae"}
@@ -287,7 +332,11 @@ class LSTMModel(ForceModel):
         torch.manual_seed(cfg.seed)
         rng = np.random.default_rng(cfg.seed)
         h = self.hyper
+        nf = len(self.features)
         xs, ys = stacked(recs, self.features, cfg)
+        sigma = float(h.get("feedback_noise", 0.0))
+        noisy = sigma > 0 and any(f in PREVIOUS_FORCE_FEATURES for f in self.features)
+        gen = torch.Generator().manual_seed(cfg.seed)
         net = LSTMNet(
             InputScaler(self.features, xs), int(h["hidden"]),
             TargetScaler(float(ys.mean()), float(ys.std()) or 1.0),
@@ -304,11 +353,12 @@ class LSTMModel(ForceModel):
         series = []
         with torch.no_grad():
             for r in recs:
-                x = torch.tensor(r.matrix(self.features), dtype=torch.float32)
-                y = net.out.encode(r.target(cfg.target))
-                z = net.inp(x)
-                z = torch.nan_to_num(z)
-                series.append((z, torch.tensor(y, dtype=torch.float32)))
+                x = torch.tensor(r.matrix(self.features + AUX), dtype=torch.float32)
+                y = torch.tensor(net.out.encode(r.target(cfg.target)), dtype=torch.float32)
+                if noisy:
+                    series.append((x, y))  # raw: scaled per batch after the perturbation
+                else:
+                    series.append((torch.nan_to_num(net.inp(x[:, :nf])), y))
         lengths = np.array([len(s[1]) for s in series])
         chunk, n_streams = int(h["chunk"]), int(h["streams"])
         if lengths.min() <= chunk + 1:
@@ -331,6 +381,13 @@ class LSTMModel(ForceModel):
         bar = tqdm(range(iters), desc=f"{self.name} TBPTT", disable=not cfg.progress)
         for _ in bar:
             zb = torch.stack([series[k][0][p : p + chunk] for k, p in cursors])
+            if noisy:
+                # Feedback noise, as for the dense network, but one error per stream and chunk
+                # (a closed-loop error drifts slowly rather than jumping every step).
+                with torch.no_grad():
+                    e = feedback_noise((len(cursors), 1), sigma, gen).expand(-1, chunk)
+                    xb = perturb_previous_force(zb[..., :nf], self.features, zb[..., nf:], e)
+                    zb = torch.nan_to_num(net.inp(xb))
             yb = torch.stack([series[k][1][p : p + chunk] for k, p in cursors]).unsqueeze(2)
             opt.zero_grad()
             pred, (hn, cn) = net.forward_scaled(zb, (hs, cs))
