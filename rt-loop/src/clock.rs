@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 pub struct RealtimeConfig {
     /// SCHED_FIFO priority (1-99); 0 leaves the scheduler alone.
     pub priority: i32,
-    /// Pin the loop thread to this CPU; negative: no pinning.
+    /// Pin the loop thread to this CPU; -2: the last online CPU; -1: no pinning.
     pub cpu: i32,
     /// mlockall(MCL_CURRENT | MCL_FUTURE) so no page fault stalls the loop.
     pub lock_memory: bool,
@@ -21,39 +21,74 @@ impl Default for RealtimeConfig {
     fn default() -> Self {
         RealtimeConfig {
             priority: 80,
-            cpu: -1,
+            cpu: -2,
             lock_memory: true,
         }
     }
 }
 
-/// Tries to make the calling thread real-time; returns a warning for each step that was not
-/// permitted (the run carries on without it).
-pub fn make_thread_realtime(cfg: &RealtimeConfig) -> Vec<String> {
-    let mut warnings = Vec::new();
+/// What [`make_thread_realtime`] changed, restored when dropped (the loop thread goes back to
+/// its previous scheduling, affinity and memory locking after the run).
+pub struct RealtimeGuard {
+    policy: libc::c_int,
+    param: libc::sched_param,
+    affinity: Option<libc::cpu_set_t>,
+    locked: bool,
+    sched_changed: bool,
+    /// One line per step that was not permitted (the run carries on without it).
+    pub warnings: Vec<String>,
+}
+
+fn last_cpu() -> i32 {
+    // SAFETY: sysconf has no memory effects.
+    let n = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) };
+    (n.max(1) - 1) as i32
+}
+
+/// Tries to make the calling thread real-time: mlockall, pinning to a CPU (`cpu >= 0`, or the
+/// last online CPU for `cpu == -2`), SCHED_FIFO. Each step that is not permitted becomes a
+/// warning and the run carries on.
+pub fn make_thread_realtime(cfg: &RealtimeConfig) -> RealtimeGuard {
+    let mut g = RealtimeGuard {
+        // SAFETY: plain queries of the calling thread.
+        policy: unsafe { libc::sched_getscheduler(0) },
+        param: libc::sched_param { sched_priority: 0 },
+        affinity: None,
+        locked: false,
+        sched_changed: false,
+        warnings: Vec::new(),
+    };
+    // SAFETY: valid pointer to a local sched_param.
+    unsafe { libc::sched_getparam(0, &mut g.param) };
     if cfg.lock_memory {
         // SAFETY: plain syscall without pointers.
         let r = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
-        if r != 0 {
-            warnings.push(format!(
+        if r == 0 {
+            g.locked = true;
+        } else {
+            g.warnings.push(format!(
                 "mlockall failed: {}",
                 std::io::Error::last_os_error()
             ));
         }
     }
-    if cfg.cpu >= 0 {
-        // SAFETY: cpu_set_t is plain data, zero-initialised, set through the libc macros.
-        let r = unsafe {
+    let cpu = if cfg.cpu == -2 { last_cpu() } else { cfg.cpu };
+    if cpu >= 0 {
+        // SAFETY: cpu_set_t is plain data, zero-initialised, handled through the libc macros.
+        unsafe {
+            let mut old: libc::cpu_set_t = std::mem::zeroed();
+            if libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut old) == 0 {
+                g.affinity = Some(old);
+            }
             let mut set: libc::cpu_set_t = std::mem::zeroed();
-            libc::CPU_SET(cfg.cpu as usize, &mut set);
-            libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set)
-        };
-        if r != 0 {
-            warnings.push(format!(
-                "pinning to CPU {} failed: {}",
-                cfg.cpu,
-                std::io::Error::last_os_error()
-            ));
+            libc::CPU_SET(cpu as usize, &mut set);
+            if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
+                g.affinity = None;
+                g.warnings.push(format!(
+                    "pinning to CPU {cpu} failed: {}",
+                    std::io::Error::last_os_error()
+                ));
+            }
         }
     }
     if cfg.priority > 0 {
@@ -62,15 +97,34 @@ pub fn make_thread_realtime(cfg: &RealtimeConfig) -> Vec<String> {
         };
         // SAFETY: valid pointer to a local sched_param.
         let r = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
-        if r != 0 {
-            warnings.push(format!(
+        if r == 0 {
+            g.sched_changed = true;
+        } else {
+            g.warnings.push(format!(
                 "SCHED_FIFO priority {} not permitted: {}",
                 cfg.priority,
                 std::io::Error::last_os_error()
             ));
         }
     }
-    warnings
+    g
+}
+
+impl Drop for RealtimeGuard {
+    fn drop(&mut self) {
+        // SAFETY: restoring values read from this same thread; pointers are to owned locals.
+        unsafe {
+            if self.sched_changed {
+                libc::sched_setscheduler(0, self.policy, &self.param);
+            }
+            if let Some(set) = self.affinity.as_ref() {
+                libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), set);
+            }
+            if self.locked {
+                libc::munlockall();
+            }
+        }
+    }
 }
 
 fn now_ns() -> u64 {

@@ -39,7 +39,8 @@ pub struct LoopParams {
     /// based position control as the thesis's bench runs it). Without it the PID alone has to
     /// hold the object's force through its integral term.
     pub pid_dob: bool,
-    /// Watchdog timeout armed on the board, microseconds.
+    /// Watchdog timeout armed on the board, microseconds. 100 ms by default: shared VMs stall a
+    /// process for tens of ms now and then; a dedicated real-time host can go much lower.
     pub watchdog_us: u32,
 }
 
@@ -62,7 +63,7 @@ impl Default for LoopParams {
             pid_d: 12.0,
             pid_i: 1000.0,
             pid_dob: true,
-            watchdog_us: 20_000,
+            watchdog_us: 100_000,
         }
     }
 }

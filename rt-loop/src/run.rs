@@ -187,11 +187,15 @@ pub fn run(
     let max_time = cfg.max_duration_s.unwrap_or(f64::INFINITY);
     let mut warnings = Vec::new();
     let mut clock = None;
+    // Restores the thread's scheduling, affinity and memory locking when the run ends.
+    let mut _rt_guard = None;
     if cfg.clock == ClockKind::Realtime {
-        warnings = make_thread_realtime(&cfg.realtime);
+        let g = make_thread_realtime(&cfg.realtime);
+        warnings = g.warnings.clone();
         for w in &warnings {
             eprintln!("rt-loop: warning: {w} (continuing without it)");
         }
+        _rt_guard = Some(g);
         let mut c = RealtimeClock::new(cfg.rate_hz);
         c.start();
         clock = Some(c);

@@ -236,3 +236,14 @@ fn timestamps_wrap_and_dt_stays_correct() {
     let jitter = rows[1..].iter().any(|r| r.dt != 100e-6);
     assert!(jitter, "the period jitters");
 }
+
+/// A loop slower than the board's watchdog (here: a 50 us watchdog at a 100 us period) is
+/// stopped: the board cuts the current and the loop reports it.
+#[test]
+fn watchdog_trip_stops_the_loop() {
+    let mut cfg = short_cfg(1, 2.0, 0.0);
+    cfg.params.watchdog_us = 50;
+    let (rows, stop) = run_rows(&cfg);
+    assert_eq!(stop, Stop::Watchdog);
+    assert!(rows.len() <= 1);
+}
