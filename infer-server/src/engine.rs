@@ -210,7 +210,29 @@ impl StepEngine {
         schema: &FeatureSchema,
         cfg: &SessionConfig,
     ) -> Result<Self, ModelError> {
-        let mut session = model::open_session(rt, path, cfg)?;
+        let session = model::open_session(rt, path, cfg)?;
+        Self::from_session(session, path, schema, cfg)
+    }
+
+    /// As [`StepEngine::load`], for a model held in memory (an upload); `label` stands for
+    /// its path in [`ModelInfo::path`] and in errors.
+    pub fn load_from_bytes(
+        rt: &Runtime,
+        bytes: &[u8],
+        label: &Path,
+        schema: &FeatureSchema,
+        cfg: &SessionConfig,
+    ) -> Result<Self, ModelError> {
+        let session = model::open_session_from_bytes(rt, bytes, label, cfg)?;
+        Self::from_session(session, label, schema, cfg)
+    }
+
+    fn from_session(
+        mut session: Session,
+        path: &Path,
+        schema: &FeatureSchema,
+        cfg: &SessionConfig,
+    ) -> Result<Self, ModelError> {
         let meta = model::read_metadata(&session)?;
         let input_map = model::map_features(&meta.features, schema)?;
         let sig = model::check_signature(&session, &meta)?;

@@ -54,6 +54,9 @@ pub struct Activator {
     next_generation: u64,
     active_info: Option<ModelInfo>,
     offered_info: Option<(u64, ModelInfo)>,
+    /// Retired engines collected by `offer` on the caller's behalf; `collect_retired` hands
+    /// them out first, so a registry that keeps engines gets every one of them back.
+    stashed: Vec<Box<Offered>>,
 }
 
 /// The inference thread's side.
@@ -73,6 +76,7 @@ pub fn channel() -> (Activator, Taker) {
             next_generation: 1,
             active_info: None,
             offered_info: None,
+            stashed: Vec::new(),
         },
         Taker { slots },
     )
@@ -82,7 +86,12 @@ impl Activator {
     /// Offers a validated engine; the inference thread switches to it before its next step.
     /// Returns its generation. An earlier offer not yet taken is withdrawn and dropped here.
     pub fn offer(&mut self, mut engine: StepEngine) -> u64 {
-        self.collect_retired();
+        // The slot must be empty for the thread to take the new engine; keep what was there.
+        let p = self.slots.retired.swap(ptr::null_mut(), Ordering::AcqRel);
+        if !p.is_null() {
+            // SAFETY: the inference thread put it there with Box::into_raw and forgot it.
+            self.stashed.push(unsafe { Box::from_raw(p) });
+        }
         // An engine that served before (kept by a registry) starts again from a zero state.
         engine.reset();
         let generation = self.next_generation;
@@ -99,6 +108,18 @@ impl Activator {
         generation
     }
 
+    /// Takes back an offer the inference thread has not taken yet (e.g. no loop is attached
+    /// to take it). `None` when it was taken already (or nothing was offered).
+    pub fn withdraw(&mut self) -> Option<Box<Offered>> {
+        let p = self.slots.pending.swap(ptr::null_mut(), Ordering::AcqRel);
+        if p.is_null() {
+            return None;
+        }
+        self.offered_info = None;
+        // SAFETY: published with Box::into_raw by `offer`; the swap made us its only owner.
+        Some(unsafe { Box::from_raw(p) })
+    }
+
     /// Generation of the engine the inference thread runs now (0: none).
     pub fn active_generation(&self) -> u64 {
         self.slots.active_generation.load(Ordering::Acquire)
@@ -108,6 +129,9 @@ impl Activator {
     /// activate again later). Call it now and then (every `offer` does); until it is called,
     /// the inference thread will not take a newer offer.
     pub fn collect_retired(&mut self) -> Option<Box<Offered>> {
+        if let Some(o) = self.stashed.pop() {
+            return Some(o);
+        }
         let p = self.slots.retired.swap(ptr::null_mut(), Ordering::AcqRel);
         if p.is_null() {
             return None;

@@ -10,15 +10,25 @@
 //! - [`serve`]: the inference thread over rt-loop's shared-memory segment.
 //! - [`server`]: [`server::Server`], the control side (validate, activate, revalidate, stats)
 //!   that `serve`, gRPC and the web page call.
+//! - [`attachment`]: the segment's telemetry ring, command mailbox and link, shared by the
+//!   inference thread with the rest of the server while it is attached.
+//! - [`registry`]: the model directory and the models in memory (load, activate, unload).
+//! - [`telemetry`]: the thread that drains the telemetry ring into the control plane's
+//!   broadcast, and what it learns about the loop (step, rate, phase, liveness).
+//! - [`backend`]: `control_plane::Backend` over the registry, the telemetry and the mailbox.
 
+pub mod attachment;
+pub mod backend;
 pub mod contract;
 pub mod engine;
 pub mod handoff;
 pub mod latency;
 pub mod model;
+pub mod registry;
 pub mod runtime;
 pub mod serve;
 pub mod server;
+pub mod telemetry;
 
 pub use contract::{FeatureSchema, ModelKind};
 pub use engine::{StepEngine, StepError};

@@ -1,20 +1,27 @@
 //! `infer-server`: validate models, predict from a feature table, serve a model to rt-loop.
 
 use std::io::{BufRead, Write};
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use clap::{Parser, Subcommand};
+use control_plane::{ControlError, ModelSource, Shutdown, TelemetryHub};
+use infer_server::backend::ServerBackend;
+use infer_server::registry::Registry;
 use infer_server::serve::ServeConfig;
-use infer_server::server::{MaintenanceEvent, Server};
+use infer_server::server::Server;
+use infer_server::telemetry::{LoopObserver, TelemetryThread};
 use infer_server::{FeatureSchema, ModelError, Runtime, RuntimeError, SessionConfig, StepEngine};
 use shm_ring::{SegmentName, WaitStrategy};
 
 /// Exit codes: 0 success, 1 the model (or input) was refused, 2 usage error (clap),
 /// 3 ONNX Runtime missing or unloadable.
 const EXIT_REFUSED: u8 = 1;
+const EXIT_USAGE: u8 = 2;
 const EXIT_RUNTIME: u8 = 3;
 
 #[derive(Parser)]
@@ -54,12 +61,31 @@ enum Command {
         #[arg(long, default_value = "-")]
         csv: String,
     },
-    /// Serve a model to rt-loop over its shared-memory segment until interrupted.
+    /// Serve rt-loop over its shared-memory segment, with the gRPC control plane and the web
+    /// page, until SIGINT/SIGTERM.
     Serve {
-        /// The model to serve; validated against the segment's feature schema on attach (and
-        /// again whenever a loop with another schema attaches).
+        /// The model directory (its *.onnx files are listed, loaded and activated by name).
+        /// Default: models/, or the directory of --model when that is a path.
+        #[arg(long, value_name = "DIR")]
+        models: Option<PathBuf>,
+        /// A model to activate once a loop attaches: a file name in the model directory, or a
+        /// path to a file (then the model directory defaults to that file's directory).
+        #[arg(long, value_name = "NAME|PATH")]
+        model: Option<String>,
+        /// gRPC address (haptics.v1, health, reflection).
+        #[arg(long, default_value = "127.0.0.1:50051")]
+        grpc: SocketAddr,
+        /// HTTP address (the page, /api, /ws/telemetry, /metrics).
+        #[arg(long, default_value = "127.0.0.1:8080")]
+        http: SocketAddr,
+        /// Bearer token required by mutating calls (load, activate, unload, experiments).
+        /// Default: $HAPTICS_TOKEN (empty counts as unset). Required before listening on a
+        /// non-loopback address.
         #[arg(long)]
-        model: PathBuf,
+        token: Option<String>,
+        /// Largest model upload accepted, MiB.
+        #[arg(long, default_value_t = 64)]
+        max_upload_mib: usize,
         /// rt-loop instance name: the segment is /haptics-INSTANCE.
         #[arg(long, default_value = "default", conflicts_with = "segment")]
         instance: String,
@@ -116,7 +142,12 @@ fn main() -> ExitCode {
         Command::Predict { model, csv } => predict(cli.ort_lib.as_deref(), &model, &csv),
         Command::Runtime { json } => runtime_info(cli.ort_lib.as_deref(), json),
         Command::Serve {
+            models,
             model,
+            grpc,
+            http,
+            token,
+            max_upload_mib,
             instance,
             segment,
             wait,
@@ -166,7 +197,37 @@ fn main() -> ExitCode {
                     );
                 }
             }
-            serve(cli.ort_lib.as_deref(), &model, cfg, session, stats_every)
+            let token = token
+                .or_else(|| std::env::var("HAPTICS_TOKEN").ok())
+                .filter(|t| !t.is_empty());
+            let control = control_plane::Config {
+                grpc_addr: grpc,
+                http_addr: http,
+                token,
+                max_upload_bytes: max_upload_mib.saturating_mul(1 << 20),
+                // Streams end at once on shutdown; this is for connections that hang on.
+                shutdown_grace: Duration::from_millis(1000),
+                version: env!("CARGO_PKG_VERSION").to_string(),
+                ..control_plane::Config::default()
+            };
+            let (dir, start_model) = match resolve_models(models, model) {
+                Ok(v) => v,
+                Err(msg) => {
+                    eprintln!("infer-server: {msg}");
+                    return ExitCode::from(EXIT_USAGE);
+                }
+            };
+            serve(
+                cli.ort_lib.as_deref(),
+                ServeArgs {
+                    dir,
+                    start_model,
+                    cfg,
+                    session,
+                    control,
+                    stats_every,
+                },
+            )
         }
     }
 }
@@ -185,94 +246,258 @@ extern "C" fn on_signal(_: libc::c_int) {
     STOP.store(true, Ordering::Relaxed);
 }
 
-fn serve(
-    ort_lib: Option<&Path>,
-    model: &Path,
+/// `--models` / `--model` to (model directory, name to activate).
+fn resolve_models(
+    models: Option<PathBuf>,
+    model: Option<String>,
+) -> Result<(PathBuf, Option<String>), String> {
+    let Some(model) = model else {
+        return Ok((models.unwrap_or_else(|| PathBuf::from("models")), None));
+    };
+    if !model.contains('/') {
+        return Ok((
+            models.unwrap_or_else(|| PathBuf::from("models")),
+            Some(model),
+        ));
+    }
+    let path = Path::new(&model);
+    let name = path
+        .file_name()
+        .and_then(|n| n.to_str())
+        .ok_or_else(|| format!("--model {model}: not a file path"))?
+        .to_string();
+    let parent = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    match models {
+        None => Ok((parent, Some(name))),
+        Some(dir) => {
+            let same = match (dir.canonicalize(), parent.canonicalize()) {
+                (Ok(a), Ok(b)) => a == b,
+                _ => false,
+            };
+            if same {
+                Ok((dir, Some(name)))
+            } else {
+                Err(format!(
+                    "--model {model} is not in the model directory {}: give its file name \
+                     inside --models, or leave --models out",
+                    dir.display()
+                ))
+            }
+        }
+    }
+}
+
+struct ServeArgs {
+    dir: PathBuf,
+    start_model: Option<String>,
     cfg: ServeConfig,
     session: SessionConfig,
+    control: control_plane::Config,
     stats_every: f64,
-) -> ExitCode {
+}
+
+/// The control plane's threads must never compete with the loop: if this process was started
+/// with a real-time policy, its threads would inherit it.
+fn normal_scheduling() {
+    let param = libc::sched_param { sched_priority: 0 };
+    // SAFETY: sched_setscheduler on the calling thread (pid 0) with an initialised param.
+    unsafe {
+        libc::sched_setscheduler(0, libc::SCHED_OTHER, &param);
+    }
+}
+
+fn serve(ort_lib: Option<&Path>, args: ServeArgs) -> ExitCode {
     let rt = match load_runtime(ort_lib, false) {
         Ok(rt) => rt,
         Err(code) => return code,
     };
-    // Validate once against the standard schema up front, so a broken model is refused before
-    // waiting for a loop (the real check is against the segment's schema, on attach).
-    if let Err(e) = StepEngine::load(rt, model, &FeatureSchema::standard(), &session) {
-        if !matches!(e, ModelError::MissingFeature { .. }) {
-            report_model_error(model, &e, false);
-            return ExitCode::from(EXIT_REFUSED);
-        }
+    if !args.dir.is_dir() {
+        eprintln!(
+            "infer-server: warning: the model directory {} does not exist (no models to list \
+             until it does; uploads still work)",
+            args.dir.display()
+        );
     }
     // SAFETY: installing an async-signal-safe handler (it only stores to an atomic).
     unsafe {
         libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
         libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
     }
-    let segment = cfg.segment.clone();
-    let server = match Server::start(rt, cfg, session) {
-        Ok(s) => s,
+    let segment = args.cfg.segment.clone();
+    let server = match Server::start(rt, args.cfg, args.session) {
+        Ok(s) => Arc::new(s),
         Err(e) => {
             eprintln!("infer-server: {e}");
             return ExitCode::from(EXIT_REFUSED);
         }
     };
-    eprintln!(
-        "infer-server: serving {} on {segment} (ONNX Runtime {}); waiting for rt-loop",
-        model.display(),
+    let registry = Arc::new(Registry::new(Arc::clone(&server), &args.dir));
+    let mut exit = ExitCode::SUCCESS;
+    // Load the start model up front, so a broken one is refused before waiting for a loop.
+    // Against the standard features: a model for another loop schema is retried on attach.
+    let mut pending_activation = args.start_model.clone();
+    if let Some(name) = &args.start_model {
+        match registry.load(ModelSource::Directory { name: name.clone() }) {
+            Ok(_) => {}
+            Err(ControlError::FailedPrecondition(msg)) => {
+                eprintln!("infer-server: {msg}; trying again when the loop attaches")
+            }
+            Err(e) => {
+                eprintln!("infer-server: {e}");
+                return ExitCode::from(EXIT_REFUSED);
+            }
+        }
+    }
+
+    let hub = TelemetryHub::new(1024);
+    let observer = Arc::new(LoopObserver::default());
+    let telemetry = match TelemetryThread::spawn(
+        Arc::clone(server.endpoints()),
+        hub.clone(),
+        Arc::clone(&observer),
+        Duration::from_millis(4),
+    ) {
+        Ok(t) => t,
+        Err(e) => {
+            eprintln!("infer-server: cannot start the telemetry thread: {e}");
+            return ExitCode::from(EXIT_REFUSED);
+        }
+    };
+    let backend = Arc::new(ServerBackend::new(
+        Arc::clone(&registry),
+        hub,
+        observer,
+        env!("CARGO_PKG_VERSION"),
+    ));
+
+    let runtime = match tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(args.control.worker_threads.max(1))
+        .max_blocking_threads(16)
+        .thread_name("control-plane")
+        .on_thread_start(normal_scheduling)
+        .enable_all()
+        .build()
+    {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("infer-server: cannot start the control plane's runtime: {e}");
+            return ExitCode::from(EXIT_REFUSED);
+        }
+    };
+    let shutdown = Shutdown::new();
+    let bound = match runtime.block_on(control_plane::bind(
+        args.control.clone(),
+        backend,
+        shutdown.clone(),
+    )) {
+        Ok(b) => b,
+        Err(e) => {
+            eprintln!("infer-server: {e:#}");
+            return ExitCode::from(EXIT_REFUSED);
+        }
+    };
+    // On stdout, one line, for people and for scripts that start it on port 0.
+    println!(
+        "infer-server: gRPC {} HTTP http://{} segment {segment} models {} (ONNX Runtime {})",
+        bound.grpc_addr(),
+        bound.http_addr(),
+        args.dir.display(),
         rt.version()
     );
-    let mut activated = false;
+    let _ = std::io::stdout().flush();
+    if args.control.token.is_some() {
+        eprintln!("infer-server: mutating calls need the bearer token");
+    }
+    let control_thread = std::thread::Builder::new()
+        .name("control-plane".into())
+        .spawn(move || {
+            let r = runtime.block_on(bound.run());
+            // Connection tasks still alive after the grace period are dropped here.
+            runtime.shutdown_timeout(Duration::from_millis(200));
+            r
+        });
+    let control_thread = match control_thread {
+        Ok(t) => t,
+        Err(e) => {
+            eprintln!("infer-server: cannot start the control plane's thread: {e}");
+            return ExitCode::from(EXIT_REFUSED);
+        }
+    };
+
     let mut last_report = Instant::now();
-    let mut exit = ExitCode::SUCCESS;
-    while !STOP.load(Ordering::Relaxed) && !server.is_finished() {
+    let mut attached = false;
+    while !STOP.load(Ordering::Relaxed) && !server.is_finished() && !control_thread.is_finished() {
         std::thread::sleep(Duration::from_millis(20));
-        if !activated {
-            // Activate once the segment's schema is known, so the first validation is the
-            // real one; later schema changes are handled by `maintain`.
-            if let Some(schema) = server_schema_if_attached(&server) {
-                match server.activate(model) {
+        let now_attached = server.attached();
+        if now_attached != attached {
+            attached = now_attached;
+            if attached {
+                eprintln!(
+                    "infer-server: attached to {segment}; features [{}]",
+                    server.schema().names().join(", ")
+                );
+            } else {
+                eprintln!("infer-server: the loop left {segment}; waiting for the next one");
+            }
+        }
+        if attached {
+            if let Some(name) = pending_activation.take() {
+                match registry.activate(&name, true) {
                     Ok(a) => eprintln!(
-                        "infer-server: attached to {segment}; schema [{}]; model generation {} active",
-                        schema.names().join(", "),
-                        a.generation
+                        "infer-server: {name} active (model id {}) from step {}",
+                        a.model.model_id, a.effective_step
                     ),
                     Err(e) => {
-                        report_model_error(model, &e, false);
+                        eprintln!("infer-server: {e}");
                         exit = ExitCode::from(EXIT_REFUSED);
                     }
                 }
-                activated = true;
             }
         }
-        match server.maintain() {
-            Some(MaintenanceEvent::Revalidated(a)) => eprintln!(
-                "infer-server: new loop schema [{}]; model revalidated, generation {} active",
-                a.info.schema.join(", "),
-                a.generation
-            ),
-            Some(MaintenanceEvent::RevalidationFailed { path, error }) => {
-                // The loop keeps rendering on its fallback (answers carry SCHEMA_MISMATCH).
-                report_model_error(&path, &error, false);
-                exit = ExitCode::from(EXIT_REFUSED);
-            }
-            None => {}
+        if let Some(line) = registry.maintain() {
+            eprintln!("infer-server: {line}");
         }
-        if stats_every > 0.0 && last_report.elapsed().as_secs_f64() >= stats_every {
+        if args.stats_every > 0.0 && last_report.elapsed().as_secs_f64() >= args.stats_every {
             report_stats(&server);
             last_report = Instant::now();
         }
     }
+
+    // Shut down: the control plane first (streams and WebSockets end, connections close),
+    // then the telemetry and inference threads.
+    shutdown.trigger();
+    match control_thread.join() {
+        Ok(Ok(())) => {}
+        Ok(Err(e)) => {
+            eprintln!("infer-server: control plane: {e:#}");
+            exit = ExitCode::from(EXIT_REFUSED);
+        }
+        Err(_) => {
+            eprintln!("infer-server: the control plane panicked");
+            exit = ExitCode::from(EXIT_REFUSED);
+        }
+    }
+    telemetry.stop();
     report_stats(&server);
-    if let Err(e) = server.shutdown() {
-        eprintln!("infer-server: inference thread: {e}");
-        return ExitCode::from(EXIT_REFUSED);
+    server.request_stop();
+    let deadline = Instant::now() + Duration::from_secs(2);
+    while !server.is_finished() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    drop(registry);
+    match Arc::try_unwrap(server) {
+        Ok(server) => {
+            if let Err(e) = server.shutdown() {
+                eprintln!("infer-server: inference thread: {e}");
+                return ExitCode::from(EXIT_REFUSED);
+            }
+        }
+        Err(_) => eprintln!("infer-server: shutting down with the inference thread still held"),
     }
     exit
-}
-
-fn server_schema_if_attached(server: &Server) -> Option<FeatureSchema> {
-    server.stats().attached.then(|| server.schema())
 }
 
 fn report_stats(server: &Server) {

@@ -161,6 +161,17 @@ pub fn open_session(rt: &Runtime, path: &Path, cfg: &SessionConfig) -> Result<Se
         path: path.to_path_buf(),
         reason: e.to_string(),
     })?;
+    open_session_from_bytes(rt, &bytes, path, cfg)
+}
+
+/// Opens a model held in memory (e.g. uploaded over gRPC). `label` names it in errors.
+pub fn open_session_from_bytes(
+    rt: &Runtime,
+    bytes: &[u8],
+    label: &Path,
+    cfg: &SessionConfig,
+) -> Result<Session, ModelError> {
+    let path = label;
     let session_err = |e: ort::Error<ort::session::builder::SessionBuilder>| ModelError::Session {
         reason: e.to_string(),
     };
@@ -186,7 +197,7 @@ pub fn open_session(rt: &Runtime, path: &Path, cfg: &SessionConfig) -> Result<Se
         .with_memory_pattern(true)
         .map_err(session_err)?;
     builder
-        .commit_from_memory(&bytes)
+        .commit_from_memory(bytes)
         .map_err(|e| ModelError::Corrupt {
             path: path.to_path_buf(),
             reason: e.to_string(),

@@ -21,6 +21,7 @@ use std::time::{Duration, Instant};
 
 use shm_ring::{FeatureMsg, ForceMsg, RecvError, Segment, SegmentName, WaitStrategy};
 
+use crate::attachment::{LoopEndpoints, SharedEndpoints};
 use crate::contract::{FeatureSchema, ModelKind};
 use crate::engine::StepError;
 use crate::handoff::{Offered, Taker};
@@ -166,6 +167,7 @@ pub struct InferenceThread {
     stats: Arc<ServerStats>,
     latency: LatencyReader,
     schema: Arc<Mutex<Option<FeatureSchema>>>,
+    endpoints: Arc<SharedEndpoints>,
 }
 
 impl InferenceThread {
@@ -179,6 +181,7 @@ impl InferenceThread {
         });
         let (recorder, latency) = latency::histogram();
         let schema = Arc::new(Mutex::new(None));
+        let endpoints = Arc::new(SharedEndpoints::default());
         let worker = Worker {
             cfg,
             taker,
@@ -186,6 +189,7 @@ impl InferenceThread {
             stats: Arc::clone(&stats),
             recorder,
             schema: Arc::clone(&schema),
+            endpoints: Arc::clone(&endpoints),
         };
         let handle = std::thread::Builder::new()
             .name("inference".into())
@@ -197,7 +201,13 @@ impl InferenceThread {
             stats,
             latency,
             schema,
+            endpoints,
         })
+    }
+
+    /// The telemetry ring, command mailbox and link of the current attachment.
+    pub fn endpoints(&self) -> &Arc<SharedEndpoints> {
+        &self.endpoints
     }
 
     pub fn stats(&self) -> &ServerStats {
@@ -217,6 +227,11 @@ impl InferenceThread {
 
     pub fn is_finished(&self) -> bool {
         self.handle.as_ref().is_none_or(|h| h.is_finished())
+    }
+
+    /// Asks the thread to stop without waiting (it notices within ~200 ms).
+    pub fn request_stop(&self) {
+        self.stop.store(true, Ordering::Relaxed);
     }
 
     /// Asks the thread to stop (it notices within ~100 ms) and waits for it.
@@ -259,6 +274,7 @@ struct Worker {
     stats: Arc<ServerStats>,
     recorder: LatencyRecorder,
     schema: Arc<Mutex<Option<FeatureSchema>>>,
+    endpoints: Arc<SharedEndpoints>,
 }
 
 impl Worker {
@@ -307,18 +323,32 @@ impl Worker {
         segment: Segment,
         active: &mut Option<Box<Offered>>,
     ) -> Result<bool, ServeError> {
-        let mut side = segment.server_side()?;
-        side.features_rx.set_wait_strategy(self.cfg.wait);
-        side.forces_tx.set_wait_strategy(self.cfg.wait);
-        let schema = FeatureSchema::new(side.link.feature_names())?;
+        let shm_ring::ServerSide {
+            mut features_rx,
+            mut forces_tx,
+            telemetry_rx,
+            commands_tx,
+            link,
+            skipped_on_attach,
+        } = segment.server_side()?;
+        features_rx.set_wait_strategy(self.cfg.wait);
+        forces_tx.set_wait_strategy(self.cfg.wait);
+        let schema = FeatureSchema::new(link.feature_names())?;
         let stats = Arc::clone(&self.stats);
         bump(&stats.attachments);
         stats
             .skipped_on_attach
-            .fetch_add(side.skipped_on_attach, Ordering::Relaxed);
+            .fetch_add(skipped_on_attach, Ordering::Relaxed);
         if let Ok(mut s) = self.schema.lock() {
             *s = Some(schema.clone());
         }
+        // Telemetry and commands belong to other threads; publish them for this attachment.
+        self.endpoints.publish(LoopEndpoints {
+            attachment: stats.attachments.load(Ordering::Relaxed),
+            link: link.clone(),
+            telemetry_rx: Some(telemetry_rx),
+            commands_tx,
+        });
         stats.attached.store(true, Ordering::Relaxed);
 
         let matches = |a: &Option<Box<Offered>>| {
@@ -331,10 +361,10 @@ impl Worker {
             if self.stop.load(Ordering::Relaxed) {
                 break Ok(true);
             }
-            let msg: FeatureMsg = match side.features_rx.recv_timeout(RECV_SLICE) {
+            let msg: FeatureMsg = match features_rx.recv_timeout(RECV_SLICE) {
                 Ok(m) => m,
                 Err(RecvError::Timeout) => {
-                    side.heartbeat();
+                    link.heartbeat();
                     // A model may arrive while the loop is idle (e.g. before its first step).
                     if self.taker.take(active) {
                         bump(&stats.switches);
@@ -403,7 +433,7 @@ impl Worker {
                 flags,
                 inference_ns: t0.elapsed().as_nanos() as u64,
             };
-            if side.forces_tx.send(answer).is_err() {
+            if forces_tx.send(answer).is_err() {
                 break Ok(false); // the loop's process is gone
             }
             if generation != 0 && generation != stats.effective_generation.load(Ordering::Relaxed) {
@@ -416,10 +446,11 @@ impl Worker {
             bump(&stats.answered);
             stats.last_seq.store(msg.seq, Ordering::Relaxed);
             stats.model_generation.store(generation, Ordering::Relaxed);
-            side.heartbeat();
+            link.heartbeat();
             // ---- end of real-time section ----
         };
         stats.attached.store(false, Ordering::Relaxed);
+        self.endpoints.clear();
         if let Ok(mut s) = self.schema.lock() {
             *s = None;
         }

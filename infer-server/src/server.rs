@@ -12,9 +12,10 @@ use std::sync::atomic::Ordering;
 use std::sync::Mutex;
 use std::time::Duration;
 
+use crate::attachment::SharedEndpoints;
 use crate::contract::FeatureSchema;
 use crate::engine::StepEngine;
-use crate::handoff::{self, Activator};
+use crate::handoff::{self, Activator, Offered};
 use crate::latency::LatencyReader;
 use crate::model::{ModelError, ModelInfo, SessionConfig};
 use crate::runtime::Runtime;
@@ -70,6 +71,15 @@ impl Server {
                 active: None,
             }),
         })
+    }
+
+    pub fn runtime(&self) -> &'static Runtime {
+        self.rt
+    }
+
+    /// How sessions are configured (threads, spinning, warm-up).
+    pub fn session_config(&self) -> &SessionConfig {
+        &self.session
     }
 
     /// The schema models are validated against now: the attached segment's, else the nine.
@@ -195,6 +205,51 @@ impl Server {
         }
     }
 
+    /// Takes back an engine the inference thread has replaced (a registry keeps it loaded);
+    /// `None` when none is waiting. Until it is collected the thread takes no newer offer.
+    pub fn collect_retired(&self) -> Option<Box<Offered>> {
+        let mut control = self.control.lock().unwrap_or_else(|p| p.into_inner());
+        control.activator.collect_retired()
+    }
+
+    /// Takes back the pending offer of `generation` if the inference thread has not taken it
+    /// (no loop attached), and makes `previous` the active model again. `None`: it was taken
+    /// (or another offer replaced it) and nothing changed.
+    pub fn withdraw(&self, generation: u64, previous: Option<ActiveModel>) -> Option<Box<Offered>> {
+        let mut control = self.control.lock().unwrap_or_else(|p| p.into_inner());
+        if control.active.as_ref().map(|a| a.generation) != Some(generation) {
+            return None;
+        }
+        let offered = control.activator.withdraw()?;
+        if offered.generation != generation {
+            // Not ours (cannot happen while activations are serialised): put nothing back.
+            return Some(offered);
+        }
+        control.active = previous;
+        Some(offered)
+    }
+
+    /// Generation of the engine the inference thread has taken (0: none).
+    pub fn running_generation(&self) -> u64 {
+        let control = self.control.lock().unwrap_or_else(|p| p.into_inner());
+        control.activator.active_generation()
+    }
+
+    /// Whether the inference thread is attached to a loop's segment now.
+    pub fn attached(&self) -> bool {
+        self.thread.stats().attached.load(Ordering::Relaxed)
+    }
+
+    /// The telemetry ring, command mailbox and link of the current attachment.
+    pub fn endpoints(&self) -> &std::sync::Arc<SharedEndpoints> {
+        self.thread.endpoints()
+    }
+
+    /// The inference thread's counters, read in place (cheap: no snapshot of all of them).
+    pub fn counters(&self) -> &crate::serve::ServerStats {
+        self.thread.stats()
+    }
+
     pub fn stats(&self) -> StatsSnapshot {
         self.thread.stats().snapshot()
     }
@@ -207,6 +262,12 @@ impl Server {
     /// Whether the inference thread has ended (only with `exit_when_loop_gone`, or on an error).
     pub fn is_finished(&self) -> bool {
         self.thread.is_finished()
+    }
+
+    /// Asks the inference thread to stop, without waiting ([`Server::is_finished`] tells when
+    /// it has; for a `Server` shared in an `Arc`).
+    pub fn request_stop(&self) {
+        self.thread.request_stop();
     }
 
     /// Stops the inference thread (or collects its end) and reports how it ended.

@@ -184,6 +184,10 @@ fn serve_answers_a_loop_over_shared_memory_and_exits_when_it_leaves() {
             "--exit-when-loop-gone",
             "--stats-every",
             "0",
+            "--grpc",
+            "127.0.0.1:0",
+            "--http",
+            "127.0.0.1:0",
         ])
         .args(["--segment", name.as_str(), "--model"])
         .arg(&path)
@@ -253,6 +257,9 @@ fn serve_answers_a_loop_over_shared_memory_and_exits_when_it_leaves() {
         .read_to_string(&mut stderr)
         .unwrap();
     assert!(status.success(), "{status}: {stderr}");
-    assert!(stderr.contains("model generation 1 active"), "{stderr}");
+    assert!(
+        stderr.contains("linear.onnx active (model id 1)"),
+        "{stderr}"
+    );
     assert!(stderr.contains(&format!("answered {seq}")), "{stderr}");
 }

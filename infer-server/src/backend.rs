@@ -1,0 +1,292 @@
+//! `control_plane::Backend` for infer-server: the model registry, the status read from the
+//! segment, the inference thread's counters and the telemetry thread, and experiments posted
+//! into the segment's command mailbox.
+//!
+//! Every method runs on the control plane's blocking pool. `status` reads atomics and one
+//! histogram snapshot only (it never waits on the loop or on a registry operation).
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use control_plane::{
+    Activation, Backend, ControlError, ExperimentRequest, ExperimentStatus, Latency, LoopStatus,
+    ModelInfo, ModelSource, ServerStatus, StatusSnapshot, TelemetryBatch, TelemetryHub,
+};
+use shm_ring::{Command, CommandKind, FixedStr, SendError, COMMAND_VALUES};
+
+use crate::latency::LatencySnapshot;
+use crate::registry::Registry;
+use crate::telemetry::{LoopObserver, PHASE_DONE, PHASE_NAMES};
+
+/// How long a posted start counts as running before the loop's telemetry confirms it.
+const START_GRACE: Duration = Duration::from_millis(1500);
+
+/// The experiment this server last asked the loop to start.
+#[derive(Debug, Clone)]
+struct Requested {
+    kind: &'static str,
+    at: Instant,
+    attachment: u64,
+    /// Rows received when it was posted: later rows show whether the loop runs it.
+    rows_then: u64,
+}
+
+pub struct ServerBackend {
+    registry: Arc<Registry>,
+    hub: TelemetryHub,
+    observer: Arc<LoopObserver>,
+    started: Instant,
+    version: String,
+    requested: Mutex<Option<Requested>>,
+    next_command_id: AtomicU64,
+}
+
+/// Encodes an experiment request as a mailbox command: `name` = the kind
+/// (`abstraction`, `reproduction`, `shadow`, `position-replay`), `values` = `[ramp_rate N/s,
+/// cycles, f_max_start N, f_max_step N]`, NaN where the loop's default applies.
+pub fn start_command(id: u64, request: &ExperimentRequest) -> Command {
+    let mut values = [f64::NAN; COMMAND_VALUES];
+    values[0] = request.ramp_rate.unwrap_or(f64::NAN);
+    values[1] = request.cycles.map_or(f64::NAN, f64::from);
+    values[2] = request.f_max_start.unwrap_or(f64::NAN);
+    values[3] = request.f_max_step.unwrap_or(f64::NAN);
+    Command {
+        id,
+        kind: CommandKind::StartExperiment,
+        name: FixedStr::new(request.kind.as_str()).expect("experiment kinds are short"),
+        values,
+    }
+}
+
+/// The stop command: empty name, NaN values.
+pub fn stop_command(id: u64) -> Command {
+    Command {
+        id,
+        kind: CommandKind::StopExperiment,
+        name: FixedStr::new("").expect("empty"),
+        values: [f64::NAN; COMMAND_VALUES],
+    }
+}
+
+fn latency_of(s: &LatencySnapshot) -> Latency {
+    let us = |ns: u64| ns as f64 / 1000.0;
+    if s.count == 0 {
+        return Latency::default();
+    }
+    Latency {
+        p50_us: us(s.quantile(0.5)),
+        p99_us: us(s.quantile(0.99)),
+        p999_us: us(s.quantile(0.999)),
+        max_us: us(s.max),
+        count: s.count,
+    }
+}
+
+impl ServerBackend {
+    pub fn new(
+        registry: Arc<Registry>,
+        hub: TelemetryHub,
+        observer: Arc<LoopObserver>,
+        version: impl Into<String>,
+    ) -> Self {
+        Self {
+            registry,
+            hub,
+            observer,
+            started: Instant::now(),
+            version: version.into(),
+            requested: Mutex::new(None),
+            next_command_id: AtomicU64::new(1),
+        }
+    }
+
+    pub fn registry(&self) -> &Arc<Registry> {
+        &self.registry
+    }
+
+    fn attachment(&self) -> u64 {
+        self.registry.server().endpoints().current()
+    }
+
+    /// The experiment as the loop's telemetry (and our last request) shows it.
+    fn experiment(&self, attachment: u64, alive: bool) -> ExperimentStatus {
+        let idle = ExperimentStatus {
+            kind: "idle".into(),
+            ..Default::default()
+        };
+        if !alive {
+            return idle;
+        }
+        let o = &self.observer;
+        let phase = o.phase.load(Ordering::Relaxed) as u8;
+        let rows = o.rows.load(Ordering::Relaxed);
+        let flowing = o
+            .since_last_row()
+            .is_some_and(|d| d < Duration::from_millis(500));
+        let requested = {
+            let mut guard = self.requested.lock().unwrap_or_else(|p| p.into_inner());
+            // A request is over once the loop's rows after it show it finished or stopped.
+            let over = guard.as_ref().is_some_and(|r| {
+                r.attachment != attachment
+                    || (rows > r.rows_then && (phase == PHASE_DONE || !flowing))
+                    || (rows == r.rows_then && r.at.elapsed() >= START_GRACE)
+            });
+            if over {
+                *guard = None;
+            }
+            guard.clone()
+        };
+        // Rows since our request tell; before the first one, the request counts for a while.
+        let pending = requested
+            .as_ref()
+            .is_some_and(|r| rows == r.rows_then && r.at.elapsed() < START_GRACE);
+        let running = pending || (flowing && phase != PHASE_DONE);
+        if !running {
+            return idle;
+        }
+        let kind = match (&requested, phase) {
+            (Some(r), _) => r.kind,
+            (None, 4) => "position-replay",
+            (None, 5) => "reproduction",
+            (None, _) => "abstraction",
+        };
+        ExperimentStatus {
+            kind: kind.into(),
+            running: true,
+            cycle: if pending {
+                0
+            } else {
+                o.cycle.load(Ordering::Relaxed)
+            },
+            phase: if pending {
+                "starting".into()
+            } else {
+                PHASE_NAMES
+                    .get(usize::from(phase))
+                    .copied()
+                    .unwrap_or("unknown")
+                    .into()
+            },
+        }
+    }
+
+    fn post(&self, command: Command) -> Result<(), ControlError> {
+        let mut guard = self.registry.server().endpoints().lock();
+        let Some(ep) = guard.as_mut() else {
+            return Err(ControlError::FailedPrecondition(
+                "no loop is attached (is rt-loop running?)".into(),
+            ));
+        };
+        match ep.commands_tx.try_send(command) {
+            Ok(()) => Ok(()),
+            Err(SendError::Full(_)) | Err(SendError::Timeout(_)) => Err(ControlError::Unavailable(
+                "the loop's command mailbox is full: the loop is not reading its commands".into(),
+            )),
+            Err(SendError::PeerGone(_)) => Err(ControlError::FailedPrecondition(
+                "the loop has gone away".into(),
+            )),
+        }
+    }
+}
+
+impl Backend for ServerBackend {
+    fn list_models(&self) -> Result<Vec<ModelInfo>, ControlError> {
+        self.registry.list()
+    }
+
+    fn load_model(&self, source: ModelSource) -> Result<ModelInfo, ControlError> {
+        self.registry.load(source)
+    }
+
+    fn activate_model(&self, name: &str, load_if_needed: bool) -> Result<Activation, ControlError> {
+        self.registry.activate(name, load_if_needed)
+    }
+
+    fn unload_model(&self, name: &str) -> Result<(), ControlError> {
+        self.registry.unload(name)
+    }
+
+    fn active_model(&self) -> Option<ModelInfo> {
+        self.registry.active()
+    }
+
+    fn status(&self) -> StatusSnapshot {
+        let server = self.registry.server();
+        let counters = server.counters();
+        let attachment = self.attachment();
+        let alive = self.observer.alive(attachment);
+        let o = &self.observer;
+        let rows = o.rows.load(Ordering::Relaxed);
+        let step = if rows > 0 {
+            o.last_step.load(Ordering::Relaxed)
+        } else {
+            counters.last_seq.load(Ordering::Relaxed)
+        };
+        StatusSnapshot {
+            loop_status: LoopStatus {
+                alive,
+                // Not published by the loop in the segment (see docs/infer-server.md).
+                clock: String::new(),
+                board: String::new(),
+                rate_hz: if alive { o.rate_hz() } else { 0.0 },
+                step,
+                fallbacks: o.fallbacks.load(Ordering::Relaxed),
+                deadline_misses: 0,
+                scheduling: String::new(),
+                recorder: String::new(),
+                telemetry_drops: o.dropped.load(Ordering::Relaxed),
+                experiment: self.experiment(attachment, alive),
+                round_trip_latency: Latency::default(),
+            },
+            server: ServerStatus {
+                inference_latency: latency_of(&server.latency().snapshot()),
+                predictions: counters.predicted.load(Ordering::Relaxed),
+                uptime_s: self.started.elapsed().as_secs_f64(),
+                version: self.version.clone(),
+            },
+            active_model: self.registry.active(),
+        }
+    }
+
+    fn start_experiment(&self, request: &ExperimentRequest) -> Result<(), ControlError> {
+        let attachment = self.attachment();
+        if attachment == 0 || !self.observer.alive(attachment) {
+            return Err(ControlError::FailedPrecondition(
+                "no loop is attached (is rt-loop running?)".into(),
+            ));
+        }
+        let current = self.experiment(attachment, true);
+        if current.running {
+            return Err(ControlError::FailedPrecondition(format!(
+                "an experiment is already running ({}): stop it first",
+                current.kind
+            )));
+        }
+        let id = self.next_command_id.fetch_add(1, Ordering::Relaxed);
+        self.post(start_command(id, request))?;
+        *self.requested.lock().unwrap_or_else(|p| p.into_inner()) = Some(Requested {
+            kind: request.kind.as_str(),
+            at: Instant::now(),
+            attachment,
+            rows_then: self.observer.rows.load(Ordering::Relaxed),
+        });
+        Ok(())
+    }
+
+    fn stop_experiment(&self) -> Result<(), ControlError> {
+        if self.attachment() == 0 {
+            return Err(ControlError::FailedPrecondition(
+                "no loop is attached (is rt-loop running?)".into(),
+            ));
+        }
+        let id = self.next_command_id.fetch_add(1, Ordering::Relaxed);
+        self.post(stop_command(id))?;
+        *self.requested.lock().unwrap_or_else(|p| p.into_inner()) = None;
+        Ok(())
+    }
+
+    fn subscribe_telemetry(&self) -> tokio::sync::broadcast::Receiver<TelemetryBatch> {
+        self.hub.subscribe()
+    }
+}
