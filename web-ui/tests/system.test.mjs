@@ -4,12 +4,14 @@
 //
 // Until infer-server serves the web side, this test SKIPS with a loud message. It decides that
 // from the server's sources: once infer-server depends on control-plane (or its source mentions
-// "/api/status"), a server that does not answer there is a hard failure, not a skip.
+// "/api/status"), a server that does not answer there is a hard failure, not a skip. It also
+// skips, loudly, while rt-loop has no `serve` subcommand (no loop to attach to yet).
 //
 // Command lines (placeholders {http} {grpc} {models} {instance} {bin} {tmp} are filled in;
 // whitespace-split; {instance} is unique to this run so a developer's own loop is not touched):
-//   HAPTICS_RT_LOOP_ARGS        default: serve --clock realtime --rate-hz 10000 --instance {instance}
+//   HAPTICS_RT_LOOP_ARGS        default: serve --clock realtime --rate-hz 10000 --board sim --instance {instance}
 //   HAPTICS_INFER_SERVER_ARGS   default: serve --models {models} --instance {instance} --grpc {grpc} --http {http}
+//   (by default each flag is passed only when `serve --help` lists it; see RT_LOOP_SERVE)
 //   HAPTICS_HAPTICCTL_ARGS      default: --addr http://{grpc} --json status
 //   HAPTICS_MODELS_DIR          default: fixture models written by
 //                               infer-server/tests/fixtures/make_models.py with .venv's python,
@@ -26,8 +28,10 @@ import { fileURLToPath } from "node:url";
 import { enclosedArea, finite, hook, measureFrames, openBrowser, sleep, waitFor } from "./harness.mjs";
 
 // How the processes are started: the one place to change when their command lines change.
-const DEFAULT_RT_LOOP_ARGS = "serve --clock realtime --rate-hz 10000 --instance {instance}";
-const DEFAULT_INFER_SERVER_ARGS = "serve --models {models} --instance {instance} --grpc {grpc} --http {http}";
+// Each flag is passed only when the program's `serve --help` lists it, so a flag that does not
+// exist (yet) is left out rather than failing the run; $HAPTICS_*_ARGS replace the whole line.
+const RT_LOOP_SERVE = [["--clock", "realtime"], ["--rate-hz", "10000"], ["--board", "sim"], ["--instance", "{instance}"]];
+const INFER_SERVER_SERVE = [["--models", "{models}"], ["--instance", "{instance}"], ["--grpc", "{grpc}"], ["--http", "{http}"]];
 const DEFAULT_HAPTICCTL_ARGS = "--addr http://{grpc} --json status";
 
 const here = dirname(fileURLToPath(import.meta.url));
@@ -62,8 +66,20 @@ function loudSkip(t, why) {
   if (shouted) return;
   shouted = true;
   const bar = "!".repeat(100);
-  const msg = `${bar}\n!! SYSTEM BROWSER TEST SKIPPED: ${why}\n!! Only the page-only test (tests/page.fake.test.mjs, fake server) ran. This becomes a hard failure\n!! as soon as infer-server depends on control-plane (or mentions "/api/status").\n${bar}`;
+  const msg = `${bar}\n!! SYSTEM BROWSER TEST SKIPPED: ${why}\n!! Only the page-only test (tests/page.fake.test.mjs, fake server) ran. It runs, and must pass, once\n!! rt-loop has \`serve\` and infer-server depends on control-plane (then a server that does not answer fails it).\n${bar}`;
   console.log(msg);
+}
+
+/** `NAME serve --help`: whether the subcommand exists, and its text (to see which flags it has). */
+function serveHelp(name) {
+  const r = spawnSync(bin(name), ["serve", "--help"], { encoding: "utf8", timeout: 10000 });
+  return { ok: r.status === 0, text: `${r.stdout ?? ""}${r.stderr ?? ""}` };
+}
+
+/** "serve" and the wanted flags its help lists, as one argument string with placeholders. */
+function serveArgs(helpText, wanted) {
+  const has = (flag) => new RegExp(`(^|[\\s,])${flag}([\\s=,<]|$)`, "m").test(helpText);
+  return ["serve", ...wanted.filter(([f]) => has(f)).flat()].join(" ");
 }
 
 async function freePort() {
@@ -150,10 +166,33 @@ describe("page against the real rt-loop and infer-server", () => {
     ctx.models = modelsDir(ctx.tmp);
     const vars = { http: `127.0.0.1:${ctx.http}`, grpc: `127.0.0.1:${ctx.grpc}`, models: ctx.models, bin: binDir, tmp: ctx.tmp, instance: `webtest-${process.pid}` };
     ctx.vars = vars;
-    ctx.rtArgs = fill(process.env.HAPTICS_RT_LOOP_ARGS ?? DEFAULT_RT_LOOP_ARGS, vars);
+    let rtLine = process.env.HAPTICS_RT_LOOP_ARGS;
+    if (!rtLine) {
+      const h = serveHelp("rt-loop");
+      if (!h.ok) {
+        // The loop side of the integration does not exist yet: nothing real to test against.
+        skipWhy = `${bin("rt-loop")} has no \`serve\` subcommand yet (rt-loop serve --help: ${h.text.trim().split("\n")[0]})`;
+        return;
+      }
+      rtLine = serveArgs(h.text, RT_LOOP_SERVE);
+    }
+    let serverLine = process.env.HAPTICS_INFER_SERVER_ARGS;
+    if (!serverLine) {
+      const h = serveHelp("infer-server");
+      if (!h.ok || !/--http\b/.test(h.text)) {
+        const why = `${bin("infer-server")} serve has no --http option: it does not serve the web side yet`;
+        if (claims) throw new Error(`${why} (but infer-server depends on control-plane: rebuild it, cargo build --release -p infer-server)`);
+        skipWhy = why;
+        return;
+      }
+      serverLine = serveArgs(h.text, INFER_SERVER_SERVE);
+    }
+    ctx.rtArgs = fill(rtLine, vars);
     ctx.loop = start("rt-loop", bin("rt-loop"), ctx.rtArgs);
     await sleep(500);
-    ctx.server = start("infer-server", bin("infer-server"), fill(process.env.HAPTICS_INFER_SERVER_ARGS ?? DEFAULT_INFER_SERVER_ARGS, vars));
+    ctx.serverArgs = fill(serverLine, vars);
+    console.log(`system test: ${bin("rt-loop")} ${ctx.rtArgs.join(" ")}\nsystem test: ${bin("infer-server")} ${ctx.serverArgs.join(" ")}`);
+    ctx.server = start("infer-server", bin("infer-server"), ctx.serverArgs);
     ctx.url = `http://127.0.0.1:${ctx.http}`;
     try {
       await waitFor(
@@ -242,7 +281,9 @@ describe("page against the real rt-loop and infer-server", () => {
     console.log(`real force-depth loop: depth ${xr.toFixed(2)} mm, force ${yr.toFixed(2)} N, enclosed ${area.toFixed(2)} N·mm (${((100 * area) / (xr * yr)).toFixed(1)} % of its box)`);
     assert.ok(yr > 3, `force swept the ramp: ${yr} N`);
     assert.ok(xr > 1, `the sponge was compressed: ${xr} mm`);
-    assert.ok(area > 0.03 * xr * yr, `hysteresis loop encloses ${area} N·mm of ${xr * yr}`);
+    // rt-loop's sponge encloses 30-50 % of the box (docs/figures/train_1.8-force-depth.png); a
+    // path without hysteresis (up and back the same way, plus noise and spikes) stays under 5 %.
+    assert.ok(area > 0.1 * xr * yr, `hysteresis loop encloses ${area} N·mm of ${xr * yr}`);
   });
 
   it("swapping the model from the page changes the active model (also for hapticctl)", async () => {
