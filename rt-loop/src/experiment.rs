@@ -323,6 +323,13 @@ impl Experiment {
         }
     }
 
+    /// Prepares the experiment for its first step (off the real-time path).
+    pub fn begin(&mut self) {
+        if let Experiment::Reproduction { model, .. } = self {
+            model.begin_run();
+        }
+    }
+
     pub fn model_stats(&self) -> Option<ModelStats> {
         match self {
             Experiment::Reproduction { stats, .. } => Some(*stats),

@@ -18,6 +18,10 @@ use serde::{Deserialize, Serialize};
 pub trait ForceModel: Send {
     /// Short name for the run metadata and the summary.
     fn name(&self) -> &str;
+    /// Called once before the run's first step, off the real-time path: a shared-memory client
+    /// can wait for its server here and mark the next message as a run start (the step
+    /// counter passed to `predict` restarts at 0 with every run).
+    fn begin_run(&mut self) {}
     /// Predicted reaction force (N, positive = the virtual object pushes back) for step
     /// `step` from its features; `None` when no prediction is available in time.
     fn predict(&mut self, step: u64, features: &Features) -> Option<f64>;

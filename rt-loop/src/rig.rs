@@ -43,9 +43,10 @@ impl<B: Board> Rig<B> {
     pub fn new(
         mut board: B,
         params: LoopParams,
-        experiment: Experiment,
+        mut experiment: Experiment,
         feature_params: FeatureParams,
     ) -> Self {
+        experiment.begin();
         board.write_dac(32768);
         board.arm_watchdog(params.watchdog_us);
         Rig {

@@ -131,10 +131,13 @@ fn reproduction_renders_the_model_and_shadow_compares() {
 /// counted; the loop keeps rendering.
 #[test]
 fn bad_predictions_fall_back() {
-    struct Flaky;
+    struct Flaky(std::sync::Arc<std::sync::atomic::AtomicU32>);
     impl rt_loop::model::ForceModel for Flaky {
         fn name(&self) -> &str {
             "flaky"
+        }
+        fn begin_run(&mut self) {
+            self.0.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
         }
         fn predict(&mut self, step: u64, f: &rt_loop::features::Features) -> Option<f64> {
             match step % 4 {
@@ -148,7 +151,13 @@ fn bad_predictions_fall_back() {
     let mut cfg = common::short_cfg(1, 1.0, 0.0);
     cfg.experiment = ExperimentKind::Reproduction;
     cfg.hand.repeats = 1;
-    let mut rig = rt_loop::run::build_rig(&cfg, Some(Box::new(Flaky))).unwrap();
+    let begun = std::sync::Arc::new(std::sync::atomic::AtomicU32::new(0));
+    let mut rig = rt_loop::run::build_rig(&cfg, Some(Box::new(Flaky(begun.clone())))).unwrap();
+    assert_eq!(
+        begun.load(std::sync::atomic::Ordering::SeqCst),
+        1,
+        "begin_run before the run"
+    );
     let mut n = 0u64;
     let mut fb = 0u64;
     while let Ok(r) = rig.step() {
