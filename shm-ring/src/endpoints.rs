@@ -74,6 +74,15 @@ impl ServerSide {
         let link = Link { shared };
         let mut features_rx = Consumer::new(link.ring(Channel::Features), link.probe());
         let skipped_on_attach = features_rx.skip_pending();
+        // A previous server that died while parked left its waiter registrations behind; the
+        // loop would then pay for a FUTEX_WAKE on every step. We are the only server now
+        // (we hold the server lock) and not parked yet, so they can only be stale.
+        for channel in [Channel::Features, Channel::Telemetry] {
+            crate::spsc::clear_data_waiters(&link.ring(channel));
+        }
+        for channel in [Channel::Forces, Channel::Commands] {
+            crate::spsc::clear_space_waiters(&link.ring(channel));
+        }
         ServerSide {
             features_rx,
             forces_tx: Producer::new(link.ring(Channel::Forces), link.probe()),

@@ -143,6 +143,20 @@ pub fn heap_channel<M: Message>(capacity: usize) -> (Producer<M>, Consumer<M>) {
     (Producer::new(mem), Consumer::new(twin))
 }
 
+/// Forgets consumer waiters that a dead process left registered on a ring's "data" signal
+/// (it died parked), so the producer's `notify` stops paying for a futex wake on every push.
+/// Only valid while no live consumer can be parked: called when a new consumer attaches.
+#[cfg(not(loom))]
+pub(crate) fn clear_data_waiters(mem: &RingMem) {
+    mem.ctrl().data.0.waiters.store(0, Ordering::Relaxed);
+}
+
+/// As [`clear_data_waiters`], for a dead producer parked on the "space" signal.
+#[cfg(not(loom))]
+pub(crate) fn clear_space_waiters(mem: &RingMem) {
+    mem.ctrl().space.0.waiters.store(0, Ordering::Relaxed);
+}
+
 fn mem_twin(mem: &RingMem) -> RingMem {
     mem.twin()
 }
