@@ -58,6 +58,11 @@ def _train_opts(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dnn-epochs", type=int)
     p.add_argument("--lstm-iterations", type=int)
     p.add_argument(
+        "--feedback-noise",
+        type=float,
+        help="N, scale of the previous-force error dnn_fb/lstm_fb train with (default 1.0)",
+    )
+    p.add_argument(
         "--threads",
         type=int,
         default=1,
@@ -68,6 +73,7 @@ def _train_opts(p: argparse.ArgumentParser) -> None:
 
 def _hyper(a: argparse.Namespace) -> dict[str, dict]:
     h: dict[str, dict] = {"rf": {}, "svr": {}, "dnn": {}, "lstm": {}}
+    # (dnn_fb / lstm_fb also take the dnn / lstm entries)
     if a.rf_trees:
         h["rf"]["n_estimators"] = a.rf_trees
     if a.rf_depth:
@@ -78,6 +84,9 @@ def _hyper(a: argparse.Namespace) -> dict[str, dict]:
         h["dnn"]["epochs"] = a.dnn_epochs
     if a.lstm_iterations:
         h["lstm"]["iterations"] = a.lstm_iterations
+    if a.feedback_noise is not None:
+        h["dnn_fb"] = {"feedback_noise": a.feedback_noise}
+        h["lstm_fb"] = {"feedback_noise": a.feedback_noise}
     return {k: v for k, v in h.items() if v}
 
 

@@ -27,21 +27,26 @@ from .models import ForceModel, TrainConfig, parse_spec
 #: The pipeline's default comparison: Table 6.2 baselines, Table 6.15 algorithms on the six
 #: features, Table 6.10 ablation, and the better-conditioned/memory alternatives.
 DEFAULT_SPECS: tuple[str, ...] = (
+    # Table 6.2 baselines
     "sd_const",
     "sd_poly1",
     "sd_poly2",
+    # Table 6.15: the algorithms on the six features
     "lr:six",
     "svr:six",
     "rf:six",
     "dnn:six",
     "lstm:six",
+    # Table 6.10 ablation (+ kinematics only, memory features, the previous force itself)
     "rf:x",
     "rf:x_v",
-    "rf:xva_f",
-    "dnn:xva_f",
+    "rf:xva",
     "rf:memory",
-    "dnn:memory",
-    "lstm:memory",
+    "rf:xva_f",
+    # networks: kinematics only, and trained with feedback noise for the closed loop
+    "dnn:xva",
+    "dnn_fb:six",
+    "lstm_fb:six",
 )
 
 
@@ -57,11 +62,12 @@ def train_models(
     models = []
     for spec in specs:
         m = parse_spec(spec, preset)
-        algo = spec.partition(":")[0].strip().removesuffix("_fb")
-        if hyper and algo in hyper:
-            m.hyper.update(hyper[algo])
-            if hasattr(m, "max_rows") and "max_rows" in hyper[algo]:
-                m.max_rows = hyper[algo]["max_rows"]  # type: ignore[attr-defined]
+        algo = spec.partition(":")[0].strip()
+        for key in (algo.removesuffix("_fb"), algo) if algo.endswith("_fb") else (algo,):
+            if hyper and key in hyper:
+                m.hyper.update(hyper[key])
+                if hasattr(m, "max_rows") and "max_rows" in hyper[key]:
+                    m.max_rows = hyper[key]["max_rows"]  # type: ignore[attr-defined]
         t0 = time.perf_counter()
         print(f"[train] {m.name} on {len(dataset.train)} recordings ...", flush=True)
         try:
