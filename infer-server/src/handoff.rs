@@ -56,6 +56,7 @@ pub struct Activator {
     offered_info: Option<(u64, ModelInfo)>,
     /// Retired engines collected by `offer` on the caller's behalf; `collect_retired` hands
     /// them out first, so a registry that keeps engines gets every one of them back.
+    #[allow(clippy::vec_box)] // handed out as the boxes they came in
     stashed: Vec<Box<Offered>>,
 }
 

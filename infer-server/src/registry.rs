@@ -292,6 +292,11 @@ impl Registry {
         let _ops = self.lock_ops();
         self.collect_returned();
         validate_model_name(name)?;
+        if !self.server.attached() {
+            return Err(ControlError::FailedPrecondition(format!(
+                "no loop is attached to take {name} (is rt-loop running?); nothing changed"
+            )));
+        }
         let schema = self.server.schema();
         // An engine validated for this schema, or a fresh one.
         let ready = {

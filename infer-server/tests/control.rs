@@ -1,0 +1,904 @@
+//! `infer-server serve` as a real process, driven over real gRPC (the generated client of
+//! `control_plane::pb`) while this test plays rt-loop on a real shared-memory segment: it
+//! creates the segment, sends features and reads forces on its own thread, writes telemetry
+//! rows, heartbeats, and reads the command mailbox.
+
+mod common;
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use control_plane::pb;
+use control_plane::pb::loop_service_client::LoopServiceClient;
+use control_plane::pb::model_service_client::ModelServiceClient;
+use shm_ring::{
+    CommandKind, Config, FeatureMsg, LoopSide, Segment, SegmentName, TelemetryRow, WaitStrategy,
+    MAX_FEATURES,
+};
+use tonic::transport::Channel;
+use tonic::Code;
+
+/// The loop's schema in these tests: a subset of the nine, so a model that wants
+/// `deformation` does not fit it.
+const SCHEMA: [&str; 4] = ["position_x", "velocity", "acceleration", "f_previous_x"];
+
+fn segment_name(tag: &str) -> SegmentName {
+    SegmentName::new(&format!("/infer-server-ctl-{tag}-{}", std::process::id())).unwrap()
+}
+
+fn loop_config() -> Config {
+    Config {
+        feature_names: SCHEMA.iter().map(|s| s.to_string()).collect(),
+        ..Config::default()
+    }
+}
+
+/// A model directory with copies of the named fixtures.
+fn models_dir(tag: &str, fixtures: &Path, names: &[&str]) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("ctl-models-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    for n in names {
+        std::fs::copy(
+            fixtures.join(format!("{n}.onnx")),
+            dir.join(format!("{n}.onnx")),
+        )
+        .unwrap();
+    }
+    dir
+}
+
+struct ServerProcess {
+    child: Child,
+    grpc: String,
+    http: String,
+    stderr: PathBuf,
+}
+
+impl ServerProcess {
+    fn start(tag: &str, dir: &Path, segment: &SegmentName, extra: &[&str]) -> Self {
+        let stderr = Path::new(env!("CARGO_TARGET_TMPDIR"))
+            .join(format!("ctl-{tag}-{}.stderr", std::process::id()));
+        let mut child = Command::new(env!("CARGO_BIN_EXE_infer-server"))
+            .args(["serve", "--wait", "park", "--stats-every", "0"])
+            .args(["--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0"])
+            .arg("--models")
+            .arg(dir)
+            .args(["--segment", segment.as_str()])
+            .args(extra)
+            .env_remove("HAPTICS_TOKEN")
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&stderr).unwrap())
+            .spawn()
+            .unwrap();
+        // "infer-server: gRPC ADDR HTTP http://ADDR segment ..." on stdout, once bound.
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let words: Vec<&str> = line.split_whitespace().collect();
+        let at = |key: &str| {
+            let i = words
+                .iter()
+                .position(|w| *w == key)
+                .unwrap_or_else(|| panic!("no {key} in {line:?}: {}", read(&stderr)));
+            words[i + 1].to_string()
+        };
+        let grpc = format!("http://{}", at("gRPC"));
+        let http = at("HTTP").trim_start_matches("http://").to_string();
+        Self {
+            child,
+            grpc,
+            http,
+            stderr,
+        }
+    }
+
+    fn stderr(&self) -> String {
+        read(&self.stderr)
+    }
+
+    async fn models(&self) -> ModelServiceClient<Channel> {
+        ModelServiceClient::connect(self.grpc.clone())
+            .await
+            .unwrap()
+    }
+
+    async fn loop_client(&self) -> LoopServiceClient<Channel> {
+        LoopServiceClient::connect(self.grpc.clone()).await.unwrap()
+    }
+
+    /// SIGTERM, then the exit status and how long the exit took.
+    fn terminate(&mut self) -> (std::process::ExitStatus, Duration) {
+        let t0 = Instant::now();
+        // SAFETY: a signal to our own child.
+        unsafe { libc::kill(self.child.id() as i32, libc::SIGTERM) };
+        loop {
+            if let Some(s) = self.child.try_wait().unwrap() {
+                return (s, t0.elapsed());
+            }
+            if t0.elapsed() > Duration::from_secs(10) {
+                self.child.kill().unwrap();
+                panic!("infer-server did not exit after SIGTERM: {}", self.stderr());
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+}
+
+impl Drop for ServerProcess {
+    fn drop(&mut self) {
+        if self.child.try_wait().ok().flatten().is_none() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+fn read(path: &Path) -> String {
+    std::fs::read_to_string(path).unwrap_or_default()
+}
+
+/// The features this test's loop sends at step `seq`, in SCHEMA order.
+fn features_at(seq: u64) -> [f64; 4] {
+    let s = seq as f64;
+    [
+        0.001 * (seq % 100) as f64,
+        (s * 0.01).cos(),
+        (s * 0.02).sin(),
+        3.0 * (s * 0.003).sin(),
+    ]
+}
+
+/// tests/fixtures/make_models.py: linear = 2 velocity - 3 position_x + 0.5.
+fn linear(f: &[f64; 4]) -> f64 {
+    2.0 * f[1] - 3.0 * f[0] + 0.5
+}
+
+/// tests/fixtures/make_models.py: tree0(position_x, f_previous_x) + tree1(f_previous_x) + 0.25.
+fn tree(f: &[f64; 4]) -> f64 {
+    let (x, fp) = (f[0] as f32, f[3] as f32);
+    let t0 = if x <= 0.5 {
+        1.0
+    } else if fp <= 2.0 {
+        2.0
+    } else {
+        3.0
+    };
+    let t1 = if fp <= -1.0 { 10.0 } else { 20.0 };
+    t0 + t1 + 0.25
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Answer {
+    seq: u64,
+    force: f64,
+    model_id: u32,
+    flags: u32,
+}
+
+/// This test's rt-loop: one step every ~0.5 ms in lockstep (each step waits for its answer,
+/// parking), heartbeat per step. Every answer is logged; a wrong or missing answer panics
+/// the thread, which `stop` reports.
+struct StepLoop {
+    stop: Arc<AtomicBool>,
+    log: Arc<Mutex<Vec<Answer>>>,
+    thread: Option<JoinHandle<LoopSide>>,
+}
+
+impl StepLoop {
+    fn start(mut lp: LoopSide) -> Self {
+        lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
+        let stop = Arc::new(AtomicBool::new(false));
+        let log = Arc::new(Mutex::new(Vec::new()));
+        let (s, l) = (Arc::clone(&stop), Arc::clone(&log));
+        let thread = std::thread::spawn(move || {
+            let end = Instant::now() + Duration::from_secs(20);
+            while !lp.peer_alive() {
+                assert!(Instant::now() < end, "the server did not attach");
+                lp.heartbeat();
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            let mut seq = 0u64;
+            while !s.load(Ordering::Relaxed) {
+                seq += 1;
+                let f = features_at(seq);
+                let mut values = [0.0; MAX_FEATURES];
+                values[..4].copy_from_slice(&f);
+                let msg = FeatureMsg {
+                    seq,
+                    timestamp_ns: seq * 100_000,
+                    run_id: 1,
+                    flags: u32::from(seq == 1),
+                    len: 4,
+                    values,
+                };
+                lp.features_tx.try_send(msg).unwrap();
+                let a = match lp.forces_rx.recv_timeout(Duration::from_secs(10)) {
+                    Ok(a) => a,
+                    // The server exited (the shutdown test): the loop would go on on its
+                    // fallback; this one stops.
+                    Err(shm_ring::RecvError::PeerGone) => break,
+                    Err(e) => panic!("step {seq}: {e}"),
+                };
+                assert_eq!(a.seq, seq, "answers come in order, one per step");
+                l.lock().unwrap().push(Answer {
+                    seq,
+                    force: a.force,
+                    model_id: a.model_id,
+                    flags: a.flags,
+                });
+                lp.heartbeat();
+                std::thread::sleep(Duration::from_micros(500));
+            }
+            lp
+        });
+        Self {
+            stop,
+            log,
+            thread: Some(thread),
+        }
+    }
+
+    fn answers(&self) -> Vec<Answer> {
+        self.log.lock().unwrap().clone()
+    }
+
+    fn last_seq(&self) -> u64 {
+        self.log.lock().unwrap().last().map_or(0, |a| a.seq)
+    }
+
+    /// Waits until the loop has answered step `seq`.
+    fn wait_for(&self, seq: u64) {
+        let end = Instant::now() + Duration::from_secs(10);
+        while self.last_seq() < seq {
+            assert!(
+                !self.thread.as_ref().unwrap().is_finished(),
+                "the loop thread ended"
+            );
+            assert!(Instant::now() < end, "the loop did not reach step {seq}");
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+
+    fn stop(mut self) -> LoopSide {
+        self.stop.store(true, Ordering::Relaxed);
+        match self.thread.take().unwrap().join() {
+            Ok(lp) => lp,
+            Err(p) => std::panic::resume_unwind(p),
+        }
+    }
+}
+
+fn model<'a>(list: &'a [pb::ModelInfo], name: &str) -> &'a pb::ModelInfo {
+    list.iter()
+        .find(|m| m.name == name)
+        .unwrap_or_else(|| panic!("{name} not listed: {list:?}"))
+}
+
+async fn list(c: &mut ModelServiceClient<Channel>) -> Vec<pb::ModelInfo> {
+    c.list_models(pb::ListModelsRequest {})
+        .await
+        .unwrap()
+        .into_inner()
+        .models
+}
+
+async fn load(
+    c: &mut ModelServiceClient<Channel>,
+    name: &str,
+) -> Result<pb::ModelInfo, tonic::Status> {
+    c.load_model(pb::LoadModelRequest {
+        name: name.into(),
+        onnx: Vec::new(),
+    })
+    .await
+    .map(|r| r.into_inner().model.unwrap())
+}
+
+async fn activate(
+    c: &mut ModelServiceClient<Channel>,
+    name: &str,
+    load_if_needed: bool,
+) -> Result<pb::ActivateModelResponse, tonic::Status> {
+    c.activate_model(pb::ActivateModelRequest {
+        name: name.into(),
+        load_if_needed,
+    })
+    .await
+    .map(|r| r.into_inner())
+}
+
+/// Every answer from `from` on (until `until`) came from `model_id` with `expected`'s force.
+fn check_model_answers(
+    answers: &[Answer],
+    from: u64,
+    until: u64,
+    model_id: u32,
+    expected: fn(&[f64; 4]) -> f64,
+) {
+    let mut n = 0;
+    for a in answers.iter().filter(|a| a.seq >= from && a.seq < until) {
+        assert_eq!(a.flags, 0, "step {}: {a:?}", a.seq);
+        assert_eq!(a.model_id, model_id, "step {}: {a:?}", a.seq);
+        let want = expected(&features_at(a.seq));
+        assert!(
+            (a.force - want).abs() < 1e-4,
+            "step {}: force {} but the model gives {want}",
+            a.seq,
+            a.force
+        );
+        n += 1;
+    }
+    assert!(n > 0, "no answers in [{from}, {until})");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn models_load_activate_swap_and_refusals_over_grpc() {
+    let Some(fixtures) = common::fixtures() else {
+        eprintln!("skipped (HAPTICS_SKIP_PY=1)");
+        return;
+    };
+    let names = [
+        "linear",
+        "tree",
+        "corrupt",
+        "wrong_input",
+        "nan_output",
+        "needs_deformation",
+    ];
+    let dir = models_dir("swap", fixtures, &names);
+    let segment = segment_name("swap");
+    let lp = Segment::create(&segment, &loop_config())
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    let server = ServerProcess::start("swap", &dir, &segment, &["--model", "linear.onnx"]);
+    let stepper = StepLoop::start(lp);
+    let mut c = server.models().await;
+
+    // --model: linear is activated once the loop attached.
+    let end = Instant::now() + Duration::from_secs(20);
+    let linear_id = loop {
+        let active = c.get_active_model(pb::GetActiveModelRequest {}).await;
+        if let Ok(m) = active {
+            let m = m.into_inner();
+            assert_eq!(m.name, "linear.onnx");
+            break m.model_id;
+        }
+        assert!(Instant::now() < end, "no active model: {}", server.stderr());
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    let listed = list(&mut c).await;
+    assert_eq!(
+        listed.iter().map(|m| m.name.as_str()).collect::<Vec<_>>(),
+        [
+            "corrupt.onnx",
+            "linear.onnx",
+            "nan_output.onnx",
+            "needs_deformation.onnx",
+            "tree.onnx",
+            "wrong_input.onnx"
+        ]
+    );
+    let l = model(&listed, "linear.onnx");
+    assert_eq!(l.state, pb::ModelState::Active as i32);
+    assert_eq!(l.features, ["velocity", "position_x"]);
+    assert_eq!(l.kind, "stateless");
+    assert_eq!(l.units, "N");
+    assert_eq!(
+        model(&listed, "tree.onnx").state,
+        pb::ModelState::Available as i32
+    );
+
+    // Load tree, then swap to it while the loop steps.
+    let t = load(&mut c, "tree.onnx").await.unwrap();
+    assert_eq!(t.state, pb::ModelState::Loaded as i32);
+    assert_eq!(t.features, ["position_x", "f_previous_x"]);
+    stepper.wait_for(stepper.last_seq() + 20);
+    let swap = activate(&mut c, "tree.onnx", false).await.unwrap();
+    let effective = swap.effective_step;
+    let tree_id = swap.model.as_ref().unwrap().model_id;
+    assert_ne!(tree_id, linear_id);
+    assert_eq!(swap.model.unwrap().active_since_step, effective);
+    stepper.wait_for(effective + 50);
+    let answers = stepper.answers();
+    let first_linear = answers
+        .iter()
+        .find(|a| a.flags == 0)
+        .expect("linear answered")
+        .seq;
+    // Before the effective step: linear; from it on: the tree. No step lost or skipped.
+    check_model_answers(&answers, first_linear, effective, linear_id, linear);
+    check_model_answers(&answers, effective, u64::MAX, tree_id, tree);
+    for w in answers.windows(2) {
+        assert_eq!(w[1].seq, w[0].seq + 1);
+    }
+    let listed = list(&mut c).await;
+    assert_eq!(
+        model(&listed, "linear.onnx").state,
+        pb::ModelState::Loaded as i32,
+        "the previous model stays loaded"
+    );
+    assert_eq!(
+        model(&listed, "tree.onnx").state,
+        pb::ModelState::Active as i32
+    );
+
+    // Each bad model is refused with its reason and code; the tree keeps serving.
+    let refusals = [
+        ("corrupt.onnx", Code::InvalidArgument, "corrupt"),
+        ("wrong_input.onnx", Code::InvalidArgument, "wrong_inputs"),
+        (
+            "nan_output.onnx",
+            Code::InvalidArgument,
+            "non_finite_output",
+        ),
+        (
+            "needs_deformation.onnx",
+            Code::FailedPrecondition,
+            "\"deformation\"",
+        ),
+        ("missing.onnx", Code::NotFound, "no model"),
+    ];
+    for (name, code, reason) in refusals {
+        let before = stepper.last_seq();
+        let e = load(&mut c, name).await.unwrap_err();
+        assert_eq!(e.code(), code, "{name}: {e:?}");
+        assert!(e.message().contains(reason), "{name}: {}", e.message());
+        let e = activate(&mut c, name, true).await.unwrap_err();
+        assert_eq!(e.code(), code, "{name}: {e:?}");
+        stepper.wait_for(before + 10);
+        check_model_answers(&stepper.answers(), before + 1, u64::MAX, tree_id, tree);
+    }
+    // An upload of garbage too.
+    let e = c
+        .load_model(pb::LoadModelRequest {
+            name: "garbage.onnx".into(),
+            onnx: b"not a model".to_vec(),
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::InvalidArgument, "{e:?}");
+    let listed = list(&mut c).await;
+    for name in ["corrupt.onnx", "wrong_input.onnx", "nan_output.onnx"] {
+        let m = model(&listed, name);
+        assert_eq!(m.state, pb::ModelState::Failed as i32, "{m:?}");
+        assert!(m.error.contains("refused"), "{m:?}");
+    }
+    assert_eq!(
+        model(&listed, "garbage.onnx").state,
+        pb::ModelState::Failed as i32
+    );
+    let active = c
+        .get_active_model(pb::GetActiveModelRequest {})
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(
+        (active.name.as_str(), active.model_id),
+        ("tree.onnx", tree_id)
+    );
+
+    // Unload: never the active model; a loaded one goes back to available.
+    let e = c
+        .unload_model(pb::UnloadModelRequest {
+            name: "tree.onnx".into(),
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::FailedPrecondition);
+    c.unload_model(pb::UnloadModelRequest {
+        name: "linear.onnx".into(),
+    })
+    .await
+    .unwrap();
+    let e = c
+        .unload_model(pb::UnloadModelRequest {
+            name: "linear.onnx".into(),
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::NotFound);
+    assert_eq!(
+        model(&list(&mut c).await, "linear.onnx").state,
+        pb::ModelState::Available as i32
+    );
+    let e = activate(&mut c, "linear.onnx", false).await.unwrap_err();
+    assert_eq!(e.code(), Code::FailedPrecondition, "not loaded: {e:?}");
+
+    // An upload (kept in memory) under a new name; a different file's name is refused.
+    let linear_bytes = std::fs::read(dir.join("linear.onnx")).unwrap();
+    let e = c
+        .load_model(pb::LoadModelRequest {
+            name: "tree.onnx".into(),
+            onnx: linear_bytes.clone(),
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
+    let up = c
+        .load_model(pb::LoadModelRequest {
+            name: "uploaded.onnx".into(),
+            onnx: linear_bytes,
+        })
+        .await
+        .unwrap()
+        .into_inner()
+        .model
+        .unwrap();
+    assert_eq!(up.state, pb::ModelState::Loaded as i32);
+    assert!(
+        !dir.join("uploaded.onnx").exists(),
+        "uploads stay in memory"
+    );
+    let swap = activate(&mut c, "uploaded.onnx", false).await.unwrap();
+    let up_id = swap.model.unwrap().model_id;
+    stepper.wait_for(swap.effective_step + 20);
+    check_model_answers(
+        &stepper.answers(),
+        swap.effective_step,
+        u64::MAX,
+        up_id,
+        linear,
+    );
+    check_model_answers(
+        &stepper.answers(),
+        effective,
+        swap.effective_step,
+        tree_id,
+        tree,
+    );
+
+    // The loop's answers all arrived in order (the thread checks each), and the server's
+    // status counts its predictions.
+    let lp = stepper.stop();
+    let status = server
+        .loop_client()
+        .await
+        .get_status(pb::GetStatusRequest {})
+        .await
+        .unwrap()
+        .into_inner();
+    assert!(status.predictions > 0);
+    assert!(status.inference_latency.unwrap().count >= status.predictions);
+    assert_eq!(status.active_model.unwrap().name, "uploaded.onnx");
+    drop(lp);
+}
+
+/// A raw HTTP/1.1 GET: (status line, body).
+fn http_get(addr: &str, path: &str) -> (String, String) {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    write!(
+        s,
+        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut text = String::new();
+    s.read_to_string(&mut text).unwrap();
+    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+    (
+        head.lines().next().unwrap_or("").to_string(),
+        body.to_string(),
+    )
+}
+
+async fn status(c: &mut LoopServiceClient<Channel>) -> pb::Status {
+    c.get_status(pb::GetStatusRequest {})
+        .await
+        .unwrap()
+        .into_inner()
+}
+
+async fn wait_status(
+    c: &mut LoopServiceClient<Channel>,
+    what: &str,
+    ok: impl Fn(&pb::Status) -> bool,
+) -> pb::Status {
+    let end = Instant::now() + Duration::from_secs(5);
+    loop {
+        let s = status(c).await;
+        if ok(&s) {
+            return s;
+        }
+        assert!(Instant::now() < end, "{what}: {s:?}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+/// The heartbeat of this test's loop, on its own thread (as rt-loop's loop thread would).
+fn heartbeat(link: shm_ring::Link, stop: Arc<AtomicBool>) -> JoinHandle<()> {
+    std::thread::spawn(move || {
+        while !stop.load(Ordering::Relaxed) {
+            link.heartbeat();
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    })
+}
+
+fn row(step: u64, phase: u8) -> TelemetryRow {
+    let s = step as f64;
+    TelemetryRow {
+        run_id: 7,
+        step,
+        time: s * 1e-4,
+        f_ref: s,
+        rtob_force: if step.is_multiple_of(97) { 1000.0 } else { -s },
+        f_pred: 4.0 * s,
+        position_x: s * 1e-6,
+        velocity: -s,
+        acceleration: 2.0 * s,
+        f_true: 3.0 * s,
+        fallback: step.is_multiple_of(2),
+        phase,
+        cycle_no: 2,
+        ..TelemetryRow::default()
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn status_experiments_and_telemetry_from_the_segment() {
+    if common::fixtures().is_none() {
+        eprintln!("skipped (HAPTICS_SKIP_PY=1)");
+        return;
+    }
+    let dir = models_dir("status", common::fixtures().unwrap(), &["linear"]);
+    let segment = segment_name("status");
+    let server = ServerProcess::start("status", &dir, &segment, &[]);
+    let mut c = server.loop_client().await;
+
+    // No loop yet.
+    let s = status(&mut c).await;
+    assert!(!s.loop_alive);
+    assert_eq!(s.experiment.unwrap().kind, "idle");
+    let e = c
+        .start_experiment(pb::StartExperimentRequest {
+            kind: "abstraction".into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
+    // No loop to take a model: refused at once, and nothing changes.
+    let mut m = server.models().await;
+    let e = activate(&mut m, "linear.onnx", true).await.unwrap_err();
+    assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
+    assert!(e.message().contains("no loop"), "{e:?}");
+    let e = m
+        .get_active_model(pb::GetActiveModelRequest {})
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::NotFound);
+    let (line, body) = http_get(&server.http, "/api/status");
+    assert!(line.contains("200"), "{line}");
+    assert!(body.contains("\"alive\":false"), "{body}");
+
+    // A loop that heartbeats: alive.
+    let mut lp = Segment::create(&segment, &loop_config())
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    let beat = Arc::new(AtomicBool::new(false));
+    let beating = heartbeat(lp.link.clone(), Arc::clone(&beat));
+    wait_status(&mut c, "loop alive", |s| s.loop_alive).await;
+
+    // Start: the command lands in the mailbox, parameters in order, NaN = loop default.
+    c.start_experiment(pb::StartExperimentRequest {
+        kind: "abstraction".into(),
+        ramp_rate: Some(1.8),
+        cycles: Some(3),
+        f_max_start: None,
+        f_max_step: Some(0.5),
+    })
+    .await
+    .unwrap();
+    let cmd = lp.commands_rx.try_recv().unwrap().expect("a command");
+    assert_eq!(cmd.kind, CommandKind::StartExperiment);
+    assert_eq!(cmd.name.as_str(), "abstraction");
+    assert_eq!(cmd.values[0], 1.8);
+    assert_eq!(cmd.values[1], 3.0);
+    assert!(cmd.values[2].is_nan());
+    assert_eq!(cmd.values[3], 0.5);
+    let s = status(&mut c).await;
+    let x = s.experiment.unwrap();
+    assert!(x.running);
+    assert_eq!(x.kind, "abstraction");
+    // One at a time.
+    let e = c
+        .start_experiment(pb::StartExperimentRequest {
+            kind: "shadow".into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
+    assert!(e.message().contains("already running"), "{e:?}");
+    c.stop_experiment(pb::StopExperimentRequest {})
+        .await
+        .unwrap();
+    let cmd = lp.commands_rx.try_recv().unwrap().expect("a command");
+    assert_eq!(cmd.kind, CommandKind::StopExperiment);
+    assert!(cmd.id > 0);
+    assert!(lp.commands_rx.try_recv().unwrap().is_none());
+
+    // Telemetry written into the ring comes out of the gRPC stream, decimated by 10 with
+    // min/max per bucket (the F_res spikes survive), series in their places.
+    let mut stream = c
+        .stream_telemetry(pb::StreamTelemetryRequest { decimation: 10 })
+        .await
+        .unwrap()
+        .into_inner();
+    let writer = std::thread::spawn(move || {
+        for step in 0..3000u64 {
+            lp.telemetry_tx.send(&row(step, 1));
+            if step % 100 == 99 {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+        }
+        lp
+    });
+    let mut samples = Vec::new();
+    while samples.len() < 150 {
+        let s = tokio::time::timeout(Duration::from_secs(10), stream.message())
+            .await
+            .expect("telemetry samples")
+            .unwrap()
+            .expect("stream open");
+        samples.push(s);
+    }
+    let mut lp = writer.join().unwrap();
+    for w in samples.windows(2) {
+        assert_eq!(w[1].step, w[0].step + u64::from(w[0].steps), "consecutive");
+    }
+    let mut spikes = 0;
+    for s in &samples {
+        let (first, last) = (s.step as f64, (s.step + u64::from(s.steps) - 1) as f64);
+        assert_eq!(s.steps, 10, "{s:?}");
+        assert!((s.time_s - first * 1e-4).abs() < 1e-12);
+        assert_eq!((s.min[0], s.max[0]), (first, last), "F_ref");
+        assert_eq!((s.min[2], s.max[2]), (4.0 * first, 4.0 * last), "F_pred");
+        assert_eq!((s.min[3], s.max[3]), (first * 1e-6, last * 1e-6), "x");
+        assert_eq!((s.min[4], s.max[4]), (-last, -first), "v");
+        assert_eq!((s.min[5], s.max[5]), (2.0 * first, 2.0 * last), "a");
+        assert_eq!((s.min[6], s.max[6]), (3.0 * first, 3.0 * last), "F_true");
+        let spike = (s.step..s.step + 10).any(|k| k % 97 == 0);
+        assert_eq!(s.f_res_max == 1000.0, spike, "{s:?}");
+        spikes += usize::from(spike);
+        assert_eq!(s.fallbacks, 5);
+    }
+    assert!(spikes > 5);
+
+    // The rows tell the status: step, phase, cycle, fallbacks; a running experiment refuses
+    // another start.
+    let s = wait_status(&mut c, "step 2999", |s| s.step == 2999).await;
+    let x = s.experiment.unwrap();
+    assert!(x.running, "{x:?}");
+    assert_eq!((x.phase.as_str(), x.cycle), ("ramp-up", 2));
+    assert_eq!(s.fallbacks, 1500);
+    assert_eq!(s.telemetry_drops, 0);
+    let e = c
+        .start_experiment(pb::StartExperimentRequest {
+            kind: "shadow".into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
+    lp.telemetry_tx.send(&row(3000, 6));
+    wait_status(&mut c, "experiment done", |s| {
+        s.experiment.as_ref().is_some_and(|x| x.kind == "idle")
+    })
+    .await;
+
+    // The heartbeat stops (loop stuck): not alive after ~1 s; it beats again: alive.
+    beat.store(true, Ordering::Relaxed);
+    beating.join().unwrap();
+    let t0 = Instant::now();
+    wait_status(&mut c, "stuck loop not alive", |s| !s.loop_alive).await;
+    assert!(t0.elapsed() > Duration::from_millis(500));
+    beat.store(false, Ordering::Relaxed);
+    let beating = heartbeat(lp.link.clone(), Arc::clone(&beat));
+    wait_status(&mut c, "alive again", |s| s.loop_alive).await;
+
+    // The loop exits: not alive at once (its lock is gone; no need to wait for staleness),
+    // and experiments are refused.
+    beat.store(true, Ordering::Relaxed);
+    beating.join().unwrap();
+    let t0 = Instant::now();
+    drop(lp);
+    wait_status(&mut c, "loop gone", |s| !s.loop_alive).await;
+    assert!(
+        t0.elapsed() < Duration::from_millis(900),
+        "{:?}",
+        t0.elapsed()
+    );
+    let e = c
+        .start_experiment(pb::StartExperimentRequest {
+            kind: "abstraction".into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigterm_ends_open_streams_and_websockets_quickly() {
+    if common::fixtures().is_none() {
+        eprintln!("skipped (HAPTICS_SKIP_PY=1)");
+        return;
+    }
+    let dir = models_dir("term", common::fixtures().unwrap(), &["linear"]);
+    let segment = segment_name("term");
+    let lp = Segment::create(&segment, &loop_config())
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    let mut server = ServerProcess::start("term", &dir, &segment, &["--model", "linear.onnx"]);
+    let stepper = StepLoop::start(lp);
+    stepper.wait_for(50);
+
+    // An open gRPC telemetry stream and an open WebSocket.
+    let mut stream = server
+        .loop_client()
+        .await
+        .stream_telemetry(pb::StreamTelemetryRequest { decimation: 1 })
+        .await
+        .unwrap()
+        .into_inner();
+    let mut ws = TcpStream::connect(&server.http).unwrap();
+    write!(
+        ws,
+        "GET /ws/telemetry?fps=30 HTTP/1.1\r\nHost: {}\r\nConnection: Upgrade\r\n\
+         Upgrade: websocket\r\nSec-WebSocket-Version: 13\r\n\
+         Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n",
+        server.http
+    )
+    .unwrap();
+    ws.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    let mut head = [0u8; 12];
+    ws.read_exact(&mut head).unwrap();
+    assert_eq!(&head, b"HTTP/1.1 101", "WebSocket upgrade");
+
+    let (exit, took) = server.terminate();
+    eprintln!("SIGTERM to exit with an open stream and WebSocket: {took:?}");
+    assert!(exit.success(), "{exit}: {}", server.stderr());
+    assert!(
+        took < Duration::from_millis(2500),
+        "shutdown took {took:?}: {}",
+        server.stderr()
+    );
+    // The stream ended (OK status or closed connection), and the socket was closed.
+    let end = tokio::time::timeout(Duration::from_secs(2), async {
+        loop {
+            match stream.message().await {
+                Ok(Some(_)) => continue,
+                other => return other.map(|_| ()),
+            }
+        }
+    })
+    .await
+    .expect("the telemetry stream ended");
+    let _ = end;
+    let mut rest = Vec::new();
+    if let Err(e) = ws.read_to_end(&mut rest) {
+        // Closed with a reset is closed too; a timeout is not.
+        assert!(
+            !matches!(
+                e.kind(),
+                std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+            ),
+            "the WebSocket stayed open: {e}"
+        );
+    }
+    let lp = stepper.stop();
+    drop(lp);
+}
