@@ -280,7 +280,12 @@ fn killed_loop_is_noticed_its_segment_replaced_and_the_server_reattaches() {
         "telemetry flows too"
     );
 
+    assert!(sv.link.info().creator_process_alive());
     looper.kill9();
+    assert!(
+        !sv.link.info().creator_process_alive(),
+        "pid + start time no longer names a live process"
+    );
     assert!(
         eventually(Duration::from_secs(2), || !sv.peer_alive()),
         "the server notices the dead loop"
