@@ -302,6 +302,8 @@ fn cmd_features(a: &FeaturesArgs) -> anyhow::Result<ExitCode> {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // Ctrl-C / SIGTERM: stop at the next step with 0 A and a complete recording.
+    rt_loop::run::install_stop_signals();
     let r = match &cli.cmd {
         Cmd::Run(a) => cmd_run(a),
         Cmd::Features(a) => cmd_features(a),

@@ -13,6 +13,7 @@ use crate::record::{RecorderHandle, RecorderReport, Target};
 use crate::rig::{Rig, Stop};
 use anyhow::{anyhow, Result};
 use serde::Serialize;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 #[derive(Clone, Debug, Serialize)]
@@ -21,7 +22,7 @@ pub struct RunSummary {
     pub clock: String,
     pub steps: u64,
     /// How the run ended: finished, position-limit, board-fault: ..., watchdog,
-    /// recorder-failed, time-limit.
+    /// recorder-failed, time-limit, interrupted (SIGINT/SIGTERM).
     pub stop: String,
     pub loop_time_s: f64,
     pub wall_s: f64,
@@ -40,7 +41,8 @@ impl RunSummary {
         let rec_ok = self.recorder.as_ref().is_none_or(|r| {
             r.error.is_none() && r.rows_written == r.rows_received && self.drops == 0
         });
-        (self.stop == "finished" || self.stop == "time-limit") && rec_ok
+        (self.stop == "finished" || self.stop == "time-limit" || self.stop == "interrupted")
+            && rec_ok
     }
 }
 
@@ -153,6 +155,27 @@ pub fn build_rig(
     ))
 }
 
+static STOP_REQUESTED: AtomicBool = AtomicBool::new(false);
+
+/// Asks a running [`run`] to stop at its next step (0 A, recording finished and renamed,
+/// summary with stop "interrupted"). Async-signal-safe: one atomic store.
+pub fn request_stop() {
+    STOP_REQUESTED.store(true, Ordering::Relaxed);
+}
+
+extern "C" fn on_signal(_: libc::c_int) {
+    request_stop();
+}
+
+/// Makes SIGINT and SIGTERM request a clean stop instead of killing the process mid-step.
+pub fn install_stop_signals() {
+    // SAFETY: the handler only performs an atomic store, which is async-signal-safe.
+    unsafe {
+        libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
+        libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
+    }
+}
+
 /// Progress reporting for long lockstep runs (called off the step, every few thousand steps).
 pub trait Progress {
     fn update(&mut self, loop_time_s: f64);
@@ -227,6 +250,11 @@ pub fn run(
                 if row.time >= max_time {
                     rig.safe_stop();
                     break "time-limit".into();
+                }
+                // one relaxed atomic load per step: the signal handler's request
+                if STOP_REQUESTED.load(Ordering::Relaxed) {
+                    rig.safe_stop();
+                    break "interrupted".into();
                 }
                 if lockstep && row.step & 0x3FFF == 0 {
                     if let Some(p) = progress.as_deref_mut() {

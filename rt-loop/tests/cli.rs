@@ -195,3 +195,45 @@ fn features_imports_a_foreign_series() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("no column \"nope\""));
 }
+
+/// SIGINT during a realtime run: the loop stops at its next step with 0 A, the recording is
+/// complete (renamed, every step written) and the exit code says success.
+#[test]
+fn sigint_stops_cleanly_with_a_complete_recording() {
+    let dir = common::tmpdir("cli-sigint");
+    let out = dir.join("rt.parquet");
+    let cfgfile = dir.join("c.toml");
+    std::fs::write(
+        &cfgfile,
+        "[realtime]\npriority = 0\nlock_memory = false\ncpu = -1\n[params]\nwatchdog_us = 5000000\n",
+    )
+    .unwrap();
+    let child = bin()
+        .args([
+            "run",
+            "--clock",
+            "realtime",
+            "--no-progress",
+            "--duration",
+            "60",
+        ])
+        .arg("--material")
+        .arg(common::material())
+        .arg("--config")
+        .arg(&cfgfile)
+        .arg("--record")
+        .arg(&out)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(800));
+    // SAFETY: signalling our own child.
+    unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) };
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("stop: interrupted"), "{err}");
+    let steps = read_columns(&out, &["step"]).unwrap()[0].len();
+    assert!(steps > 500, "{steps} rows");
+    assert!(err.contains(&format!("{steps} written")), "{err}");
+}
