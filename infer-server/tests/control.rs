@@ -194,7 +194,12 @@ struct StepLoop {
 }
 
 impl StepLoop {
-    fn start(mut lp: LoopSide) -> Self {
+    fn start(lp: LoopSide) -> Self {
+        Self::start_with(lp, vec![0, 1, 2, 3])
+    }
+
+    /// `order[i]`: which of SCHEMA's features the loop's slot i carries (its own schema).
+    fn start_with(mut lp: LoopSide, order: Vec<usize>) -> Self {
         lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
         let stop = Arc::new(AtomicBool::new(false));
         let log = Arc::new(Mutex::new(Vec::new()));
@@ -211,13 +216,15 @@ impl StepLoop {
                 seq += 1;
                 let f = features_at(seq);
                 let mut values = [0.0; MAX_FEATURES];
-                values[..4].copy_from_slice(&f);
+                for (slot, &i) in order.iter().enumerate() {
+                    values[slot] = f[i];
+                }
                 let msg = FeatureMsg {
                     seq,
                     timestamp_ns: seq * 100_000,
                     run_id: 1,
                     flags: u32::from(seq == 1),
-                    len: 4,
+                    len: order.len() as u8,
                     values,
                 };
                 lp.features_tx.try_send(msg).unwrap();
@@ -266,6 +273,13 @@ impl StepLoop {
             assert!(Instant::now() < end, "the loop did not reach step {seq}");
             std::thread::sleep(Duration::from_millis(2));
         }
+    }
+
+    fn stop_and_answers(self) -> Vec<Answer> {
+        let log = Arc::clone(&self.log);
+        drop(self.stop());
+        let answers = log.lock().unwrap().clone();
+        answers
     }
 
     fn stop(mut self) -> LoopSide {
@@ -901,4 +915,140 @@ async fn sigterm_ends_open_streams_and_websockets_quickly() {
     }
     let lp = stepper.stop();
     drop(lp);
+}
+
+/// A segment whose features are SCHEMA's, in the order `order`.
+fn loop_with(segment: &SegmentName, order: &[usize]) -> LoopSide {
+    let config = Config {
+        feature_names: order.iter().map(|&i| SCHEMA[i].to_string()).collect(),
+        ..Config::default()
+    };
+    Segment::create(segment, &config)
+        .unwrap()
+        .loop_side()
+        .unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_new_loop_is_served_again_and_the_active_model_revalidated_for_it() {
+    let Some(fixtures) = common::fixtures() else {
+        eprintln!("skipped (HAPTICS_SKIP_PY=1)");
+        return;
+    };
+    let dir = models_dir("reattach", fixtures, &["tree"]);
+    let segment = segment_name("reattach");
+    let stepper = StepLoop::start(loop_with(&segment, &[0, 1, 2, 3]));
+    let server = ServerProcess::start("reattach", &dir, &segment, &["--model", "tree.onnx"]);
+    let mut c = server.models().await;
+    let mut l = server.loop_client().await;
+    let first = loop {
+        stepper.wait_for(stepper.last_seq() + 1);
+        if let Some(a) = stepper.answers().iter().find(|a| a.flags == 0) {
+            break *a;
+        }
+    };
+    stepper.wait_for(first.seq + 20);
+    check_model_answers(
+        &stepper.answers(),
+        first.seq,
+        u64::MAX,
+        first.model_id,
+        tree,
+    );
+    drop(stepper.stop()); // the loop exits
+    wait_status(&mut l, "first loop gone", |s| !s.loop_alive).await;
+
+    // A second loop with the features in another order: the tree is revalidated for it (its
+    // inputs are gathered from other slots) and serves from the new loop's first steps.
+    let stepper = StepLoop::start_with(loop_with(&segment, &[3, 2, 0, 1]), vec![3, 2, 0, 1]);
+    stepper.wait_for(200);
+    let answers = stepper.answers();
+    let first = answers
+        .iter()
+        .find(|a| a.flags == 0)
+        .expect("model answers");
+    assert!(first.seq < 150, "revalidated quickly: {first:?}");
+    assert!(answers
+        .iter()
+        .filter(|a| a.seq < first.seq)
+        .all(|a| a.flags == infer_server::serve::force_flags::SCHEMA_MISMATCH && a.force.is_nan()));
+    check_model_answers(&answers, first.seq, u64::MAX, first.model_id, tree);
+    let s = wait_status(&mut l, "second loop alive", |s| s.loop_alive).await;
+    assert_eq!(s.active_model.unwrap().name, "tree.onnx");
+    drop(stepper.stop());
+    wait_status(&mut l, "second loop gone", |s| !s.loop_alive).await;
+
+    // A third loop without position_x: the tree cannot serve it. Every step is answered with
+    // NaN + SCHEMA_MISMATCH (the loop renders its fallback), the model is listed as failed
+    // with the reason, and there is no active model.
+    let stepper = StepLoop::start_with(loop_with(&segment, &[1, 3]), vec![1, 3]);
+    stepper.wait_for(100);
+    let end = Instant::now() + Duration::from_secs(5);
+    let failed = loop {
+        let m = list(&mut c).await;
+        let t = model(&m, "tree.onnx").clone();
+        if t.state == pb::ModelState::Failed as i32 {
+            break t;
+        }
+        assert!(Instant::now() < end, "{t:?}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    assert!(failed.error.contains("position_x"), "{failed:?}");
+    let e = c
+        .get_active_model(pb::GetActiveModelRequest {})
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::NotFound);
+    assert!(stepper
+        .answers()
+        .iter()
+        .all(|a| a.flags == infer_server::serve::force_flags::SCHEMA_MISMATCH && a.force.is_nan()));
+    drop(stepper.stop());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hundred_swaps_lose_no_step_and_each_takes_effect_at_its_reported_step() {
+    let Some(fixtures) = common::fixtures() else {
+        eprintln!("skipped (HAPTICS_SKIP_PY=1)");
+        return;
+    };
+    let dir = models_dir("swap100", fixtures, &["linear", "tree"]);
+    let segment = segment_name("swap100");
+    let stepper = StepLoop::start(loop_with(&segment, &[0, 1, 2, 3]));
+    let server = ServerProcess::start("swap100", &dir, &segment, &["--model", "linear.onnx"]);
+    let mut c = server.models().await;
+    load(&mut c, "tree.onnx").await.unwrap();
+    while !stepper.answers().iter().any(|a| a.flags == 0) {
+        stepper.wait_for(stepper.last_seq() + 1);
+    }
+    // (effective step, model id, formula) of every swap.
+    let mut swaps: Vec<(u64, u32, fn(&[f64; 4]) -> f64)> = Vec::new();
+    for i in 0..100 {
+        let (name, f): (&str, fn(&[f64; 4]) -> f64) = if i % 2 == 0 {
+            ("tree.onnx", tree)
+        } else {
+            ("linear.onnx", linear)
+        };
+        let a = activate(&mut c, name, false).await.unwrap();
+        if let Some(&(prev, _, _)) = swaps.last() {
+            assert!(a.effective_step > prev, "swap {i}: {a:?}");
+        }
+        swaps.push((a.effective_step, a.model.unwrap().model_id, f));
+    }
+    stepper.wait_for(swaps.last().unwrap().0 + 10);
+    let answers = stepper.stop_and_answers();
+    for w in answers.windows(2) {
+        assert_eq!(w[1].seq, w[0].seq + 1, "no step lost");
+    }
+    for (i, &(from, id, f)) in swaps.iter().enumerate() {
+        let until = swaps.get(i + 1).map_or(u64::MAX, |s| s.0);
+        check_model_answers(&answers, from, until, id, f);
+    }
+    let ids: std::collections::HashSet<u32> = swaps.iter().map(|s| s.1).collect();
+    assert_eq!(ids.len(), 100, "every activation is a new generation");
+    eprintln!(
+        "100 swaps over steps {}..{}",
+        swaps[0].0,
+        swaps.last().unwrap().0
+    );
 }
