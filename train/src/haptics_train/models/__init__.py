@@ -12,7 +12,7 @@ ALGOS = ("sd_const", "sd_poly1", "sd_poly2", "lr", "svr", "rf", "dnn", "lstm", "
 
 #: `dnn_fb` / `lstm_fb`: the same networks trained with feedback noise on the previous force
 #: (see networks.perturb_previous_force), for a closed loop that does not drift.
-FEEDBACK_NOISE_N = 1.0
+FEEDBACK_NOISE_N = 2.5
 
 __all__ = ["ALGOS", "ForceModel", "TrainConfig", "make_model", "parse_spec"]
 
