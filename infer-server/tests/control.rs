@@ -157,6 +157,9 @@ fn features_at(seq: u64) -> [f64; 4] {
     ]
 }
 
+/// A fixture model's force as a function of the features (SCHEMA order).
+type Formula = fn(&[f64; 4]) -> f64;
+
 /// tests/fixtures/make_models.py: linear = 2 velocity - 3 position_x + 0.5.
 fn linear(f: &[f64; 4]) -> f64 {
     2.0 * f[1] - 3.0 * f[0] + 0.5
@@ -336,7 +339,7 @@ fn check_model_answers(
     from: u64,
     until: u64,
     model_id: u32,
-    expected: fn(&[f64; 4]) -> f64,
+    expected: Formula,
 ) {
     let mut n = 0;
     for a in answers.iter().filter(|a| a.seq >= from && a.seq < until) {
@@ -1022,9 +1025,9 @@ async fn a_hundred_swaps_lose_no_step_and_each_takes_effect_at_its_reported_step
         stepper.wait_for(stepper.last_seq() + 1);
     }
     // (effective step, model id, formula) of every swap.
-    let mut swaps: Vec<(u64, u32, fn(&[f64; 4]) -> f64)> = Vec::new();
+    let mut swaps: Vec<(u64, u32, Formula)> = Vec::new();
     for i in 0..100 {
-        let (name, f): (&str, fn(&[f64; 4]) -> f64) = if i % 2 == 0 {
+        let (name, f): (&str, Formula) = if i % 2 == 0 {
             ("tree.onnx", tree)
         } else {
             ("linear.onnx", linear)
