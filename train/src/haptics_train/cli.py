@@ -60,7 +60,7 @@ def _train_opts(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--feedback-noise",
         type=float,
-        help="N, scale of the previous-force error dnn_fb/lstm_fb train with (default 1.0)",
+        help="N, scale of the previous-force error dnn_fb/lstm_fb train with (default 2.5)",
     )
     p.add_argument(
         "--threads",
