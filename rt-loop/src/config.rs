@@ -51,6 +51,8 @@ pub struct RunConfig {
     pub format: Option<Format>,
     /// Record every N-th step (1 = every step, lossless).
     pub decimate: u32,
+    /// Replace an existing recording at `record` (refused otherwise: nothing is lost).
+    pub overwrite: bool,
     /// Rows the loop-to-recorder ring holds.
     pub queue_capacity: usize,
     /// Stop after this much loop time, s.
@@ -79,6 +81,7 @@ impl Default for RunConfig {
             record: None,
             format: None,
             decimate: 1,
+            overwrite: false,
             queue_capacity: 1 << 16,
             max_duration_s: None,
             trajectory: None,

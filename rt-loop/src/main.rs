@@ -75,6 +75,9 @@ struct RunArgs {
     /// Record every N-th step only.
     #[arg(long)]
     decimate: Option<u32>,
+    /// Replace an existing recording at --record.
+    #[arg(long)]
+    overwrite: bool,
     /// Recorded trajectory (its time and position_x) for position replay.
     #[arg(long)]
     trajectory: Option<PathBuf>,
@@ -167,6 +170,9 @@ fn resolve(a: &RunArgs) -> anyhow::Result<RunConfig> {
     set!(c.ramp.hold_zero_s, a.hold_zero);
     set!(c.ramp.hold_max_s, a.hold_max);
     set!(c.decimate, a.decimate);
+    if a.overwrite {
+        c.overwrite = true;
+    }
     if a.replay.is_some() {
         c.replay = a.replay.clone();
         if a.board.is_none() {

@@ -196,6 +196,14 @@ pub fn run(
         _ => "none".to_string(),
     };
     let board = build_board(cfg, Some(&material))?;
+    if let Some(p) = &cfg.record {
+        if p.exists() && !cfg.overwrite {
+            anyhow::bail!(
+                "{} already exists: choose another path or pass --overwrite",
+                p.display()
+            );
+        }
+    }
     let mut recorder = match &cfg.record {
         Some(p) => Some(RecorderHandle::start(
             Target::File(p.clone()),

@@ -225,6 +225,22 @@ fn run_with_unwritable_target_fails_clearly_before_starting() {
     assert!(err.contains("cannot create recording"), "{err}");
 }
 
+/// An existing recording is never replaced unless asked.
+#[test]
+fn existing_recording_is_not_overwritten_without_asking() {
+    let dir = common::tmpdir("overwrite");
+    let path = dir.join("keep.csv");
+    std::fs::write(&path, "precious\n").unwrap();
+    let mut cfg = common::short_cfg(1, 8.0, 0.0);
+    cfg.record = Some(path.clone());
+    let err = rt_loop::run::run(&cfg, None, None).unwrap_err().to_string();
+    assert!(err.contains("already exists"), "{err}");
+    assert_eq!(std::fs::read_to_string(&path).unwrap(), "precious\n");
+    cfg.overwrite = true;
+    assert!(record(&cfg).ok());
+    assert!(std::fs::read_to_string(&path).unwrap().starts_with("step,"));
+}
+
 /// Realtime-style pushes into a ring that nobody drains fast enough: drops are counted, the
 /// loop is never blocked.
 #[test]
