@@ -45,7 +45,7 @@ pub mod loom_hooks {
         fn default() -> Self {
             Handshake(Signal {
                 epoch: AtomicU32::new(0),
-                waiters: AtomicU32::new(0),
+                parked: AtomicU32::new(0),
             })
         }
     }

@@ -18,8 +18,9 @@ pub(crate) struct Padded<T>(pub(crate) T);
 pub(crate) struct Signal {
     /// Bumped by the notifier before a wake; the futex word the waiter sleeps on.
     pub(crate) epoch: AtomicU32,
-    /// Number of parked (or about to park) waiters; the notifier skips the syscall when 0.
-    pub(crate) waiters: AtomicU32,
+    /// 1 while the (single) waiter is parked or about to park; the notifier skips the
+    /// syscall when 0 and clears it when it wakes the waiter.
+    pub(crate) parked: AtomicU32,
 }
 
 /// The shared control block of one ring. `#[repr(C)]` and made only of atomics, so its
@@ -49,7 +50,7 @@ impl RingControl {
     fn new_zeroed() -> Self {
         let signal = || Signal {
             epoch: AtomicU32::new(0),
-            waiters: AtomicU32::new(0),
+            parked: AtomicU32::new(0),
         };
         RingControl {
             tail: Padded(AtomicU64::new(0)),

@@ -148,13 +148,13 @@ pub fn heap_channel<M: Message>(capacity: usize) -> (Producer<M>, Consumer<M>) {
 /// Only valid while no live consumer can be parked: called when a new consumer attaches.
 #[cfg(not(loom))]
 pub(crate) fn clear_data_waiters(mem: &RingMem) {
-    mem.ctrl().data.0.waiters.store(0, Ordering::Relaxed);
+    mem.ctrl().data.0.parked.store(0, Ordering::Relaxed);
 }
 
 /// As [`clear_data_waiters`], for a dead producer parked on the "space" signal.
 #[cfg(not(loom))]
 pub(crate) fn clear_space_waiters(mem: &RingMem) {
-    mem.ctrl().space.0.waiters.store(0, Ordering::Relaxed);
+    mem.ctrl().space.0.parked.store(0, Ordering::Relaxed);
 }
 
 fn mem_twin(mem: &RingMem) -> RingMem {

@@ -1,13 +1,15 @@
 //! Wait strategies and the futex event count that parking uses.
 //!
 //! A side that waits (for data, or for space) first re-checks its ring; if it decides to park,
-//! it registers in `Signal::waiters` and sleeps on the futex word `Signal::epoch`. The other
-//! side, after publishing, checks `waiters` and only then pays for `FUTEX_WAKE`, so when
-//! nobody parks the data path stays free of syscalls. The futex is the shared (non-private)
-//! kind, so it works across processes on the segment.
+//! it sets `Signal::parked` and sleeps on the futex word `Signal::epoch`. The other side, after
+//! publishing, checks `parked` and only then pays for `FUTEX_WAKE`, so when nobody parks the
+//! data path stays free of syscalls. The notifier clears `parked` as it wakes (a swap), so a
+//! burst of pushes while the waiter is still waking up costs one syscall, not one per push.
+//! Each signal has at most one waiter (one consumer waits for data, one producer for space).
+//! The futex is the shared (non-private) kind, so it works across processes on the segment.
 //!
 //! No lost wake-up (the classic store-buffer pattern, both sides fenced `SeqCst`):
-//! waiter: `waiters += 1; fence; re-check ring`; notifier: `publish; fence; load waiters`.
+//! waiter: `parked = 1; fence; re-check ring`; notifier: `publish; fence; load parked`.
 //! At least one of them sees the other's write, so either the waiter finds the data, or the
 //! notifier sees the waiter, bumps `epoch` and wakes it; a bump between the waiter's read of
 //! `epoch` and its `FUTEX_WAIT` makes the wait return at once (the kernel compares the value).
@@ -60,7 +62,10 @@ pub(crate) fn notify(signal: &Signal) {
 #[inline]
 pub(crate) fn notify_if(signal: &Signal, worth_it: bool) {
     fence(Ordering::SeqCst);
-    if worth_it && signal.waiters.load(Ordering::Relaxed) != 0 {
+    if worth_it
+        && signal.parked.load(Ordering::Relaxed) != 0
+        && signal.parked.swap(0, Ordering::Relaxed) != 0
+    {
         signal.epoch.fetch_add(1, Ordering::Release);
         #[cfg(not(loom))]
         futex::wake_all(&signal.epoch);
@@ -73,9 +78,16 @@ pub(crate) fn notify_if(signal: &Signal, worth_it: bool) {
 #[inline]
 pub(crate) fn register_waiter(signal: &Signal) -> u32 {
     let epoch = signal.epoch.load(Ordering::Acquire);
-    signal.waiters.fetch_add(1, Ordering::SeqCst);
+    signal.parked.store(1, Ordering::SeqCst);
     fence(Ordering::SeqCst);
     epoch
+}
+
+/// The waiter is done waiting (found what it wanted or gave up).
+#[cfg(not(loom))]
+#[inline]
+fn unregister_waiter(signal: &Signal) {
+    signal.parked.store(0, Ordering::Relaxed);
 }
 
 /// Why a wait ended without a result.
@@ -134,20 +146,20 @@ pub(crate) fn wait_for<T>(
     loop {
         let epoch = register_waiter(signal);
         if let Some(value) = attempt() {
-            signal.waiters.fetch_sub(1, Ordering::Relaxed);
+            unregister_waiter(signal);
             return Ok(value);
         }
         let mut slice = PARK_SLICE;
         if let Some(d) = deadline {
             let now = Instant::now();
             if now >= d {
-                signal.waiters.fetch_sub(1, Ordering::Relaxed);
+                unregister_waiter(signal);
                 return Err(WaitEnd::Timeout);
             }
             slice = slice.min(d - now);
         }
         let woken = futex::wait(&signal.epoch, epoch, slice);
-        signal.waiters.fetch_sub(1, Ordering::Relaxed);
+        unregister_waiter(signal);
         if let Some(value) = attempt() {
             return Ok(value);
         }
