@@ -83,6 +83,11 @@ enum Command {
         /// non-loopback address.
         #[arg(long)]
         token: Option<String>,
+        /// Listen on a non-loopback address without a token (e.g. inside a container whose
+        /// ports are published on the host's 127.0.0.1 only). Anyone who can reach the
+        /// address can then swap models and start experiments.
+        #[arg(long)]
+        allow_public_without_token: bool,
         /// Largest model upload accepted, MiB.
         #[arg(long, default_value_t = 64)]
         max_upload_mib: usize,
@@ -147,6 +152,7 @@ fn main() -> ExitCode {
             grpc,
             http,
             token,
+            allow_public_without_token,
             max_upload_mib,
             instance,
             segment,
@@ -204,6 +210,7 @@ fn main() -> ExitCode {
                 grpc_addr: grpc,
                 http_addr: http,
                 token,
+                allow_public_without_token,
                 max_upload_bytes: max_upload_mib.saturating_mul(1 << 20),
                 // Streams end at once on shutdown; this is for connections that hang on.
                 shutdown_grace: Duration::from_millis(1000),

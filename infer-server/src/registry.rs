@@ -490,7 +490,11 @@ impl Registry {
     /// collects returned engines and revalidates the active model when a loop with another
     /// feature schema attached. Returns a line to log when something happened.
     pub fn maintain(&self) -> Option<String> {
-        let _ops = self.ops.try_lock().ok()?;
+        let _ops = match self.ops.try_lock() {
+            Ok(g) => g,
+            Err(std::sync::TryLockError::Poisoned(p)) => p.into_inner(),
+            Err(std::sync::TryLockError::WouldBlock) => return None,
+        };
         self.collect_returned();
         if !self.server.attached() {
             return None;

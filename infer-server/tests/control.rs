@@ -859,9 +859,31 @@ async fn sigterm_ends_open_streams_and_websockets_quickly() {
         .unwrap()
         .loop_side()
         .unwrap();
-    let mut server = ServerProcess::start("term", &dir, &segment, &["--model", "linear.onnx"]);
+    let mut server = ServerProcess::start(
+        "term",
+        &dir,
+        &segment,
+        &["--model", "linear.onnx", "--token", "s3cret"],
+    );
     let stepper = StepLoop::start(lp);
     stepper.wait_for(50);
+
+    // With a token, mutating calls need it; reads do not.
+    let mut c = server.models().await;
+    let e = load(&mut c, "linear.onnx").await.unwrap_err();
+    assert_eq!(e.code(), Code::Unauthenticated, "{e:?}");
+    let mut req = tonic::Request::new(pb::UnloadModelRequest {
+        name: "linear.onnx".into(),
+    });
+    req.metadata_mut()
+        .insert("authorization", "Bearer s3cret".parse().unwrap());
+    let e = c.unload_model(req).await.unwrap_err();
+    assert_eq!(
+        e.code(),
+        Code::FailedPrecondition,
+        "authenticated, refused: {e:?}"
+    );
+    assert_eq!(list(&mut c).await.len(), 1);
 
     // An open gRPC telemetry stream and an open WebSocket.
     let mut stream = server
