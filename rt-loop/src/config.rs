@@ -149,3 +149,29 @@ impl RunConfig {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The documented example (also in docs/rt-loop.md) parses and states the true defaults.
+    #[test]
+    fn example_config_states_the_defaults() {
+        let text = include_str!("../config.example.toml");
+        let c = RunConfig::from_toml(text).unwrap();
+        let mut want = RunConfig::default();
+        want.record = Some("data/run.parquet".into());
+        want.format = Some(Format::Parquet);
+        assert_eq!(c, want);
+        let docs = include_str!("../../docs/rt-loop.md");
+        assert!(docs.contains(text.lines().skip(2).collect::<Vec<_>>().join("\n").trim()));
+    }
+
+    #[test]
+    fn unknown_keys_are_refused() {
+        let e = RunConfig::from_toml("[params]\nk_pp = 3.0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("k_pp"), "{e}");
+    }
+}

@@ -49,8 +49,8 @@ pub struct SimConfig {
 impl Default for SimConfig {
     fn default() -> Self {
         SimConfig {
-            mass_kg: 0.643 * 1.04,
-            force_constant: 24.0 * 0.97,
+            mass_kg: 0.66872,      // nominal 0.643 kg + 4 %
+            force_constant: 23.28, // nominal 24 N/A - 3 %
             coulomb_n: 0.85,
             static_n: 1.0,
             stribeck_mps: 0.002,
