@@ -159,9 +159,11 @@ mod tests {
     fn example_config_states_the_defaults() {
         let text = include_str!("../config.example.toml");
         let c = RunConfig::from_toml(text).unwrap();
-        let mut want = RunConfig::default();
-        want.record = Some("data/run.parquet".into());
-        want.format = Some(Format::Parquet);
+        let want = RunConfig {
+            record: Some("data/run.parquet".into()),
+            format: Some(Format::Parquet),
+            ..RunConfig::default()
+        };
         assert_eq!(c, want);
         let docs = include_str!("../../docs/rt-loop.md");
         assert!(docs.contains(text.lines().skip(2).collect::<Vec<_>>().join("\n").trim()));
