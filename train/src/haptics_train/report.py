@@ -29,6 +29,10 @@ THESIS: dict[str, tuple[str, float, float | None]] = {
 }
 
 
+#: models whose test-set plots the report shows (keeps the committed report small)
+PLOTTED = ("sd_poly2", "rf_six", "rf_xva", "dnn_six", "lstm_six", "dnn_fb_six", "lstm_fb_six")
+
+
 def _f(v: float | None, nd: int = 3) -> str:
     if v is None:
         return "-"
@@ -269,7 +273,8 @@ def write_report(
          for n in names],
     ))  # fmt: skip
     md += ["", "## Test-set plots", ""]
-    for n in plot_models or names:
+    wanted = plot_models or [n for n in PLOTTED if n in results] or names
+    for n in wanted:
         if n in results:
             f = _plot_series(n, folder, dataset, out, None)
             if f:
