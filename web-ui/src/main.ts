@@ -382,12 +382,12 @@ function setText(id: string, text: string, cls = ""): void {
 function updateFigures(): void {
   const s = status;
   setText("f-loop", s.loop_alive === undefined ? "–" : s.loop_alive ? `alive${[s.clock, s.board].filter(Boolean).map((x) => `, ${x}`).join("")}` : "gone", s.loop_alive === false ? "bad" : s.loop_alive ? "ok" : "");
-  setText("f-rate", typeof s.rate_hz === "number" ? (s.rate_hz >= 1000 ? `${(s.rate_hz / 1000).toFixed(3)} kHz` : `${s.rate_hz.toFixed(1)} Hz`) : "–");
+  setText("f-rate", typeof s.rate_hz === "number" && s.loop_alive !== false ? (s.rate_hz >= 1000 ? `${(s.rate_hz / 1000).toFixed(3)} kHz` : `${s.rate_hz.toFixed(1)} Hz`) : "–");
   setText("f-steps", fmtInt(s.step));
-  const rt = s.round_trip_latency;
-  setText("f-rtt", rt ? `${fmtUs(rt.p50_us)} / ${fmtUs(rt.p99_us)} / ${fmtUs(rt.p999_us)} µs` : "–");
-  const il = s.inference_latency;
-  setText("f-inf", il ? `${fmtUs(il.p50_us)} / ${fmtUs(il.p99_us)} / ${fmtUs(il.p999_us)} µs` : "–");
+  // A histogram with no samples yet has nothing to say (its zeros are not latencies).
+  const lat = (l: Status["round_trip_latency"]) => (l && l.count !== 0 ? `${fmtUs(l.p50_us)} / ${fmtUs(l.p99_us)} / ${fmtUs(l.p999_us)} µs` : "–");
+  setText("f-rtt", lat(s.round_trip_latency));
+  setText("f-inf", lat(s.inference_latency));
   setText("f-miss", fmtInt(s.deadline_misses), (s.deadline_misses ?? 0) > 0 ? "bad" : "");
   setText("f-fallback", fmtInt(s.fallbacks), (s.fallbacks ?? 0) > 0 ? "bad" : "");
   setText("f-model", s.active_model ? `${s.active_model.name}${s.active_model.kind ? ` (${s.active_model.kind})` : ""}` : s.loop_alive === undefined ? "–" : "none (fallback)");
@@ -408,7 +408,8 @@ type ViewState = "connecting" | "live" | "loop-gone" | "server-gone" | "no-data"
 
 function viewState(now: number): ViewState {
   if (conn === "closed") return "server-gone";
-  if (conn === "connecting") return "connecting";
+  // Open but no status yet: still finding out whether a loop is there.
+  if (conn === "connecting" || lastStatusAt === 0) return "connecting";
   if (status.loop_alive === false) return "loop-gone";
   if (now - lastStatusAt > 5000 && now - lastDataAt > 2000) return "no-data";
   if (now - lastDataAt > 2000) return "no-data";

@@ -292,7 +292,7 @@ describe("page against the real rt-loop and infer-server", () => {
     const list = Array.isArray(models) ? models : models.models;
     const st0 = await getJson(`${ctx.url}/api/status`);
     const before = st0.active_model?.name ?? "";
-    const target = list.find((m) => m.name !== before && !/failed/i.test(String(m.state)) && !m.error && /^(linear|tree)$/.test(m.name)) ?? list.find((m) => m.name !== before && !/failed/i.test(String(m.state)) && !m.error);
+    const target = list.find((m) => m.name !== before && !/failed/i.test(String(m.state)) && !m.error && /^(linear|tree)(\.onnx)?$/.test(m.name)) ?? list.find((m) => m.name !== before && !/failed/i.test(String(m.state)) && !m.error);
     assert.ok(target, `a model to swap to in ${ctx.models}: ${JSON.stringify(list.map((m) => m.name))}`);
     await page.click("#models-refresh");
     await page.click(`tr[data-model="${target.name}"] button`);
