@@ -353,3 +353,47 @@ fn attach_timeout_waits_for_the_loop() {
         Err(Error::NotFound { .. })
     ));
 }
+
+#[test]
+fn endpoints_can_move_to_their_threads() {
+    fn send<T: Send>() {}
+    send::<shm_ring::LoopSide>();
+    send::<shm_ring::ServerSide>();
+    send::<shm_ring::Link>();
+    fn sync<T: Sync>() {}
+    sync::<shm_ring::Link>();
+    // And for real: each end used from its own thread.
+    let name = unique("threads");
+    let lp = Segment::create(&name, &Config::default())
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    let sv = Segment::attach(&name).unwrap().server_side().unwrap();
+    let shm_ring::LoopSide {
+        mut features_tx,
+        link,
+        ..
+    } = lp;
+    let shm_ring::ServerSide {
+        mut features_rx, ..
+    } = sv;
+    let producer = std::thread::spawn(move || {
+        for seq in 0..1000 {
+            features_tx
+                .send_timeout(pattern::feature(seq), Duration::from_secs(5))
+                .unwrap();
+        }
+    });
+    for seq in 0..1000 {
+        pattern::check_feature(
+            &features_rx.recv_timeout(Duration::from_secs(5)).unwrap(),
+            seq,
+        )
+        .unwrap();
+    }
+    producer.join().unwrap();
+    assert!(
+        link.peer_alive(),
+        "the destructured ends keep the mapping and the locks alive"
+    );
+}
