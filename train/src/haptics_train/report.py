@@ -67,9 +67,9 @@ def _plot_series(
     one = preds.get(f"{rec.name}:one_step")
     cl = preds.get(f"{rec.name}:closed_loop")
     if one is not None:
-        ax.plot(t[::stride], one[::stride], lw=0.7, label="one-step")
+        ax.plot(t[::stride], one[::stride], lw=0.7, color="tab:blue", label="one-step")
     if cl is not None:
-        ax.plot(t[::stride], cl[::stride], lw=0.7, label="closed loop")
+        ax.plot(t[::stride], cl[::stride], lw=0.7, color="tab:orange", label="closed loop")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("force [N]")
     ax.set_title(f"{name} on {rec.name}", fontsize=10)
@@ -79,7 +79,7 @@ def _plot_series(
     x = 1e3 * rec.column("position_x")
     ax.plot(x[::stride], y[::stride], color="k", lw=0.6, label="measured")
     if cl is not None:
-        ax.plot(x[::stride], cl[::stride], lw=0.6, label="closed loop")
+        ax.plot(x[::stride], cl[::stride], lw=0.6, color="tab:orange", label="closed loop")
     ax.set_xlabel("compression x [mm]")
     ax.set_ylabel("force [N]")
     ax.legend(fontsize=7)
