@@ -479,6 +479,15 @@ impl StepEngine {
 
     /// Warm-up: primes ONNX Runtime's arena and memory plan and checks the outputs (force and
     /// state) stay finite for a few deterministic inputs. Leaves the state reset.
+    /// Runs `runs` warm-up steps again (results ignored) and resets the state. Called on the
+    /// control thread just before a swap, so the model's weights are in the shared cache when
+    /// the inference thread runs its first step (measured: the first step after a swap took
+    /// several times a normal step from cold memory; see benches/hot_swap.rs).
+    pub fn rewarm(&mut self, runs: usize) {
+        let _ = self.warm_up(runs);
+        self.reset();
+    }
+
     fn warm_up(&mut self, runs: usize) -> Result<(), ModelError> {
         let n = self.input_map.len();
         let mut input = vec![0f32; self.schema_len];

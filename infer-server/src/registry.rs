@@ -36,6 +36,10 @@ const TAKE_TIMEOUT: Duration = Duration::from_secs(1);
 /// next step instead (the loop is attached but not stepping the model right now).
 const EFFECTIVE_WAIT: Duration = Duration::from_millis(250);
 
+/// Warm-up steps run on the control thread right before a swap (brings the model's weights
+/// into the shared cache; its first step on the inference thread is then not a cold one).
+const REWARM_RUNS: usize = 8;
+
 enum Source {
     Directory,
     Upload(Arc<[u8]>),
@@ -312,6 +316,8 @@ impl Registry {
             Some(engine) => engine,
             None => self.fresh_engine(name, load_if_needed)?,
         };
+        let mut engine = engine;
+        engine.rewarm(REWARM_RUNS);
         let label = engine.info().path.clone();
         let info = engine.info().clone();
         let previous = self.server.active();
