@@ -44,7 +44,8 @@ PY
 fi
 
 if [ -f web-ui/package.json ]; then
-  if [ ! -d web-ui/node_modules ]; then
+  # Also when package-lock.json changed since the last install (a machine kept between sessions).
+  if [ ! -d web-ui/node_modules ] || [ web-ui/package-lock.json -nt web-ui/node_modules/.package-lock.json ]; then
     echo "setup: npm ci in web-ui/"
     (cd web-ui && npm ci --no-audit --no-fund)
   fi
