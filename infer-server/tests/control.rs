@@ -1077,3 +1077,64 @@ async fn a_hundred_swaps_lose_no_step_and_each_takes_effect_at_its_reported_step
         swaps.last().unwrap().0
     );
 }
+
+/// A gRPC client that is not ours: Python grpcio with no .proto and no stubs
+/// (control-plane/tests/py/grpc_reflection_client.py), against the real server: services
+/// through reflection v1 and v1alpha, GetStatus, ListModels, the token rule, an activation
+/// with its effective step, a bad name, health.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_python_grpc_client_uses_the_real_server_through_reflection() {
+    let Some(fixtures) = common::fixtures() else {
+        eprintln!("skipped (HAPTICS_SKIP_PY=1)");
+        return;
+    };
+    let dir = models_dir("py", fixtures, &[]);
+    std::fs::copy(fixtures.join("linear.onnx"), dir.join("a.onnx")).unwrap();
+    let segment = segment_name("py");
+    let stepper = StepLoop::start(loop_with(&segment, &[0, 1, 2, 3]));
+    let server = ServerProcess::start("py", &dir, &segment, &["--token", "py-token"]);
+    stepper.wait_for(10);
+    let script = common::repo_root().join("control-plane/tests/py/grpc_reflection_client.py");
+    let out = Command::new(common::python())
+        .arg(&script)
+        .arg(server.grpc.trim_start_matches("http://"))
+        .arg("py-token")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "python failed:\n{stderr}");
+    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for key in ["services_v1", "services_v1alpha"] {
+        let got = r[key].to_string();
+        for svc in [
+            "grpc.health.v1.Health",
+            "grpc.reflection.v1.ServerReflection",
+            "grpc.reflection.v1alpha.ServerReflection",
+            "haptics.v1.LoopService",
+            "haptics.v1.ModelService",
+        ] {
+            assert!(got.contains(svc), "{key}: {svc} missing from {got}");
+        }
+    }
+    assert_eq!(r["status"]["loop_alive"], true, "{}", r["status"]);
+    assert_eq!(r["status"]["token_required"], true);
+    assert_eq!(r["models"]["models"][0]["name"], "a.onnx");
+    assert_eq!(r["activate_without_token"], "UNAUTHENTICATED");
+    assert_eq!(r["activate"]["model"]["name"], "a.onnx");
+    let eff: u64 = r["activate"]["effective_step"]
+        .as_str()
+        .unwrap()
+        .parse()
+        .unwrap();
+    let id = r["activate"]["model"]["model_id"].as_u64().unwrap() as u32;
+    stepper.wait_for(eff + 10);
+    check_model_answers(&stepper.answers(), eff, u64::MAX, id, linear);
+    assert!(stepper
+        .answers()
+        .iter()
+        .filter(|a| a.seq < eff)
+        .all(|a| a.flags == infer_server::serve::force_flags::NO_MODEL));
+    assert_eq!(r["bad_name"], "INVALID_ARGUMENT");
+    assert_eq!(r["health"], "SERVING");
+    drop(stepper.stop());
+}
