@@ -103,7 +103,7 @@ pub(crate) enum WaitEnd {
 #[cfg(not(loom))]
 pub(crate) const PARK_SLICE: std::time::Duration = std::time::Duration::from_millis(10);
 
-/// Spins between liveness checks in pure spin mode (a check is a syscall).
+/// Spins between liveness checks in an unbounded spin (a check is one `fcntl` syscall).
 #[cfg(not(loom))]
 const SPINS_PER_CHECK: u32 = 1 << 14;
 
@@ -129,16 +129,15 @@ pub(crate) fn wait_for<T>(
         }
         crate::sync::spin_hint();
         spun += 1;
-        if spun & (SPINS_PER_CHECK - 1) == 0 {
-            if past(deadline) {
+        if deadline.is_some() {
+            // Bounded wait (the loop's `recv_deadline`): the deadline ends it, so no liveness
+            // syscall is made while spinning; `Instant::now` is a vDSO read, not a syscall.
+            if spun & 63 == 0 && past(deadline) {
                 return Err(WaitEnd::Timeout);
             }
-            if gone() {
-                return Err(WaitEnd::PeerGone);
-            }
-        }
-        if deadline.is_some() && spun & 63 == 0 && past(deadline) {
-            return Err(WaitEnd::Timeout);
+        } else if spun & (SPINS_PER_CHECK - 1) == 0 && gone() {
+            // Unbounded spin: only a dead peer can end it.
+            return Err(WaitEnd::PeerGone);
         }
     }
 
