@@ -357,7 +357,10 @@ impl Registry {
         if let Some(prev) = st.active.take() {
             if prev != name {
                 if let Some(e) = st.entries.get_mut(&prev) {
+                    // Its engine comes back from the thread (collect_returned); if it did not
+                    // fit the current loop, the next activation reloads it and says so.
                     e.state = ModelState::Loaded;
+                    e.error = None;
                     e.since_step = None;
                 }
             }

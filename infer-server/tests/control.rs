@@ -438,6 +438,22 @@ async fn models_load_activate_swap_and_refusals_over_grpc() {
     for w in answers.windows(2) {
         assert_eq!(w[1].seq, w[0].seq + 1);
     }
+    // Activating the active model again: a fresh engine (new id, fresh state) from a later step.
+    let again = activate(&mut c, "tree.onnx", false).await.unwrap();
+    let tree_id_again = again.model.as_ref().unwrap().model_id;
+    assert!(again.effective_step > effective);
+    assert_ne!(tree_id_again, tree_id);
+    stepper.wait_for(again.effective_step + 20);
+    let answers = stepper.answers();
+    check_model_answers(&answers, effective, again.effective_step, tree_id, tree);
+    check_model_answers(
+        &answers,
+        again.effective_step,
+        u64::MAX,
+        tree_id_again,
+        tree,
+    );
+    let tree_id = tree_id_again;
     let listed = list(&mut c).await;
     assert_eq!(
         model(&listed, "linear.onnx").state,
@@ -568,7 +584,7 @@ async fn models_load_activate_swap_and_refusals_over_grpc() {
     );
     check_model_answers(
         &stepper.answers(),
-        effective,
+        again.effective_step,
         swap.effective_step,
         tree_id,
         tree,
