@@ -23,4 +23,7 @@ pub mod record;
 pub mod rig;
 pub mod rng;
 pub mod run;
+pub mod serve;
+pub mod shm_io;
+pub mod shm_model;
 pub mod sponge;

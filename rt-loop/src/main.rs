@@ -6,8 +6,11 @@ use rt_loop::config::{BoardKind, ClockKind, ExperimentKind, RunConfig};
 use rt_loop::features::FeatureParams;
 use rt_loop::import::{ForceUnit, ImportSpec, PositionUnit, TimeUnit};
 use rt_loop::record::Format;
+use rt_loop::shm_model::{AnswerWait, ShmModel};
+use shm_ring::WaitStrategy;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::time::Duration;
 
 #[derive(Parser)]
 #[command(
@@ -29,6 +32,111 @@ enum Cmd {
     Features(FeaturesArgs),
     /// Fit the spring-damper fallback (F = k1 x + k2 x^2 + b v) to a recording; prints TOML.
     Fit(FitArgs),
+    /// Long-running loop for the system: owns the shared-memory segment, idles at 0 A (or loops
+    /// --autostart), runs the experiments infer-server's mailbox asks for, streams telemetry.
+    Serve(ServeArgs),
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum ModelArg {
+    /// The built-in spring-damper (no server).
+    Builtin,
+    /// infer-server over shared memory (segment /haptics-<instance>).
+    Shm,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum WaitArg {
+    Spin,
+    Park,
+    SpinPark,
+}
+
+/// How the loop talks to infer-server (shared by `run --model shm` and `serve`).
+#[derive(Args, Clone)]
+struct ShmArgs {
+    /// Segment /haptics-<instance> (infer-server --instance NAME attaches to it).
+    #[arg(long, default_value = "default")]
+    instance: String,
+    /// Realtime clock: per-step deadline for the server's answer (late = fallback), us.
+    #[arg(long, default_value_t = 50.0)]
+    deadline_us: f64,
+    /// Lockstep clock: safety timeout per answer (the loop waits for every answer), s.
+    #[arg(long, default_value_t = 5.0)]
+    answer_timeout_s: f64,
+    /// How the loop waits for an answer: default spin in realtime, park in lockstep.
+    #[arg(long, value_enum)]
+    wait: Option<WaitArg>,
+}
+
+impl ShmArgs {
+    fn wait_strategy(&self, clock: ClockKind) -> WaitStrategy {
+        match (self.wait, clock) {
+            (Some(WaitArg::Spin), _) | (None, ClockKind::Realtime) => WaitStrategy::Spin,
+            (Some(WaitArg::Park), _) | (None, ClockKind::Lockstep) => WaitStrategy::Park,
+            (Some(WaitArg::SpinPark), _) => WaitStrategy::DEFAULT_SPIN_THEN_PARK,
+        }
+    }
+
+    fn answer_wait(&self, clock: ClockKind) -> anyhow::Result<AnswerWait> {
+        if !(self.deadline_us.is_finite() && self.deadline_us > 0.0 && self.deadline_us <= 1e6) {
+            anyhow::bail!(
+                "--deadline-us must be in (0, 1e6] (got {})",
+                self.deadline_us
+            );
+        }
+        if !(self.answer_timeout_s.is_finite() && self.answer_timeout_s > 0.0) {
+            anyhow::bail!(
+                "--answer-timeout-s must be > 0 (got {})",
+                self.answer_timeout_s
+            );
+        }
+        Ok(match clock {
+            ClockKind::Realtime => {
+                AnswerWait::Deadline(Duration::from_nanos((self.deadline_us * 1e3) as u64))
+            }
+            ClockKind::Lockstep => AnswerWait::Lockstep {
+                safety: Duration::from_secs_f64(self.answer_timeout_s),
+            },
+        })
+    }
+}
+
+#[derive(Args)]
+struct ServeArgs {
+    #[arg(long)]
+    config: Option<PathBuf>,
+    #[arg(long, value_enum, default_value = "realtime")]
+    clock: ClockKind,
+    #[arg(long)]
+    rate_hz: Option<f64>,
+    #[arg(long, value_enum)]
+    board: Option<BoardKind>,
+    #[arg(long)]
+    seed: Option<u64>,
+    #[arg(long)]
+    material: Option<PathBuf>,
+    /// Default ramp rate of abstraction runs (a start command may override), N/s.
+    #[arg(long)]
+    ramp_rate: Option<f64>,
+    #[arg(long)]
+    cycles: Option<u32>,
+    #[arg(long)]
+    f_max_start: Option<f64>,
+    #[arg(long)]
+    f_max_step: Option<f64>,
+    /// Start this experiment at once and again whenever it finishes, until a stop command.
+    #[arg(long, value_enum)]
+    autostart: Option<ExperimentKind>,
+    /// Record every experiment to DIR/<experiment>-<run>-<unix time>.parquet.
+    #[arg(long)]
+    record_dir: Option<PathBuf>,
+    /// Reproduction/shadow: wait this long at the run's start for a server (0: start on the
+    /// fallback at once; model rendering begins when a server attaches), s.
+    #[arg(long, default_value_t = 0.0)]
+    server_wait_s: f64,
+    #[command(flatten)]
+    shm: ShmArgs,
 }
 
 #[derive(Args)]
@@ -92,6 +200,18 @@ struct RunArgs {
     summary_json: Option<PathBuf>,
     #[arg(long)]
     no_progress: bool,
+    /// Reproduction/shadow model: the built-in spring-damper, or infer-server over shared memory.
+    #[arg(long, value_enum, default_value = "builtin")]
+    model: ModelArg,
+    /// With --model shm: wait this long for infer-server to attach before the run (error if none), s.
+    #[arg(long, default_value_t = 30.0)]
+    server_wait_s: f64,
+    /// With --model shm in lockstep: wait for every answer (default) — this is the safety timeout.
+    #[command(flatten)]
+    shm: ShmArgs,
+    /// Create the segment and publish telemetry even without --model shm (live plots of any run).
+    #[arg(long)]
+    telemetry: bool,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -229,11 +349,46 @@ fn cmd_run(a: &RunArgs) -> anyhow::Result<ExitCode> {
         );
         bar = Some(Bar(pb));
     }
-    let summary = rt_loop::run::run(
+    let uses_model = matches!(
+        cfg.experiment,
+        ExperimentKind::Reproduction | ExperimentKind::Shadow
+    );
+    let mut segment = None;
+    let mut counters = None;
+    let mut model: Option<Box<dyn rt_loop::model::ForceModel>> = None;
+    if a.model == ModelArg::Shm || a.telemetry {
+        let answer_wait = a.shm.answer_wait(cfg.clock)?;
+        let seg = rt_loop::shm_io::create_segment(&a.shm.instance, a.shm.wait_strategy(cfg.clock))?;
+        let mut client = seg.client;
+        if a.model == ModelArg::Shm && uses_model {
+            if !(a.server_wait_s.is_finite() && a.server_wait_s >= 0.0) {
+                anyhow::bail!("--server-wait-s must be >= 0");
+            }
+            eprintln!(
+                "rt-loop: segment {} created; waiting up to {} s for infer-server (infer-server serve --instance {})",
+                seg.name, a.server_wait_s, a.shm.instance
+            );
+            if !client.wait_for_server(Duration::from_secs_f64(a.server_wait_s)) {
+                anyhow::bail!(
+                    "no infer-server attached to {} within {} s: start `infer-server serve --instance {} --model MODEL` (or raise --server-wait-s)",
+                    seg.name,
+                    a.server_wait_s,
+                    a.shm.instance
+                );
+            }
+            eprintln!("rt-loop: infer-server attached");
+            counters = Some(client.counters.clone());
+            model = Some(Box::new(ShmModel::new(client, answer_wait, Duration::ZERO)));
+        }
+        segment = Some(seg.io);
+    }
+    let mut summary = rt_loop::run::run_with(
         &cfg,
-        None,
+        model,
         bar.as_mut().map(|b| b as &mut dyn rt_loop::run::Progress),
+        segment.as_mut(),
     )?;
+    summary.shm = counters.map(|c| c.snapshot());
     print_summary(&summary);
     if let Some(p) = &a.summary_json {
         std::fs::write(p, serde_json::to_string_pretty(&summary)?)?;
@@ -268,6 +423,12 @@ fn print_summary(s: &rt_loop::run::RunSummary) {
         eprintln!(
             "rt-loop: model: {} served, {} fallbacks",
             m.served, m.fallbacks
+        );
+    }
+    if let Some(c) = &s.shm {
+        eprintln!(
+            "rt-loop: shm: {} sent, {} answered in time, {} late (deadline misses), {} without a server, {} flagged by the server, {} ring full, {} stale answers discarded, server lost {} time(s), {} attachment(s) seen",
+            c.sent, c.answered, c.late, c.no_server, c.flagged, c.ring_full, c.stale_discarded, c.server_lost, c.attachments_seen
         );
     }
     if let Some(j) = &s.jitter {
@@ -306,6 +467,66 @@ fn cmd_features(a: &FeaturesArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+fn cmd_serve(a: &ServeArgs) -> anyhow::Result<ExitCode> {
+    let mut base = match &a.config {
+        Some(p) => RunConfig::load(p)?,
+        None => RunConfig::default(),
+    };
+    base.clock = a.clock;
+    if let Some(v) = a.rate_hz {
+        base.rate_hz = v;
+    }
+    if let Some(v) = a.board {
+        base.board = v;
+    }
+    if base.board != BoardKind::Sim {
+        anyhow::bail!("serve runs on the simulated bench (--board sim) or a real board; the replay board ends with its data");
+    }
+    if let Some(v) = a.seed {
+        base.seed = v;
+    }
+    if let Some(v) = &a.material {
+        base.material = v.clone();
+    }
+    if let Some(v) = a.ramp_rate {
+        base.ramp.ramp_rate = v;
+    }
+    if let Some(v) = a.cycles {
+        base.ramp.cycles = v;
+    }
+    if let Some(v) = a.f_max_start {
+        base.ramp.f_max_start = v;
+    }
+    if let Some(v) = a.f_max_step {
+        base.ramp.f_max_step = v;
+    }
+    base.record = None;
+    base.validate().map_err(|e| anyhow::anyhow!(e))?;
+    if !(a.server_wait_s.is_finite() && a.server_wait_s >= 0.0) {
+        anyhow::bail!("--server-wait-s must be >= 0");
+    }
+    let answer_wait = a.shm.answer_wait(a.clock)?;
+    let (deadline, answer_timeout) = match answer_wait {
+        AnswerWait::Deadline(d) => (d, Duration::from_secs_f64(a.shm.answer_timeout_s)),
+        AnswerWait::Lockstep { safety } => (
+            Duration::from_nanos((a.shm.deadline_us * 1e3) as u64),
+            safety,
+        ),
+    };
+    let cfg = rt_loop::serve::ServeConfig {
+        base,
+        instance: a.shm.instance.clone(),
+        autostart: a.autostart,
+        record_dir: a.record_dir.clone(),
+        deadline,
+        answer_timeout,
+        server_wait: Duration::from_secs_f64(a.server_wait_s),
+        answer_wait: a.shm.wait_strategy(a.clock),
+    };
+    rt_loop::serve::serve(&cfg)?;
+    Ok(ExitCode::SUCCESS)
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     // Ctrl-C / SIGTERM: stop at the next step with 0 A and a complete recording.
@@ -313,6 +534,7 @@ fn main() -> ExitCode {
     let r = match &cli.cmd {
         Cmd::Run(a) => cmd_run(a),
         Cmd::Features(a) => cmd_features(a),
+        Cmd::Serve(a) => cmd_serve(a),
         Cmd::Fit(a) => fit(&a.input, &a.force_col).map(|sd| {
             println!(
                 "[reproduction.fallback]\nk1 = {}\nk2 = {}\nb = {}",

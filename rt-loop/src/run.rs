@@ -32,6 +32,10 @@ pub struct RunSummary {
     pub recorder: Option<RecorderReport>,
     pub jitter: Option<JitterStats>,
     pub model: Option<ModelStats>,
+    /// The shared-memory client's counters (runs with a served model), filled in by the caller.
+    pub shm: Option<crate::shm_model::ShmCountersSnapshot>,
+    /// Telemetry rows published into the segment (0 without one).
+    pub telemetry_rows: u64,
     pub warnings: Vec<String>,
 }
 
@@ -41,7 +45,10 @@ impl RunSummary {
         let rec_ok = self.recorder.as_ref().is_none_or(|r| {
             r.error.is_none() && r.rows_written == r.rows_received && self.drops == 0
         });
-        (self.stop == "finished" || self.stop == "time-limit" || self.stop == "interrupted")
+        (self.stop == "finished"
+            || self.stop == "time-limit"
+            || self.stop == "interrupted"
+            || self.stop == "stopped")
             && rec_ok
     }
 }
@@ -163,6 +170,11 @@ pub fn request_stop() {
     STOP_REQUESTED.store(true, Ordering::Relaxed);
 }
 
+/// Whether SIGINT/SIGTERM (or [`request_stop`]) asked the process to stop.
+pub fn stop_requested() -> bool {
+    STOP_REQUESTED.load(Ordering::Relaxed)
+}
+
 extern "C" fn on_signal(_: libc::c_int) {
     request_stop();
 }
@@ -186,7 +198,18 @@ pub trait Progress {
 pub fn run(
     cfg: &RunConfig,
     model: Option<Box<dyn ForceModel>>,
+    progress: Option<&mut dyn Progress>,
+) -> Result<RunSummary> {
+    run_with(cfg, model, progress, None)
+}
+
+/// [`run`] with the loop's shared-memory side channel: every step's row goes out as telemetry,
+/// the heartbeat is bumped, and a stop command from the mailbox ends the run (stop "stopped").
+pub fn run_with(
+    cfg: &RunConfig,
+    model: Option<Box<dyn ForceModel>>,
     mut progress: Option<&mut dyn Progress>,
+    mut io: Option<&mut crate::shm_io::LoopIo>,
 ) -> Result<RunSummary> {
     cfg.validate().map_err(|e| anyhow!(e))?;
     let (material, material_text) = Material::load(&cfg.material)?;
@@ -241,6 +264,12 @@ pub fn run(
         match rig.step() {
             Ok(row) => {
                 last_time = row.time;
+                if let Some(io) = io.as_deref_mut() {
+                    if io.on_step(&row) == crate::shm_io::StepAction::Stop {
+                        rig.safe_stop();
+                        break "stopped".into();
+                    }
+                }
                 if let Some(r) = recorder.as_mut() {
                     if row.step % decimate == 0 {
                         if lockstep {
@@ -301,6 +330,8 @@ pub fn run(
         recorder: report,
         jitter: clock.map(|c| c.stats()),
         model: rig.experiment.model_stats(),
+        shm: None,
+        telemetry_rows: io.map_or(0, |io| io.rows_sent),
         warnings,
     })
 }

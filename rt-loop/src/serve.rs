@@ -1,0 +1,223 @@
+//! `rt-loop serve`: the long-running loop of the system (scripts, the web page). It owns the
+//! instance's shared-memory segment for its whole life, idles at 0 A (or loops a default
+//! experiment), and runs the experiments the mailbox asks for, one at a time, with telemetry
+//! and the heartbeat flowing. SIGINT/SIGTERM end the running experiment at 0 A, finish its
+//! recording, remove the segment and exit.
+
+use crate::config::{ClockKind, ExperimentKind, RunConfig};
+use crate::shm_io::{create_segment, LoopCommand, StartRequest};
+use crate::shm_model::{AnswerWait, ShmClient, ShmModel};
+use anyhow::{anyhow, Result};
+use shm_ring::WaitStrategy;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+#[derive(Clone, Debug)]
+pub struct ServeConfig {
+    /// Everything a run needs (clock, rate, board, material, ramp defaults...).
+    pub base: RunConfig,
+    pub instance: String,
+    /// Experiment started at once and again whenever it finishes, until a stop command.
+    pub autostart: Option<ExperimentKind>,
+    /// Record each experiment to `DIR/<experiment>-<run>-<unix s>.parquet`.
+    pub record_dir: Option<PathBuf>,
+    /// Realtime: per-step answer deadline.
+    pub deadline: Duration,
+    /// Lockstep: safety timeout per answer.
+    pub answer_timeout: Duration,
+    /// How long a reproduction/shadow run waits at its start for a server (0: not at all).
+    pub server_wait: Duration,
+    pub answer_wait: WaitStrategy,
+}
+
+impl ServeConfig {
+    pub fn answer_wait_mode(&self) -> AnswerWait {
+        match self.base.clock {
+            ClockKind::Realtime => AnswerWait::Deadline(self.deadline),
+            ClockKind::Lockstep => AnswerWait::Lockstep {
+                safety: self.answer_timeout,
+            },
+        }
+    }
+}
+
+/// The configuration of one requested experiment (the request's values over the defaults).
+pub fn experiment_config(base: &RunConfig, req: &StartRequest) -> RunConfig {
+    let mut c = base.clone();
+    c.experiment = req.experiment;
+    if let Some(v) = req.values[0] {
+        c.ramp.ramp_rate = v;
+    }
+    if let Some(v) = req.values[1] {
+        c.ramp.cycles = v as u32;
+    }
+    if let Some(v) = req.values[2] {
+        c.ramp.f_max_start = v;
+    }
+    if let Some(v) = req.values[3] {
+        c.ramp.f_max_step = v;
+    }
+    c.max_duration_s = None;
+    c
+}
+
+fn unix_s() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs())
+}
+
+/// Runs until SIGINT/SIGTERM ([`crate::run::request_stop`]). Returns the number of
+/// experiments run.
+pub fn serve(cfg: &ServeConfig) -> Result<u64> {
+    cfg.base.validate().map_err(|e| anyhow!(e))?;
+    if let Some(d) = &cfg.record_dir {
+        std::fs::create_dir_all(d).map_err(|e| anyhow!("--record-dir {}: {e}", d.display()))?;
+    }
+    let seg = create_segment(&cfg.instance, cfg.answer_wait)?;
+    let name = seg.name.clone();
+    let mut io = seg.io;
+    let home: Arc<Mutex<Option<ShmClient>>> = Arc::new(Mutex::new(Some(seg.client)));
+    eprintln!(
+        "rt-loop: serving segment {name} ({:?} clock, {} Hz, board {:?}); autostart {}",
+        cfg.base.clock,
+        cfg.base.rate_hz,
+        cfg.base.board,
+        cfg.autostart.map_or(
+            "none (idle at 0 A until a start command)".into(),
+            |e| format!("{e:?}")
+        )
+    );
+    let mut next: Option<StartRequest> = cfg.autostart.map(|e| StartRequest {
+        id: 0,
+        experiment: e,
+        values: [None; 4],
+    });
+    let mut runs = 0u64;
+    let mut run_id = 0u32;
+    loop {
+        if crate::run::stop_requested() {
+            break;
+        }
+        let Some(req) = next.take() else {
+            // Idle: 0 A (no run, the board is not driven), heartbeat, mailbox.
+            io.heartbeat();
+            match io.poll_command() {
+                Some(LoopCommand::Start(r)) => next = Some(r),
+                Some(LoopCommand::Stop { .. }) => {}
+                Some(LoopCommand::Refused { id, reason }) => {
+                    eprintln!("rt-loop: command {id} refused: {reason}")
+                }
+                None => std::thread::sleep(Duration::from_millis(2)),
+            }
+            continue;
+        };
+        let mut rc = experiment_config(&cfg.base, &req);
+        if let Err(e) = rc.validate() {
+            eprintln!(
+                "rt-loop: command {} refused: {e} (parameters {:?})",
+                req.id, req.values
+            );
+            continue;
+        }
+        run_id = run_id.wrapping_add(1);
+        io.set_run_id(run_id);
+        if let Some(d) = &cfg.record_dir {
+            let n = format!(
+                "{}-{run_id}-{}.parquet",
+                format!("{:?}", rc.experiment).to_lowercase(),
+                unix_s()
+            );
+            rc.record = Some(d.join(n));
+        }
+        let model: Option<Box<dyn crate::model::ForceModel>> = match rc.experiment {
+            ExperimentKind::Reproduction | ExperimentKind::Shadow => {
+                match ShmModel::borrow_from(&home, cfg.answer_wait_mode(), cfg.server_wait) {
+                    Some(m) => Some(Box::new(m)),
+                    None => {
+                        eprintln!(
+                            "rt-loop: the shared-memory client is not available: fallback only"
+                        );
+                        None
+                    }
+                }
+            }
+            _ => None,
+        };
+        let counters = home
+            .lock()
+            .ok()
+            .and_then(|h| h.as_ref().map(|c| c.counters.clone()));
+        let before = counters.as_ref().map(|c| c.snapshot());
+        eprintln!(
+            "rt-loop: run {run_id}: {:?} (command {}), ramp {} N/s, {} cycles, F_max {} + {} N{}",
+            rc.experiment,
+            req.id,
+            rc.ramp.ramp_rate,
+            rc.ramp.cycles,
+            rc.ramp.f_max_start,
+            rc.ramp.f_max_step,
+            rc.record
+                .as_ref()
+                .map_or(String::new(), |p| format!(", recording {}", p.display()))
+        );
+        let result = crate::run::run_with(&rc, model, None, Some(&mut io));
+        runs += 1;
+        if io.refused_during_run > 0 {
+            if let Some((id, why)) = io.last_refused {
+                eprintln!(
+                    "rt-loop: {} command(s) refused during the run (last: {id}: {why})",
+                    io.refused_during_run
+                );
+            }
+            io.refused_during_run = 0;
+        }
+        match result {
+            Ok(s) => {
+                let shm = match (counters.as_ref(), before) {
+                    (Some(c), Some(b)) if s.model.is_some() => {
+                        let a = c.snapshot();
+                        format!(
+                            "; shm: {} sent, {} answered, {} late, {} no server, {} flagged",
+                            a.sent - b.sent,
+                            a.answered - b.answered,
+                            a.late - b.late,
+                            a.no_server - b.no_server,
+                            a.flagged - b.flagged
+                        )
+                    }
+                    _ => String::new(),
+                };
+                eprintln!(
+                    "rt-loop: run {run_id} ended: {}, {} steps, {:.2} s{}{}",
+                    s.stop,
+                    s.steps,
+                    s.loop_time_s,
+                    s.model.map_or(String::new(), |m| format!(
+                        ", model {} served / {} fallbacks",
+                        m.served, m.fallbacks
+                    )),
+                    shm
+                );
+                if s.stop == "interrupted" {
+                    break;
+                }
+                // A finished autostart experiment starts again; a stopped one leaves the loop idle.
+                if s.stop != "stopped" {
+                    next = cfg.autostart.map(|e| StartRequest {
+                        id: 0,
+                        experiment: e,
+                        values: [None; 4],
+                    });
+                }
+            }
+            Err(e) => eprintln!("rt-loop: run {run_id} failed: {e:#}"),
+        }
+    }
+    // Dropping the client and the side channel unlinks the segment (clean exit).
+    drop(io);
+    drop(home);
+    eprintln!("rt-loop: serve stopped after {runs} experiment(s); segment {name} removed");
+    Ok(runs)
+}

@@ -1,0 +1,267 @@
+//! The loop's shared-memory segment (crate `shm-ring`): creation with the feature schema, and
+//! [`LoopIo`], the per-step side channel to infer-server: telemetry rows, the loop heartbeat
+//! and the command mailbox.
+//!
+//! REAL-TIME PATH: [`LoopIo::on_step`] allocates nothing, takes no lock and does no I/O: one
+//! overwrite-ring push (never blocks, never fails), one atomic heartbeat store, and every
+//! [`COMMAND_POLL_EVERY`] steps one non-blocking mailbox poll.
+
+use crate::features::FEATURE_NAMES;
+use crate::record::row::Row;
+use crate::shm_model::ShmClient;
+use anyhow::{anyhow, bail, Result};
+use shm_ring::{
+    Command, CommandKind, Config, Consumer, Link, OverwriteProducer, Segment, SegmentName,
+    TelemetryRow, WaitStrategy,
+};
+
+/// Steps between two polls of the command mailbox (1.6 ms at 10 kHz).
+pub const COMMAND_POLL_EVERY: u64 = 16;
+
+/// The segment of one rt-loop instance, split into the model client and the side channel.
+pub struct LoopSegment {
+    pub client: ShmClient,
+    pub io: LoopIo,
+    pub name: SegmentName,
+}
+
+/// Creates `/haptics-<instance>` with the loop's feature schema (the names of
+/// [`FEATURE_NAMES`], in the order `Features::as_array` gives them).
+pub fn create_segment(instance: &str, answer_wait: WaitStrategy) -> Result<LoopSegment> {
+    let name =
+        SegmentName::for_instance(instance).map_err(|e| anyhow!("--instance {instance:?}: {e}"))?;
+    let config = Config {
+        feature_names: FEATURE_NAMES.iter().map(|s| s.to_string()).collect(),
+        ..Config::default()
+    };
+    let segment = Segment::create(&name, &config).map_err(|e| anyhow!("segment {name}: {e}"))?;
+    if let Some(pid) = segment.replaced_stale() {
+        eprintln!("rt-loop: replaced the segment {name} left by a dead loop ({pid:?})");
+    }
+    let side = segment
+        .loop_side()
+        .map_err(|e| anyhow!("segment {name}: {e}"))?;
+    let names = side.link.feature_names();
+    if names
+        .iter()
+        .map(String::as_str)
+        .ne(FEATURE_NAMES.iter().copied())
+    {
+        bail!("segment {name}: schema {names:?} is not the loop's {FEATURE_NAMES:?}");
+    }
+    let client = ShmClient::new(
+        side.features_tx,
+        side.forces_rx,
+        side.link.clone(),
+        answer_wait,
+    );
+    let io = LoopIo::new(side.telemetry_tx, side.commands_rx, side.link);
+    Ok(LoopSegment { client, io, name })
+}
+
+/// What the step loop should do after a step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StepAction {
+    Continue,
+    /// A stop command arrived: end the run safely (0 A).
+    Stop,
+}
+
+/// A validated experiment request from the mailbox.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StartRequest {
+    pub id: u64,
+    pub experiment: crate::config::ExperimentKind,
+    /// `[ramp_rate, cycles, f_max_start, f_max_step]`, `None` = the loop's default.
+    pub values: [Option<f64>; 4],
+}
+
+/// A command, checked like any outside input.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LoopCommand {
+    Start(StartRequest),
+    Stop {
+        id: u64,
+    },
+    /// Refused with the reason (logged off the real-time path).
+    Refused {
+        id: u64,
+        reason: &'static str,
+    },
+}
+
+pub fn parse_command(c: &Command) -> LoopCommand {
+    use crate::config::ExperimentKind as E;
+    match c.kind {
+        CommandKind::StopExperiment => LoopCommand::Stop { id: c.id },
+        CommandKind::SetParameter => LoopCommand::Refused {
+            id: c.id,
+            reason: "set-parameter is not supported by rt-loop",
+        },
+        CommandKind::StartExperiment => {
+            let experiment = match c.name.as_str() {
+                "abstraction" => E::Abstraction,
+                "reproduction" => E::Reproduction,
+                "shadow" => E::Shadow,
+                "position-replay" => {
+                    return LoopCommand::Refused {
+                        id: c.id,
+                        reason: "position-replay needs a trajectory file: use rt-loop run",
+                    }
+                }
+                _ => {
+                    return LoopCommand::Refused {
+                        id: c.id,
+                        reason: "unknown experiment name",
+                    }
+                }
+            };
+            let mut values = [None; 4];
+            for (i, v) in c.values.iter().enumerate() {
+                if v.is_nan() {
+                    continue;
+                }
+                let ok = v.is_finite()
+                    && match i {
+                        0 => *v > 0.0,
+                        1 => *v >= 1.0 && v.fract() == 0.0 && *v <= 1000.0,
+                        2 => *v > 0.0,
+                        _ => *v >= 0.0,
+                    };
+                if !ok {
+                    return LoopCommand::Refused {
+                        id: c.id,
+                        reason: "bad experiment parameter (ramp rate > 0, cycles integer 1..1000, f_max_start > 0, f_max_step >= 0)",
+                    };
+                }
+                values[i] = Some(*v);
+            }
+            LoopCommand::Start(StartRequest {
+                id: c.id,
+                experiment,
+                values,
+            })
+        }
+    }
+}
+
+/// Telemetry, heartbeat and mailbox of the loop.
+pub struct LoopIo {
+    telemetry_tx: OverwriteProducer<TelemetryRow>,
+    commands_rx: Consumer<Command>,
+    link: Link,
+    run_id: u32,
+    /// Commands that arrived during a run and could not be acted on there (a start while one
+    /// runs is refused): counted, the last one kept for the log after the run.
+    pub refused_during_run: u64,
+    pub last_refused: Option<(u64, &'static str)>,
+    pub rows_sent: u64,
+}
+
+impl LoopIo {
+    pub fn new(
+        telemetry_tx: OverwriteProducer<TelemetryRow>,
+        commands_rx: Consumer<Command>,
+        link: Link,
+    ) -> Self {
+        LoopIo {
+            telemetry_tx,
+            commands_rx,
+            link,
+            run_id: 0,
+            refused_during_run: 0,
+            last_refused: None,
+            rows_sent: 0,
+        }
+    }
+
+    pub fn link(&self) -> &Link {
+        &self.link
+    }
+
+    pub fn set_run_id(&mut self, run_id: u32) {
+        self.run_id = run_id;
+    }
+
+    pub fn run_id(&self) -> u32 {
+        self.run_id
+    }
+
+    pub fn heartbeat(&self) {
+        self.link.heartbeat();
+    }
+
+    /// Non-blocking poll of the mailbox (one command at a time).
+    pub fn poll_command(&mut self) -> Option<LoopCommand> {
+        match self.commands_rx.try_recv() {
+            Ok(Some(c)) => Some(parse_command(&c)),
+            Ok(None) => None,
+            // A corrupt mailbox entry is skipped, not acted on.
+            Err(_) => Some(LoopCommand::Refused {
+                id: 0,
+                reason: "unreadable command in the mailbox",
+            }),
+        }
+    }
+
+    /// Publishes one telemetry row with the run id.
+    #[inline]
+    pub fn publish(&mut self, row: &Row) {
+        self.telemetry_tx.send(&telemetry_row(row, self.run_id));
+        self.rows_sent += 1;
+    }
+
+    /// Per step during a run: telemetry, heartbeat, mailbox. REAL-TIME PATH.
+    #[inline]
+    pub fn on_step(&mut self, row: &Row) -> StepAction {
+        self.publish(row);
+        self.link.heartbeat();
+        if row.step % COMMAND_POLL_EVERY == 0 {
+            match self.poll_command() {
+                Some(LoopCommand::Stop { .. }) => return StepAction::Stop,
+                Some(LoopCommand::Start(r)) => {
+                    self.refused_during_run += 1;
+                    self.last_refused = Some((r.id, "an experiment is already running"));
+                }
+                Some(LoopCommand::Refused { id, reason }) => {
+                    self.refused_during_run += 1;
+                    self.last_refused = Some((id, reason));
+                }
+                None => {}
+            }
+        }
+        StepAction::Continue
+    }
+}
+
+/// A recording row as a telemetry row (the same columns plus the run id).
+#[inline]
+pub fn telemetry_row(r: &Row, run_id: u32) -> TelemetryRow {
+    TelemetryRow {
+        run_id,
+        step: r.step,
+        timestamp: r.timestamp,
+        time: r.time,
+        dt: r.dt,
+        f_ref: r.f_ref,
+        rtob_force: r.rtob_force,
+        dob_force: r.dob_force,
+        counts: r.counts,
+        position_x: r.position_x,
+        velocity: r.velocity,
+        acceleration: r.acceleration,
+        i_a_ref: r.i_a_ref,
+        i_motor: r.i_motor,
+        analog_out_motor: r.analog_out_motor,
+        phase: r.phase,
+        f_true: r.f_true,
+        f_pred: r.f_pred,
+        fallback: r.fallback,
+        cycle_no: r.cycle_no,
+        f_previous_x: r.f_previous_x,
+        f_previous_v: r.f_previous_v,
+        f_previous_a: r.f_previous_a,
+        deformation: r.deformation,
+        area_fx: r.area_fx,
+    }
+}

@@ -1,0 +1,397 @@
+//! [`ShmModel`]: the [`ForceModel`] that asks infer-server over shared memory (issue 4).
+//!
+//! Per step: the step's features go into the segment's features ring tagged with a sequence
+//! number, then the loop waits for the answer carrying that number, bounded by a deadline
+//! (realtime: `deadline_us`, default 50 us; lockstep: a generous safety timeout, so lockstep
+//! runs wait for every answer and stay deterministic). Anything else (late, missing, a flagged
+//! or NaN answer, no server attached) is a `None` or a non-finite value, which the experiment
+//! replaces with the fallback spring-damper and counts.
+//!
+//! Why the wait is bounded: the loop owns a motor. A server that stalls (page fault, GC in a
+//! neighbour, a swap, a crash) must never stall the current update, the watchdog kick or the
+//! safety checks, so the loop never waits past the step's deadline, whatever the server does.
+//!
+//! REAL-TIME PATH: [`ShmModel::predict`] allocates nothing, takes no lock and does no I/O.
+//! Its only syscalls: a `FUTEX_WAKE` when the server is parked (inside `try_send`), a futex
+//! wait when the wait strategy parks (lockstep), and one `fcntl` liveness probe every
+//! [`LIVENESS_EVERY`] steps (and when a new server attachment is seen).
+
+use crate::features::Features;
+use crate::model::ForceModel;
+use hdrhistogram::Histogram;
+use shm_ring::{
+    Consumer, FeatureMsg, ForceMsg, Link, Producer, RecvError, SendError, WaitStrategy,
+};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// Steps between two liveness probes of the server (one `fcntl` each): 0.1 s at 10 kHz.
+pub const LIVENESS_EVERY: u32 = 1024;
+/// After a new server attachment is seen, the loop waits this long (rendering the fallback)
+/// before sending to it: the server skips whatever is queued while it attaches, so a request
+/// sent in that window could be skipped and, in lockstep, waited for in vain.
+pub const SETTLE_AFTER_ATTACH: Duration = Duration::from_millis(50);
+
+/// How the loop waits for each answer.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum AnswerWait {
+    /// Realtime: give up `deadline` after sending (fallback for that step).
+    Deadline(Duration),
+    /// Lockstep: wait for every answer; `safety` only guards against a server that is attached
+    /// but hung (then the step falls back and the run goes on).
+    Lockstep { safety: Duration },
+}
+
+/// Counters of the shared-memory client, readable from any thread while the loop runs
+/// (relaxed atomics, one writer: the loop thread).
+#[derive(Debug, Default)]
+pub struct ShmCounters {
+    /// Requests sent to the server.
+    pub sent: AtomicU64,
+    /// Answers received in time with a usable force (flags 0).
+    pub answered: AtomicU64,
+    /// The deadline passed before the answer came (deadline misses).
+    pub late: AtomicU64,
+    /// Steps with no server attached (nothing sent).
+    pub no_server: AtomicU64,
+    /// The features ring was full (the server is far behind).
+    pub ring_full: AtomicU64,
+    /// Answers in time but flagged by the server (no model, bad features, schema mismatch...).
+    pub flagged: AtomicU64,
+    /// Late answers to earlier steps thrown away.
+    pub stale_discarded: AtomicU64,
+    /// The server went away during a wait or a liveness probe.
+    pub server_lost: AtomicU64,
+    /// New server attachments seen.
+    pub attachments_seen: AtomicU64,
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct ShmCountersSnapshot {
+    pub sent: u64,
+    pub answered: u64,
+    pub late: u64,
+    pub no_server: u64,
+    pub ring_full: u64,
+    pub flagged: u64,
+    pub stale_discarded: u64,
+    pub server_lost: u64,
+    pub attachments_seen: u64,
+}
+
+impl ShmCounters {
+    pub fn snapshot(&self) -> ShmCountersSnapshot {
+        let l = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        ShmCountersSnapshot {
+            sent: l(&self.sent),
+            answered: l(&self.answered),
+            late: l(&self.late),
+            no_server: l(&self.no_server),
+            ring_full: l(&self.ring_full),
+            flagged: l(&self.flagged),
+            stale_discarded: l(&self.stale_discarded),
+            server_lost: l(&self.server_lost),
+            attachments_seen: l(&self.attachments_seen),
+        }
+    }
+}
+
+#[inline]
+fn bump(a: &AtomicU64) {
+    // single writer: a load and a store, no read-modify-write bus lock
+    a.store(a.load(Ordering::Relaxed) + 1, Ordering::Relaxed);
+}
+
+/// The loop's ends of the request/answer rings, with the state that outlives one run.
+pub struct ShmClient {
+    features_tx: Producer<FeatureMsg>,
+    forces_rx: Consumer<ForceMsg>,
+    link: Link,
+    schema_len: usize,
+    next_seq: u64,
+    run_id: u32,
+    run_start: bool,
+    connected: bool,
+    seen_attachments: u64,
+    settle_until: Option<Instant>,
+    liveness_countdown: u32,
+    origin: Instant,
+    /// Loop-observed round trip (send to matching answer), ns; preallocated, recording never
+    /// allocates (`saturating_record` clamps to the range).
+    pub round_trip_ns: Histogram<u64>,
+    pub counters: Arc<ShmCounters>,
+}
+
+impl ShmClient {
+    /// `schema_len`: how many of `Features::as_array()` the segment's schema carries (its
+    /// names are [`crate::features::FEATURE_NAMES`] in order; checked by the caller).
+    pub fn new(
+        mut features_tx: Producer<FeatureMsg>,
+        mut forces_rx: Consumer<ForceMsg>,
+        link: Link,
+        wait: WaitStrategy,
+    ) -> Self {
+        features_tx.set_wait_strategy(WaitStrategy::Park);
+        forces_rx.set_wait_strategy(wait);
+        let schema_len = link.feature_names().len();
+        ShmClient {
+            features_tx,
+            forces_rx,
+            seen_attachments: link.server_attachments(),
+            connected: link.peer_alive(),
+            link,
+            schema_len,
+            next_seq: 1,
+            run_id: 0,
+            run_start: true,
+            settle_until: None,
+            liveness_countdown: LIVENESS_EVERY,
+            origin: Instant::now(),
+            round_trip_ns: Histogram::new_with_bounds(1, 60_000_000_000, 3)
+                .expect("valid histogram bounds"),
+            counters: Arc::new(ShmCounters::default()),
+        }
+    }
+
+    pub fn link(&self) -> &Link {
+        &self.link
+    }
+
+    pub fn set_wait_strategy(&mut self, wait: WaitStrategy) {
+        self.forces_rx.set_wait_strategy(wait);
+    }
+
+    /// Whether a server is attached and alive (one `fcntl`; off the real-time path).
+    pub fn server_alive(&self) -> bool {
+        self.link.server_attachments() > 0 && self.link.peer_alive()
+    }
+
+    /// Waits (off the real-time path) until a server is attached, up to `timeout`, then lets
+    /// it settle (see [`SETTLE_AFTER_ATTACH`]). Returns whether one is.
+    pub fn wait_for_server(&mut self, timeout: Duration) -> bool {
+        let end = Instant::now() + timeout;
+        loop {
+            self.link.heartbeat();
+            if self.server_alive() {
+                std::thread::sleep(SETTLE_AFTER_ATTACH);
+                self.seen_attachments = self.link.server_attachments();
+                self.connected = true;
+                self.settle_until = None;
+                return true;
+            }
+            if Instant::now() >= end {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
+    /// Prepares a new run (off the real-time path): next message flagged `RUN_START` with a new
+    /// run id, answers left over from an earlier run thrown away.
+    pub fn begin_run(&mut self) {
+        self.run_id = self.run_id.wrapping_add(1);
+        self.run_start = true;
+        let stale = self.forces_rx.skip_pending();
+        self.counters
+            .stale_discarded
+            .fetch_add(stale, Ordering::Relaxed);
+        self.connected = self.server_alive();
+        self.seen_attachments = self.link.server_attachments();
+    }
+
+    pub fn run_id(&self) -> u32 {
+        self.run_id
+    }
+
+    /// One request/answer exchange. REAL-TIME PATH (see the module doc).
+    #[inline]
+    pub fn exchange(&mut self, _step: u64, features: &Features, wait: AnswerWait) -> Option<f64> {
+        let c = &*self.counters;
+        // A new server (a restart after a crash, or the first one): one atomic load per step.
+        let att = self.link.server_attachments();
+        if att != self.seen_attachments {
+            self.seen_attachments = att;
+            bump(&c.attachments_seen);
+            self.settle_until = Some(Instant::now() + SETTLE_AFTER_ATTACH);
+            self.connected = self.link.peer_alive();
+            self.run_start = true; // the new server starts the model's state afresh
+        }
+        self.liveness_countdown -= 1;
+        if self.liveness_countdown == 0 {
+            self.liveness_countdown = LIVENESS_EVERY;
+            let alive = self.link.peer_alive();
+            if self.connected && !alive {
+                bump(&c.server_lost);
+            }
+            self.connected = alive && att > 0;
+        }
+        if !self.connected {
+            bump(&c.no_server);
+            return None;
+        }
+        if let Some(t) = self.settle_until {
+            if Instant::now() < t {
+                bump(&c.no_server);
+                return None;
+            }
+            self.settle_until = None;
+        }
+        let seq = self.next_seq;
+        self.next_seq += 1;
+        let all = features.as_array();
+        let mut values = [0.0f64; 16];
+        let n = self.schema_len.min(all.len());
+        values[..n].copy_from_slice(&all[..n]);
+        let sent_at = Instant::now();
+        let msg = FeatureMsg {
+            seq,
+            timestamp_ns: sent_at.duration_since(self.origin).as_nanos() as u64,
+            run_id: self.run_id,
+            flags: if self.run_start {
+                FeatureMsg::RUN_START
+            } else {
+                0
+            },
+            len: n as u8,
+            values,
+        };
+        match self.features_tx.try_send(msg) {
+            Ok(()) => {}
+            Err(SendError::Full(_)) => {
+                bump(&c.ring_full);
+                return None;
+            }
+            Err(_) => {
+                bump(&c.server_lost);
+                self.connected = false;
+                return None;
+            }
+        }
+        self.run_start = false;
+        bump(&c.sent);
+        let deadline = sent_at
+            + match wait {
+                AnswerWait::Deadline(d) => d,
+                AnswerWait::Lockstep { safety } => safety,
+            };
+        loop {
+            match self.forces_rx.recv_deadline(deadline) {
+                Ok(a) if a.seq < seq => {
+                    // a late answer to an earlier step: its step is long rendered
+                    bump(&c.stale_discarded);
+                }
+                Ok(a) if a.seq == seq => {
+                    let rtt = sent_at.elapsed().as_nanos() as u64;
+                    self.round_trip_ns.saturating_record(rtt.max(1));
+                    if a.flags != 0 {
+                        bump(&c.flagged);
+                        return None;
+                    }
+                    bump(&c.answered);
+                    return Some(a.force);
+                }
+                Ok(_) => {
+                    // an answer from the future cannot come from a sane server: refuse it
+                    bump(&c.flagged);
+                    return None;
+                }
+                Err(RecvError::Timeout) => {
+                    bump(&c.late);
+                    return None;
+                }
+                Err(RecvError::PeerGone) => {
+                    bump(&c.server_lost);
+                    self.connected = false;
+                    return None;
+                }
+                Err(_) => {
+                    bump(&c.flagged);
+                    return None;
+                }
+            }
+        }
+    }
+}
+
+/// A [`ShmClient`] lent to one run as its [`ForceModel`]; handed back to `home` when the run's
+/// loop is dropped (so a long-running `serve` keeps one client across experiments).
+pub struct ShmModel {
+    client: Option<ShmClient>,
+    home: Option<Arc<Mutex<Option<ShmClient>>>>,
+    wait: AnswerWait,
+    server_wait: Duration,
+}
+
+impl ShmModel {
+    /// `server_wait`: how long `begin_run` waits for a server to attach (0: not at all, the
+    /// run starts on the fallback and switches to the model when a server comes).
+    pub fn new(client: ShmClient, wait: AnswerWait, server_wait: Duration) -> Self {
+        ShmModel {
+            client: Some(client),
+            home: None,
+            wait,
+            server_wait,
+        }
+    }
+
+    /// Lends `home`'s client; it goes back there when this model is dropped.
+    pub fn borrow_from(
+        home: &Arc<Mutex<Option<ShmClient>>>,
+        wait: AnswerWait,
+        server_wait: Duration,
+    ) -> Option<Self> {
+        let client = home.lock().ok()?.take()?;
+        Some(ShmModel {
+            client: Some(client),
+            home: Some(home.clone()),
+            wait,
+            server_wait,
+        })
+    }
+
+    pub fn client(&self) -> &ShmClient {
+        self.client.as_ref().expect("client present until drop")
+    }
+
+    pub fn client_mut(&mut self) -> &mut ShmClient {
+        self.client.as_mut().expect("client present until drop")
+    }
+
+    pub fn into_client(mut self) -> ShmClient {
+        self.client.take().expect("client present until drop")
+    }
+}
+
+impl Drop for ShmModel {
+    fn drop(&mut self) {
+        if let (Some(c), Some(home)) = (self.client.take(), self.home.as_ref()) {
+            if let Ok(mut slot) = home.lock() {
+                *slot = Some(c);
+            }
+        }
+    }
+}
+
+impl ForceModel for ShmModel {
+    fn name(&self) -> &str {
+        "infer-server (shm)"
+    }
+
+    fn begin_run(&mut self) {
+        let server_wait = self.server_wait;
+        let c = self.client_mut();
+        if !server_wait.is_zero() && !c.server_alive() {
+            c.wait_for_server(server_wait);
+        }
+        c.begin_run();
+    }
+
+    #[inline]
+    fn predict(&mut self, step: u64, features: &Features) -> Option<f64> {
+        let wait = self.wait;
+        self.client
+            .as_mut()
+            .and_then(|c| c.exchange(step, features, wait))
+    }
+}
