@@ -201,6 +201,11 @@ pub struct SegmentInfo {
     pub feature_names: Vec<String>,
     /// Capacities of features, forces, telemetry, commands.
     pub capacities: [usize; 4],
+    /// Whether the loop holds its liveness lock (filled by [`Segment::inspect`]; `info()` on a
+    /// handle reports its own side as alive and asks for the peer).
+    pub loop_alive: bool,
+    /// Whether a server holds its liveness lock (as above).
+    pub server_alive: bool,
 }
 
 impl SegmentInfo {
@@ -463,6 +468,40 @@ impl Segment {
         })
     }
 
+    /// Reads and validates a segment's header without attaching: takes no lock, changes
+    /// nothing (no attachment counted, no request skipped), works while a server is attached.
+    /// For tools and diagnostics.
+    pub fn inspect(name: &SegmentName) -> Result<SegmentInfo, Error> {
+        let fd = match os::shm_open(name.as_str(), false) {
+            Ok(fd) => fd,
+            Err(e) if e.raw_os_error() == Some(libc::ENOENT) => {
+                return Err(Error::NotFound {
+                    name: name.to_string(),
+                })
+            }
+            Err(e) => return Err(os_err("shm_open", name)(e)),
+        };
+        let stat = os::fstat(&fd).map_err(os_err("fstat", name))?;
+        if stat.size < std::mem::size_of::<Header>() as u64 {
+            return Err(Error::Initializing {
+                name: name.to_string(),
+            });
+        }
+        let mapping = Mapping::map(&fd, stat.size as usize).map_err(os_err("mmap", name))?;
+        // SAFETY: the mapping holds at least a header (checked above); atomics only.
+        let header = unsafe { mapping.base().cast::<Header>().as_ref() };
+        if header.magic.load(Ordering::Acquire) == 0 {
+            return Err(Error::Initializing {
+                name: name.to_string(),
+            });
+        }
+        validate(header, name, stat.size)?;
+        let mut info = info_of(header, name);
+        info.loop_alive = os::byte_is_locked(&fd, LOOP_LOCK_BYTE).unwrap_or(false);
+        info.server_alive = os::byte_is_locked(&fd, SERVER_LOCK_BYTE).unwrap_or(false);
+        Ok(info)
+    }
+
     /// [`Segment::attach`], retrying transient failures (no segment yet, a dead loop's
     /// segment not yet replaced, initialisation in progress) until `timeout`.
     pub fn attach_timeout(name: &SegmentName, timeout: Duration) -> Result<Segment, Error> {
@@ -489,7 +528,7 @@ impl Segment {
 
     /// What the header says.
     pub fn info(&self) -> SegmentInfo {
-        info_of(self.shared.header(), &self.shared.name)
+        info_with_liveness(&self.shared)
     }
 
     /// Whether the other side's process is alive (holds its lock on this segment).
@@ -670,7 +709,20 @@ fn info_of(header: &Header, name: &SegmentName) -> SegmentInfo {
         server_attachments: header.server_attachments.load(Ordering::Acquire),
         feature_names: header.schema().unwrap_or_default(),
         capacities: header.capacities(),
+        loop_alive: false,
+        server_alive: false,
     }
+}
+
+/// `info_of` plus liveness as seen from a handle of `role`.
+fn info_with_liveness(shared: &Shared) -> SegmentInfo {
+    let mut info = info_of(shared.header(), &shared.name);
+    let peer = shared.peer_alive();
+    match shared.role {
+        Role::Loop => (info.loop_alive, info.server_alive) = (true, peer),
+        Role::Server => (info.loop_alive, info.server_alive) = (peer, true),
+    }
+    info
 }
 
 /// Best effort: the pid recorded in an existing segment's header, for error messages.
@@ -738,7 +790,7 @@ impl Link {
 
     /// What the header says.
     pub fn info(&self) -> SegmentInfo {
-        info_of(self.shared.header(), &self.shared.name)
+        info_with_liveness(&self.shared)
     }
 
     /// The segment's name.

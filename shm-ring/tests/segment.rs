@@ -115,7 +115,13 @@ fn create_attach_and_header_contents() {
         ),
         "a live segment is never stolen"
     );
+    let seen = Segment::inspect(&name).unwrap();
+    assert!(seen.loop_alive && seen.server_alive);
+    assert_eq!(seen.server_attachments, 1, "inspecting is not attaching");
+    assert_eq!(seen.feature_names, THESIS_FEATURES);
     drop(sv);
+    assert!(!Segment::inspect(&name).unwrap().server_alive);
+    assert!(!lp.info().server_alive && lp.info().loop_alive);
     // The server's lock went with it; a new server may attach.
     let sv2 = Segment::attach(&name).unwrap();
     assert_eq!(sv2.info().server_attachments, 2);
@@ -238,6 +244,10 @@ fn garbage_segment_is_refused_then_replaced() {
             found: 0xabab_abab_abab_abab,
             ..
         })
+    ));
+    assert!(matches!(
+        Segment::inspect(&name),
+        Err(Error::BadMagic { .. })
     ));
     // Nobody holds its locks: the creator treats it as stale and replaces it.
     let lp = Segment::create(&name, &Config::default()).unwrap();

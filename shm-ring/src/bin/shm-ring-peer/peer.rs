@@ -53,8 +53,8 @@ fn run(args: &[String]) -> Result<(), String> {
     let name = SegmentName::new(arg(args, 1)?).map_err(|e| e.to_string())?;
     match cmd {
         "inspect" => {
-            let seg = Segment::attach(&name).map_err(|e| e.to_string())?;
-            println!("{:#?}", seg.info());
+            // Reads the header without attaching: safe while a server is attached.
+            println!("{:#?}", Segment::inspect(&name).map_err(|e| e.to_string())?);
             Ok(())
         }
         "loop-flood" => {
