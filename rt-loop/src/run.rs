@@ -257,6 +257,7 @@ pub fn run_with(
     let lockstep = cfg.clock == ClockKind::Lockstep;
     let wall = Instant::now();
     let mut last_time = 0.0;
+    let mut last_row: Option<crate::record::row::Row> = None;
     let stop: String = loop {
         if let Some(c) = clock.as_mut() {
             c.wait();
@@ -264,6 +265,7 @@ pub fn run_with(
         match rig.step() {
             Ok(row) => {
                 last_time = row.time;
+                last_row = Some(row);
                 if let Some(io) = io.as_deref_mut() {
                     if io.on_step(&row) == crate::shm_io::StepAction::Stop {
                         rig.safe_stop();
@@ -307,6 +309,18 @@ pub fn run_with(
     };
     if let Some(p) = progress {
         p.finish();
+    }
+    // Tell the telemetry reader (infer-server's status) at once that the run is over: one last
+    // row in phase `done`, at 0 A.
+    if let (Some(io), Some(mut r)) = (io.as_deref_mut(), last_row) {
+        r.step += 1;
+        r.phase = crate::experiment::Phase::Done as u8;
+        r.f_ref = 0.0;
+        r.i_a_ref = 0.0;
+        r.i_motor = 0.0;
+        r.analog_out_motor = 32768;
+        io.publish(&r);
+        io.heartbeat();
     }
     let wall_s = wall.elapsed().as_secs_f64();
     let steps = rig.steps();
