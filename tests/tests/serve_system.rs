@@ -1,0 +1,138 @@
+//! `rt-loop serve` + `infer-server serve` + `hapticctl`: the system comes up, the status shows
+//! the loop alive, an experiment started through hapticctl (the mailbox) changes the mode and
+//! streams telemetry, a shadow run with a served model predicts alongside, and SIGINT to both
+//! leaves nothing in /dev/shm.
+
+use haptics_system_tests::{
+    bin, instance, shm_entries, start_infer_server, temp_dir, write_linear_model, Proc,
+};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+fn ctl(addr: &str, args: &[&str]) -> (bool, String) {
+    let o = Command::new(bin("hapticctl"))
+        .arg("--addr")
+        .arg(format!("http://{addr}"))
+        .args(args)
+        .output()
+        .expect("hapticctl");
+    (
+        o.status.success(),
+        format!(
+            "{}{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        ),
+    )
+}
+
+fn status(addr: &str) -> serde_json::Value {
+    let (ok, out) = ctl(addr, &["--json", "status"]);
+    assert!(ok, "hapticctl status: {out}");
+    serde_json::from_str(out.trim()).unwrap_or_else(|e| panic!("{e}: {out}"))
+}
+
+fn wait_status(
+    addr: &str,
+    what: &str,
+    f: impl Fn(&serde_json::Value) -> bool,
+) -> serde_json::Value {
+    let end = Instant::now() + Duration::from_secs(20);
+    loop {
+        let s = status(addr);
+        if f(&s) {
+            return s;
+        }
+        assert!(Instant::now() < end, "{what}: last status {s}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+#[test]
+fn serve_hapticctl_experiments_and_clean_sigint() {
+    let dir = temp_dir("serve");
+    write_linear_model(
+        &dir.join("spring.onnx"),
+        &["position_x", "velocity"],
+        &[400.0, 20.0],
+        0.0,
+    );
+    let inst = instance("serve");
+    // realtime at 1 kHz: light on a two-core machine; parking waits for the answers
+    let mut lp = Proc::spawn(
+        "rt-loop serve",
+        Command::new(bin("rt-loop"))
+            .args([
+                "serve",
+                "--instance",
+                &inst,
+                "--clock",
+                "realtime",
+                "--rate-hz",
+                "1000",
+            ])
+            .args(["--deadline-us", "900", "--wait", "park", "--record-dir"])
+            .arg(dir.join("rec")),
+    );
+    lp.wait_for("serving segment", Duration::from_secs(30));
+    let (mut server, addr) = start_infer_server(&inst, &dir, Some("spring.onnx"));
+
+    let s = wait_status(&addr, "loop alive", |s| s["loop"]["alive"] == true);
+    assert_eq!(s["loop"]["mode"], "idle", "serve idles until asked: {s}");
+
+    let (ok, out) = ctl(
+        &addr,
+        &[
+            "experiment",
+            "start",
+            "abstraction",
+            "--ramp-rate",
+            "6",
+            "--cycles",
+            "2",
+        ],
+    );
+    assert!(ok, "start: {out}");
+    let s = wait_status(&addr, "mode abstraction with steps", |s| {
+        s["loop"]["mode"] == "abstraction"
+            && s["loop"]["step"].as_u64().unwrap_or(0) > 200
+            && s["loop"]["rate_hz"].as_f64().unwrap_or(0.0) > 0.0
+    });
+    let rate = s["loop"]["rate_hz"].as_f64().unwrap();
+    assert!(
+        rate > 500.0 && rate < 1500.0,
+        "loop rate from telemetry: {rate} Hz"
+    );
+    let (ok, out) = ctl(&addr, &["experiment", "stop"]);
+    assert!(ok, "stop: {out}");
+    wait_status(&addr, "idle after stop", |s| s["loop"]["mode"] == "idle");
+    lp.wait_for("ended: stopped", Duration::from_secs(10));
+
+    // shadow: the sponge is touched, the served model predicts alongside
+    let (ok, out) = ctl(&addr, &["experiment", "start", "shadow"]);
+    assert!(ok, "start shadow: {out}");
+    wait_status(&addr, "model predictions during shadow", |s| {
+        s["server"]["predictions"].as_u64().unwrap_or(0) > 500
+    });
+    ctl(&addr, &["experiment", "stop"]);
+    let out = lp.wait_for("run 2 ended: stopped", Duration::from_secs(10));
+    let line = out.lines().find(|l| l.contains("run 2 ended")).unwrap();
+    assert!(line.contains("served"), "{line}");
+
+    // SIGINT to both: clean exits, nothing left in /dev/shm
+    lp.signal(libc::SIGINT);
+    let st = lp.wait_exit(Duration::from_secs(10));
+    assert!(st.success(), "rt-loop serve exit {st}:\n{}", lp.output());
+    assert!(lp.output().contains("removed"));
+    server.signal(libc::SIGINT);
+    let st = server.wait_exit(Duration::from_secs(10));
+    assert!(st.code().is_some(), "infer-server ended by itself: {st}");
+    assert!(
+        shm_entries(&inst).is_empty(),
+        "left in /dev/shm: {:?}",
+        shm_entries(&inst)
+    );
+    let recs: Vec<_> = std::fs::read_dir(dir.join("rec")).unwrap().collect();
+    assert_eq!(recs.len(), 2, "one recording per experiment");
+    let _ = std::fs::remove_dir_all(&dir);
+}
