@@ -30,8 +30,10 @@ import { enclosedArea, finite, hook, measureFrames, openBrowser, sleep, waitFor 
 // How the processes are started: the one place to change when their command lines change.
 // Each flag is passed only when the program's `serve --help` lists it, so a flag that does not
 // exist (yet) is left out rather than failing the run; $HAPTICS_*_ARGS replace the whole line.
-const RT_LOOP_SERVE = [["--clock", "realtime"], ["--rate-hz", "10000"], ["--board", "sim"], ["--instance", "{instance}"]];
-const INFER_SERVER_SERVE = [["--models", "{models}"], ["--instance", "{instance}"], ["--grpc", "{grpc}"], ["--http", "{http}"]];
+// Both sides wait spin-then-park: this machine may have two cores, and a test must not busy-spin
+// on both sides of the ring.
+const RT_LOOP_SERVE = [["--clock", "realtime"], ["--rate-hz", "10000"], ["--board", "sim"], ["--instance", "{instance}"], ["--wait", "spin-park"]];
+const INFER_SERVER_SERVE = [["--models", "{models}"], ["--instance", "{instance}"], ["--grpc", "{grpc}"], ["--http", "{http}"], ["--wait", "spin-park"]];
 const DEFAULT_HAPTICCTL_ARGS = "--addr http://{grpc} --json status";
 
 const here = dirname(fileURLToPath(import.meta.url));
@@ -218,7 +220,9 @@ describe("page against the real rt-loop and infer-server", () => {
     ctx.b = await openBrowser({ width: 1440, height: 1080 });
     ctx.page = ctx.b.page;
     await ctx.page.goto(ctx.url + "/");
-    await waitFor(async () => (await hook.points(ctx.page, "rtob_force")).t.length > 20, { timeoutMs: 15000, what: "first telemetry on the page" });
+    // rt-loop serve idles at 0 A (no steps, no telemetry) until an experiment starts: wait for
+    // the status here, and start the ramp cycles from the page in the first test.
+    await waitFor(async () => (await hook.status(ctx.page)).loop_alive === true, { timeoutMs: 15000, what: "the page sees the loop attached" });
   });
 
   after(async () => {
@@ -241,8 +245,24 @@ describe("page against the real rt-loop and infer-server", () => {
     assert.deepEqual(ctx.b.consoleErrors, []);
   });
 
-  it("the plots fill with the loop's data and move with its device time", async () => {
+  /** Fills the experiment form and presses Start (Stop first, as the loop refuses a second run). */
+  async function startRamps(page, cycles) {
+    await page.click("#exp-stop");
+    await page.selectOption("#exp-kind", "abstraction");
+    await page.fill("#exp-rate", "6.2");
+    await page.fill("#exp-cycles", String(cycles));
+    await page.fill("#exp-fmax", "5");
+    await page.fill("#exp-fstep", "1");
+    await page.click("#exp-start");
+    await waitFor(async () => (await hook.status(page)).mode === "abstraction", { timeoutMs: 5000, what: "status mode abstraction" });
+  }
+
+  it("ramp cycles started from the page: the plots fill and move, and force-depth shows a loop", async () => {
     const page = ctx.page;
+    await page.selectOption("#xy-window", "10");
+    // Enough cycles to keep the loop running through the following tests (about 4-7 s each).
+    await startRamps(page, 8);
+    await waitFor(async () => (await hook.points(page, "rtob_force")).t.length > 20, { timeoutMs: 10000, what: "first telemetry on the page" });
     const a = await hook.points(page, "rtob_force");
     const ca = await hook.counts(page);
     await sleep(1500);
@@ -256,23 +276,10 @@ describe("page against the real rt-loop and infer-server", () => {
     const st = await hook.status(page);
     assert.equal(st.loop_alive, true);
     assert.ok(st.rate_hz > 1000, `loop rate shown: ${st.rate_hz}`);
-  });
-
-  it("ramp cycles started from the page draw a force-depth loop", async () => {
-    const page = ctx.page;
-    await page.selectOption("#exp-kind", "abstraction");
-    await page.fill("#exp-rate", "6.2");
-    await page.fill("#exp-cycles", "4");
-    await page.fill("#exp-fmax", "5");
-    await page.fill("#exp-fstep", "1");
-    await page.selectOption("#xy-window", "10");
-    await page.click("#exp-start");
-    await waitFor(async () => (await hook.status(page)).mode === "abstraction", { timeoutMs: 5000, what: "status mode abstraction" });
     // Measure when cycle 1 is complete and the probe is back at 0 N (early in cycle 2's hold at
     // zero), so the path is one closed loop plus its start. rt-loop's cycle: hold 0 N (1.5 s),
     // ramp up to 5 N at 6.2 N/s, hold (1 s), ramp down: about 4.1 s.
-    const t0 = Date.now();
-    await waitFor(async () => (await hook.status(page)).experiment_cycle >= 2 || Date.now() - t0 > 4800, { timeoutMs: 15000, what: "cycle 2 reached" });
+    await waitFor(async () => (await hook.status(page)).experiment_cycle >= 2, { timeoutMs: 15000, what: "cycle 2 reached" });
     await sleep(400);
     const xy = await hook.xy(page);
     const xr = Math.max(...xy.x) - Math.min(...xy.x);
@@ -344,6 +351,8 @@ describe("page against the real rt-loop and infer-server", () => {
     await waitFor(async () => (await hook.state(page)) === "loop-gone", { timeoutMs: 10000, what: "loop-gone state" });
     assert.equal(await page.isVisible("#banner"), true);
     ctx.loop = start("rt-loop", bin("rt-loop"), ctx.rtArgs);
+    await waitFor(async () => (await hook.status(page)).loop_alive === true, { timeoutMs: 20000, what: "the new loop attached" });
+    await startRamps(page, 2);
     await waitFor(async () => (await hook.state(page)) === "live", { timeoutMs: 20000, what: "live again after the loop restarted" });
     const c0 = (await hook.counts(page)).buckets;
     await sleep(1000);
