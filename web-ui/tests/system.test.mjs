@@ -344,6 +344,18 @@ describe("page against the real rt-loop and infer-server", () => {
     await page.screenshot({ path: join(repo, "docs", "web-ui.png"), fullPage: true });
   });
 
+  it("shadow started from the page: the served model's predicted force reaches the plots", async () => {
+    const page = ctx.page;
+    assert.ok((await hook.status(page)).active_model, "a model is active (swapped in above)");
+    await page.click("#exp-stop");
+    await page.selectOption("#exp-kind", "shadow");
+    await page.click("#exp-start");
+    await waitFor(async () => (await hook.status(page)).mode === "shadow", { timeoutMs: 5000, what: "status mode shadow" });
+    await waitFor(async () => finite((await hook.points(page, "F_pred")).max).length > 20, { timeoutMs: 10000, what: "F_pred on the force plot" });
+    assert.equal(await page.textContent("#nodata-F_pred"), "");
+    assert.ok(finite((await hook.xy(page)).y).length > 20);
+  });
+
   it("loop gone: the page says so, and recovers when a loop attaches again", async () => {
     const page = ctx.page;
     await page.evaluate(() => (window.__noReload = 1));
