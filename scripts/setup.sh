@@ -2,7 +2,8 @@
 # Installs everything the project needs from the package registries, idempotently:
 #   - .venv with the train/ package (and onnxruntime, whose wheel ships libonnxruntime.so)
 #   - .ort/libonnxruntime.so, the library `ort` loads dynamically (ORT_DYLIB_PATH)
-#   - web-ui's npm packages and Debian's chromium, when the web UI exists
+#   - web-ui's npm packages and Debian's chromium (for the browser tests; skipped with
+#     HAPTICS_NO_BROWSER=1, as scripts/up.sh does)
 # Nothing is downloaded from anywhere but crates.io, PyPI, npm and Debian's archive.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -49,7 +50,7 @@ if [ -f web-ui/package.json ]; then
     echo "setup: npm ci in web-ui/"
     (cd web-ui && npm ci --no-audit --no-fund)
   fi
-  if [ ! -x /usr/bin/chromium ]; then
+  if [ ! -x /usr/bin/chromium ] && [ "${HAPTICS_NO_BROWSER:-0}" != 1 ]; then
     echo "setup: installing Debian's chromium for the browser tests"
     if [ "$(id -u)" = 0 ]; then
       apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null

@@ -1,0 +1,81 @@
+#!/usr/bin/env bash
+# Brings the whole system up on the simulated bench, from a fresh clone:
+#   1. installs what it needs (scripts/setup.sh: .venv, ONNX Runtime's library, the page's packages)
+#   2. builds rt-loop, infer-server and hapticctl in release
+#   3. records the default dataset (data/dataset) and trains the default model (models/) if missing
+#   4. starts rt-loop (realtime, 10 kHz) and infer-server, and prints the page's address
+# Ctrl-C stops both cleanly (current to zero, shared-memory segment removed).
+#
+# Settings (environment): HAPTICS_MODEL (default rf_six), HAPTICS_AUTOSTART (default shadow:
+# the simulated hand presses the simulated sponge while the model predicts alongside; or
+# abstraction, reproduction, none), HAPTICS_HTTP (127.0.0.1:8080), HAPTICS_GRPC
+# (127.0.0.1:50051), HAPTICS_INSTANCE (default), HAPTICS_TOKEN (unset: no token).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+model=${HAPTICS_MODEL:-rf_six}
+autostart=${HAPTICS_AUTOSTART:-shadow}
+http=${HAPTICS_HTTP:-127.0.0.1:8080}
+grpc=${HAPTICS_GRPC:-127.0.0.1:50051}
+instance=${HAPTICS_INSTANCE:-default}
+
+say() { printf '\n==> %s\n' "$*"; }
+
+say "set-up: Python environment, ONNX Runtime library, page packages (first run: a few minutes)"
+HAPTICS_NO_BROWSER=1 bash scripts/setup.sh
+# shellcheck disable=SC1091
+source scripts/env.sh
+
+say "build (release): rt-loop, infer-server, hapticctl"
+cargo build --release -p rt-loop -p infer-server -p hapticctl
+
+if [ ! -f data/dataset/test_2.1.parquet ]; then
+  say "record the default dataset (ramp rates 0.8, 1.8, 3.9, 6.2 N/s and the 2.1 N/s test run)"
+  bash scripts/record-dataset.sh data/dataset
+fi
+
+if [ ! -f "models/$model.onnx" ]; then
+  spec=${model/_/:}
+  say "train the default model $model (haptics-train pipeline --models $spec)"
+  .venv/bin/haptics-train pipeline --models "$spec" --out data/up-report
+fi
+
+pids=()
+stop() {
+  trap - INT TERM EXIT
+  if [ ${#pids[@]} -gt 0 ]; then
+    echo
+    echo "up: stopping (current to zero, segment removed)"
+    kill -INT "${pids[@]}" 2>/dev/null || true
+    for pid in "${pids[@]}"; do wait "$pid" 2>/dev/null || true; done
+  fi
+  if ls /dev/shm/haptics-"$instance"* >/dev/null 2>&1; then
+    echo "up: warning: a segment is left in /dev/shm: $(ls /dev/shm/haptics-"$instance"*)" >&2
+  fi
+}
+trap stop INT TERM EXIT
+
+say "start rt-loop (simulated bench, realtime 10 kHz) and infer-server"
+loop_args=(serve --clock realtime --instance "$instance")
+[ "$autostart" != none ] && loop_args+=(--autostart "$autostart")
+target/release/rt-loop "${loop_args[@]}" &
+pids+=($!)
+target/release/infer-server serve --instance "$instance" --models models --model "$model" \
+  --grpc "$grpc" --http "$http" &
+pids+=($!)
+
+# Wait for the page to answer before printing its address.
+for _ in $(seq 1 100); do
+  if (exec 3<>"/dev/tcp/${http%:*}/${http##*:}") 2>/dev/null; then break; fi
+  sleep 0.1
+done
+cat <<EOF
+
+  The system is up on the simulated bench.
+    page:      http://$http/
+    gRPC:      $grpc   (target/release/hapticctl status --watch)
+    model:     $model (models/), experiment: $autostart
+  Ctrl-C stops both.
+EOF
+wait -n "${pids[@]}" || true
+echo "up: a process ended; stopping the other" >&2
