@@ -23,6 +23,9 @@ cargo clippy --workspace --all-targets -- -D warnings
 step "cargo test (workspace, release: real-time tests need optimised code)"
 cargo test --workspace --release
 
+step "loom models of the shm-ring protocol (separate target dir: --cfg loom changes every crate)"
+RUSTFLAGS="--cfg loom" CARGO_TARGET_DIR=target/loom cargo test -p shm-ring --release --test loom
+
 if [ -f train/pyproject.toml ]; then
   step "ruff + pytest (train/)"
   (cd train && "$root/.venv/bin/ruff" check . && "$root/.venv/bin/python" -m pytest -q)
