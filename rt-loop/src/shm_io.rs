@@ -216,7 +216,7 @@ impl LoopIo {
     pub fn on_step(&mut self, row: &Row) -> StepAction {
         self.publish(row);
         self.link.heartbeat();
-        if row.step % COMMAND_POLL_EVERY == 0 {
+        if row.step.is_multiple_of(COMMAND_POLL_EVERY) {
             match self.poll_command() {
                 Some(LoopCommand::Stop { .. }) => return StepAction::Stop,
                 Some(LoopCommand::Start(r)) => {
