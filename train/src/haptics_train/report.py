@@ -188,9 +188,11 @@ def write_report(
         "",
         "- **one-step**: the previous force inside the features is the measured one (how the "
         "thesis scored its models).",
-        "- **closed loop**: the previous force is the model's own previous prediction, stepped "
-        "through the exported ONNX model at every control step as the server runs it in "
-        "reproduction (models without a previous-force feature: identical to one-step).",
+        "- **closed loop**: as in reproduction: the exported ONNX model is stepped through the "
+        "test recording at every control step as the server runs it, and every feature rt-loop "
+        "derives from the committed force (F(t-1)/x, /v, /a, F(t-1), cycle_no, deformation, "
+        "area_fx) is rebuilt from the model's own predictions (models without such a feature: "
+        "identical to one-step).",
         "- parity: max |ONNX Runtime - framework| on the test recording (LSTM: first 20000 "
         "steps, stepped one at a time).",
         "- thesis RMSE: its one-step test-set figures (Tables 6.2, 6.10, 6.15). The thesis has "
