@@ -260,7 +260,8 @@ def write_report(
         "they use Adam at 1e-3 with scaling inside the graph.")  # fmt: skip
     others = [n for n in names if n not in THESIS and not n.startswith("rf_")]
     sub("Alternatives beyond the thesis", others,
-        "Networks on the better-conditioned and memory-only feature sets.")  # fmt: skip
+        "Networks on kinematics only (x, v, a), and networks trained with feedback noise on "
+        "the previous force.")  # fmt: skip
 
     if failed:
         md += ["## Models that failed", ""]
