@@ -1,0 +1,100 @@
+//! `ShmClient::exchange` (the loop's side of every served step) allocates nothing: counted on
+//! the loop thread only, against an echo server thread on a real segment.
+
+use rt_loop::features::Features;
+use rt_loop::shm_io::create_segment;
+use rt_loop::shm_model::AnswerWait;
+use shm_ring::{ForceMsg, RecvError, Segment, WaitStrategy};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+struct Counting;
+static ALLOCS: AtomicU64 = AtomicU64::new(0);
+thread_local! {
+    static COUNT_HERE: Cell<bool> = const { Cell::new(false) };
+}
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        if COUNT_HERE.with(|c| c.get()) {
+            ALLOCS.fetch_add(1, Ordering::Relaxed);
+        }
+        System.alloc(l)
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        System.dealloc(p, l)
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
+        if COUNT_HERE.with(|c| c.get()) {
+            ALLOCS.fetch_add(1, Ordering::Relaxed);
+        }
+        System.realloc(p, l, n)
+    }
+}
+
+#[global_allocator]
+static A: Counting = Counting;
+
+#[test]
+fn exchange_allocates_nothing() {
+    let seg = create_segment(
+        &format!("rtloop-test-alloc-{}", std::process::id()),
+        WaitStrategy::Park,
+    )
+    .unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let stop2 = stop.clone();
+    let sv_seg = Segment::attach_timeout(&seg.name, Duration::from_secs(5)).unwrap();
+    let mut sv = sv_seg.server_side().unwrap();
+    sv.features_rx.set_wait_strategy(WaitStrategy::Park);
+    let server = std::thread::spawn(move || {
+        while !stop2.load(Ordering::Relaxed) {
+            match sv.features_rx.recv_timeout(Duration::from_millis(20)) {
+                Ok(m) => sv
+                    .forces_tx
+                    .send(ForceMsg {
+                        seq: m.seq,
+                        force: m.values[0],
+                        model_id: 1,
+                        flags: 0,
+                        inference_ns: 0,
+                    })
+                    .unwrap(),
+                Err(RecvError::Timeout) => {}
+                Err(_) => break,
+            }
+        }
+    });
+    let mut client = seg.client;
+    let mut io = seg.io;
+    assert!(client.wait_for_server(Duration::from_secs(5)));
+    client.begin_run();
+    let wait = AnswerWait::Lockstep {
+        safety: Duration::from_secs(2),
+    };
+    let row = rt_loop::record::Row::default();
+    COUNT_HERE.with(|c| c.set(true));
+    let mut answered = 0;
+    for step in 0..5000u64 {
+        let f = Features {
+            position_x: step as f64,
+            ..Features::default()
+        };
+        if client.exchange(step, &f, wait) == Some(step as f64) {
+            answered += 1;
+        }
+        io.on_step(&row);
+    }
+    COUNT_HERE.with(|c| c.set(false));
+    assert_eq!(answered, 5000);
+    assert_eq!(
+        ALLOCS.load(Ordering::Relaxed),
+        0,
+        "allocations on the loop thread"
+    );
+    stop.store(true, Ordering::Relaxed);
+    server.join().unwrap();
+}
