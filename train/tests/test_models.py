@@ -4,6 +4,7 @@ agrees with its framework in ONNX Runtime."""
 import numpy as np
 import onnx
 import pytest
+import torch
 
 from haptics_train.closed_loop import OnnxStepper, simulate
 from haptics_train.contract import validate_model
@@ -190,3 +191,20 @@ def test_feedback_noise_training_improves_the_closed_loop(synth):
         r, _ = evaluate(m, om, synth.test[0], CFG)
         res[algo] = r
     assert res["dnn_fb"]["closed_loop"]["rmse"] < 0.8 * res["dnn"]["closed_loop"]["rmse"], res
+
+
+@pytest.mark.parametrize("algo", ["dnn", "lstm", "svr"])
+def test_thesis_presets_train_and_export(synth, algo):
+    small = {"dnn": {"epochs": 1}, "lstm": {"iterations": 3, "streams": 4, "chunk": 20},
+             "svr": {"max_rows": 500}}[algo]  # fmt: skip
+    m = make_model(algo, "six", preset="thesis", hyper=small)
+    m.fit(synth.train, TrainConfig(decimate=50, progress=False))
+    om = to_contract_onnx(m, provenance(m, CFG, synth, None))
+    validate_model(om)
+    p = parity(m, om, synth.test[0], stateful_limit=500)
+    assert p["all_finite"] and p["max_abs_diff"] < 5e-3, p
+    if algo == "dnn":
+        # 150 sigmoid - dropout - 25 tanh - dropout - 1 sigmoid, output min-max scaled
+        lin = [mod for mod in m.net.body if isinstance(mod, torch.nn.Linear)]
+        assert [lin_.out_features for lin_ in lin] == [150, 25, 1]
+        assert isinstance(m.net.body[-1], torch.nn.Sigmoid)
