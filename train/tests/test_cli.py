@@ -57,3 +57,24 @@ def test_unknown_model_spec_is_a_clear_error(synth_root, tmp_path, capsys):
         main(["train", "--dataset", str(synth_root), "--models-dir", str(tmp_path),
               "--models", "rf:sixx", "--no-progress"])  # fmt: skip
     assert "unknown feature set" in capsys.readouterr().err
+
+
+def test_step_by_step_commands(tmp_path):
+    root = write_dataset(tmp_path / "dataset", cycles=2)
+    models = tmp_path / "m"
+    common = ["--dataset", str(root), "--models-dir", str(models), "--no-progress"]
+    main(["train", *common, "--models", "sd_poly1,dnn_fb:six", "--dnn-epochs", "1",
+          "--feedback-noise", "0.7"])  # fmt: skip
+    assert (models / "dnn_fb_six.joblib").exists() and not (models / "results.json").exists()
+    main(["evaluate", *common, "--names", "dnn_fb_six"])
+    res = json.loads((models / "results.json").read_text())
+    assert (
+        list(res) == ["dnn_fb_six"]
+        and res["dnn_fb_six"]["hyperparameters"]["feedback_noise"] == 0.7
+    )
+    main(["export", *common])
+    assert (models / "sd_poly1.onnx").exists() and (models / "dnn_fb_six.onnx").exists()
+    main(["evaluate", *common, "--names", "sd_poly1", "--no-closed-loop"])
+    main(["report", *common, "--out", str(tmp_path / "r")])
+    text = (tmp_path / "r" / "README.md").read_text()
+    assert "`dnn_fb_six`" in text and "`sd_poly1`" in text

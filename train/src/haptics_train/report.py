@@ -94,7 +94,7 @@ def _plot_series(
 def _rmse_bars(results: dict, names: list[str], out: Path) -> str:
     one = [results[n]["test"][0]["one_step"]["rmse"] for n in names]
     cl = [results[n]["test"][0]["closed_loop"]["rmse"] for n in names]
-    cl = [c if np.isfinite(c) else np.nan for c in cl]
+    cl = [c if c is not None and np.isfinite(c) else np.nan for c in cl]
     th = [THESIS[n][1] if n in THESIS else np.nan for n in names]
     fig, ax = plt.subplots(figsize=(max(6, 0.6 * len(names)), 3.5))
     i = np.arange(len(names))
@@ -116,7 +116,8 @@ def _goals(results: dict) -> list[str]:
     """The issue's three goals, checked on the numbers above (whatever they are)."""
 
     def rm(n: str, kind: str) -> float:
-        return results[n]["test"][0][kind]["rmse"]
+        v = results[n]["test"][0][kind]["rmse"]
+        return float("nan") if v is None else v
 
     out = ["## Goals (issue 7), checked", ""]
     if "rf_six" in results:
@@ -136,6 +137,7 @@ def _goals(results: dict) -> list[str]:
             f"{len(learned) - len(worse)} of {len(learned)}"
             + (f"; behind: {behind}." if worse else " (all).")
         )
+        learned = [n for n in learned if not np.isnan(rm(n, "closed_loop"))]
         worse_cl = [n for n in learned if not rm(n, "closed_loop") < ref]
         out.append(
             f"- ... in closed loop: {len(learned) - len(worse_cl)} of {len(learned)}"
@@ -144,6 +146,8 @@ def _goals(results: dict) -> list[str]:
         )
     rfs = [n for n in results if results[n]["algo"] == "rf"]
     nets = [n for n in results if results[n]["algo"] in ("dnn", "lstm", "dnn_fb", "lstm_fb")]
+    rfs = [n for n in rfs if not np.isnan(rm(n, "closed_loop"))]
+    nets = [n for n in nets if not np.isnan(rm(n, "closed_loop"))]
     if rfs and nets:
         best_rf = min(rfs, key=lambda n: rm(n, "closed_loop"))
         best_net = min(nets, key=lambda n: rm(n, "closed_loop"))
@@ -172,6 +176,10 @@ def write_report(
     results = {n: r for n, r in results.items() if n not in failed and "parity" in r}
     if not results:
         raise ValueError(f"{folder}: no model there has been evaluated and exported yet")
+    for r in results.values():
+        for e in r["test"]:
+            # evaluated with --no-closed-loop: shown as "-"
+            e.setdefault("closed_loop", dict.fromkeys(("r2", "mae", "mse", "rmse")))
     out.mkdir(parents=True, exist_ok=True)
     names = _order(results)
     test = dataset.test[0].name
