@@ -32,6 +32,24 @@ pub const FEATURE_NAMES: [&str; 9] = [
     "area_fx",
 ];
 
+/// The names the loop publishes to a served model (the shared-memory segment's schema, in
+/// [`Features::as_schema_array`] order): the nine of thesis Table 3.1, then `f_previous`
+/// = F(t-1), the force committed the step before, in N (train/'s better-conditioned
+/// alternative to the ratios, used by its `*_fb` networks). Not a recorded column: train/
+/// derives it from a recording (`haptics_train.data.add_previous_force`).
+pub const SCHEMA_NAMES: [&str; 10] = [
+    "position_x",
+    "velocity",
+    "acceleration",
+    "f_previous_x",
+    "f_previous_v",
+    "f_previous_a",
+    "cycle_no",
+    "deformation",
+    "area_fx",
+    "f_previous",
+];
+
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[repr(C)]
 pub struct Features {
@@ -44,9 +62,29 @@ pub struct Features {
     pub cycle_no: u32,
     pub deformation: f64,
     pub area_fx: f64,
+    /// F(t-1), N: the force committed the step before (0 before the first).
+    pub f_previous: f64,
 }
 
 impl Features {
+    /// The values of [`SCHEMA_NAMES`], in that order (what the shared-memory client sends).
+    #[inline]
+    pub fn as_schema_array(&self) -> [f64; 10] {
+        let n = self.as_array();
+        [
+            n[0],
+            n[1],
+            n[2],
+            n[3],
+            n[4],
+            n[5],
+            n[6],
+            n[7],
+            n[8],
+            self.f_previous,
+        ]
+    }
+
     /// The nine values as f64 in [`FEATURE_NAMES`] order (what a model client copies into its
     /// input slot).
     #[inline]
@@ -156,6 +194,7 @@ impl FeatureExtractor {
             cycle_no: self.cycle_no,
             deformation: self.deformation,
             area_fx: self.area,
+            f_previous: if self.has_prev { self.prev_force } else { 0.0 },
         }
     }
 
@@ -245,6 +284,13 @@ mod tests {
         assert_eq!(f2.f_previous_x, 200.0, "held");
         assert_eq!(f2.f_previous_v, 4.0, "held");
         assert_eq!(f2.f_previous_a, 3.0 / -2.0, "updated");
+        assert_eq!(
+            (f0.f_previous, f1.f_previous, f2.f_previous),
+            (0.0, 2.0, 3.0)
+        );
+        assert_eq!(f2.as_schema_array()[9], 3.0);
+        assert_eq!(f2.as_schema_array()[..9], f2.as_array());
+        assert_eq!(SCHEMA_NAMES[..9], FEATURE_NAMES);
     }
 
     /// A synthetic loop: load along F = k x, unload along F = k (x - d) (a set d). The area

@@ -376,6 +376,16 @@ fn cmd_run(a: &RunArgs) -> anyhow::Result<ExitCode> {
                     a.shm.instance
                 );
             }
+            if cfg.clock == ClockKind::Lockstep {
+                // every step of a lockstep run must be answered by the model: wait until one is active
+                let left = Duration::from_secs_f64(a.server_wait_s.max(1.0));
+                client.wait_for_model(left).map_err(|e| {
+                    anyhow::anyhow!(
+                        "infer-server attached to {} but serves no model: {e}; activate one (infer-server serve --model M, or hapticctl swap M)",
+                        seg.name
+                    )
+                })?;
+            }
             eprintln!("rt-loop: infer-server attached");
             counters = Some(client.counters.clone());
             model = Some(Box::new(ShmModel::new(client, answer_wait, Duration::ZERO)));

@@ -6,7 +6,7 @@
 //! overwrite-ring push (never blocks, never fails), one atomic heartbeat store, and every
 //! [`COMMAND_POLL_EVERY`] steps one non-blocking mailbox poll.
 
-use crate::features::FEATURE_NAMES;
+use crate::features::SCHEMA_NAMES;
 use crate::record::row::Row;
 use crate::shm_model::ShmClient;
 use anyhow::{anyhow, bail, Result};
@@ -26,12 +26,12 @@ pub struct LoopSegment {
 }
 
 /// Creates `/haptics-<instance>` with the loop's feature schema (the names of
-/// [`FEATURE_NAMES`], in the order `Features::as_array` gives them).
+/// [`SCHEMA_NAMES`], in the order `Features::as_schema_array` gives them).
 pub fn create_segment(instance: &str, answer_wait: WaitStrategy) -> Result<LoopSegment> {
     let name =
         SegmentName::for_instance(instance).map_err(|e| anyhow!("--instance {instance:?}: {e}"))?;
     let config = Config {
-        feature_names: FEATURE_NAMES.iter().map(|s| s.to_string()).collect(),
+        feature_names: SCHEMA_NAMES.iter().map(|s| s.to_string()).collect(),
         ..Config::default()
     };
     let segment = Segment::create(&name, &config).map_err(|e| anyhow!("segment {name}: {e}"))?;
@@ -45,9 +45,9 @@ pub fn create_segment(instance: &str, answer_wait: WaitStrategy) -> Result<LoopS
     if names
         .iter()
         .map(String::as_str)
-        .ne(FEATURE_NAMES.iter().copied())
+        .ne(SCHEMA_NAMES.iter().copied())
     {
-        bail!("segment {name}: schema {names:?} is not the loop's {FEATURE_NAMES:?}");
+        bail!("segment {name}: schema {names:?} is not the loop's {SCHEMA_NAMES:?}");
     }
     let client = ShmClient::new(
         side.features_tx,

@@ -124,8 +124,8 @@ pub struct ShmClient {
 }
 
 impl ShmClient {
-    /// `schema_len`: how many of `Features::as_array()` the segment's schema carries (its
-    /// names are [`crate::features::FEATURE_NAMES`] in order; checked by the caller).
+    /// The segment's schema must be [`crate::features::SCHEMA_NAMES`] (checked by
+    /// `shm_io::create_segment`): the values sent are `Features::as_schema_array()`.
     pub fn new(
         mut features_tx: Producer<FeatureMsg>,
         mut forces_rx: Consumer<ForceMsg>,
@@ -187,6 +187,51 @@ impl ShmClient {
         }
     }
 
+    /// Waits (off the real-time path) until the attached server answers with a model (flags 0),
+    /// up to `timeout`, probing with zero feature vectors flagged `RUN_START` (so a stateful
+    /// model starts the real run fresh anyway). Lockstep runs call it first, so that every
+    /// step of the run is answered by the model; an answer still flagged at the end is
+    /// returned as the error (its flags, e.g. 1 = no model active).
+    pub fn wait_for_model(&mut self, timeout: Duration) -> Result<(), String> {
+        let end = Instant::now() + timeout;
+        let mut last_flags = None;
+        loop {
+            self.link.heartbeat();
+            let seq = self.next_seq;
+            self.next_seq += 1;
+            let msg = FeatureMsg {
+                seq,
+                timestamp_ns: 0,
+                run_id: self.run_id,
+                flags: FeatureMsg::RUN_START,
+                len: self.schema_len.min(16) as u8,
+                values: [0.0; 16],
+            };
+            if self.features_tx.try_send(msg).is_ok() {
+                let deadline = Instant::now() + Duration::from_millis(500);
+                loop {
+                    match self.forces_rx.recv_deadline(deadline) {
+                        Ok(a) if a.seq < seq => continue,
+                        Ok(a) if a.seq == seq && a.flags == 0 => return Ok(()),
+                        Ok(a) => {
+                            last_flags = Some(a.flags);
+                            break;
+                        }
+                        Err(RecvError::PeerGone) => return Err("the server went away".into()),
+                        Err(_) => break,
+                    }
+                }
+            }
+            if Instant::now() >= end {
+                return Err(match last_flags {
+                    Some(f) => format!("the server answers with flags {f} (1: no model active, 4: schema mismatch)"),
+                    None => "the server does not answer".into(),
+                });
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
     /// Prepares a new run (off the real-time path): next message flagged `RUN_START` with a new
     /// run id, answers left over from an earlier run thrown away.
     pub fn begin_run(&mut self) {
@@ -239,7 +284,7 @@ impl ShmClient {
         }
         let seq = self.next_seq;
         self.next_seq += 1;
-        let all = features.as_array();
+        let all = features.as_schema_array();
         let mut values = [0.0f64; 16];
         let n = self.schema_len.min(all.len());
         values[..n].copy_from_slice(&all[..n]);

@@ -17,6 +17,7 @@ fn feats(i: u64) -> Features {
         position_x: 0.001 * i as f64,
         velocity: 0.5,
         cycle_no: 3,
+        f_previous: 0.5 * i as f64,
         ..Features::default()
     }
 }
@@ -125,7 +126,7 @@ fn answers_by_seq_deadline_flags_and_stale_discard() {
     assert!(seen[1..].iter().all(|m| !m.is_run_start()));
     assert!(seen
         .iter()
-        .all(|m| m.run_id == seen[0].run_id && m.len == 9));
+        .all(|m| m.run_id == seen[0].run_id && m.len == 10));
     assert_eq!(
         seen[3].values[6], 3.0,
         "cycle_no travels as f64 in schema slot 6"

@@ -18,7 +18,8 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
-const NINE: [&str; 9] = [
+/// The loop's schema: the nine of docs/recording-format.md and `f_previous` = F(t-1).
+const SCHEMA: [&str; 10] = [
     "position_x",
     "velocity",
     "acceleration",
@@ -28,15 +29,17 @@ const NINE: [&str; 9] = [
     "cycle_no",
     "deformation",
     "area_fx",
+    "f_previous",
 ];
 
-/// A spring-damper-like linear model over all nine features (weights on the ratio features
-/// zero: F/x, F/v and F/a explode near zero depth, velocity and acceleration; all nine still go through the model).
+/// A spring-damper-like linear model over all ten schema features (weights on the ratio
+/// features zero: F/x, F/v and F/a explode near zero depth, velocity and acceleration; all ten
+/// still go through the model; 0.1 F(t-1) makes the loop's own previous force matter).
 fn write_spring_model(dir: &Path) {
     write_linear_model(
         &dir.join("spring.onnx"),
-        &NINE,
-        &[400.0, 20.0, 0.0, 0.0, 0.0, 0.0, 0.05, 10.0, 1.0],
+        &SCHEMA,
+        &[400.0, 20.0, 0.0, 0.0, 0.0, 0.0, 0.05, 10.0, 1.0, 0.1],
         0.02,
     );
 }
@@ -142,17 +145,19 @@ fn lockstep_reproduction_renders_exactly_what_onnx_runtime_computes() {
     );
 
     // The recorded features through ONNX Runtime by another path (infer-server predict).
+    // f_previous is not a recorded column: in reproduction it is the previous step's F_pred
+    // (the force the loop committed), 0 on the first step.
     let feats = dir.join("features.csv");
-    let cols: Vec<Vec<&str>> = NINE.iter().map(|n| t.col(n)).collect();
-    let mut csv = NINE.join(",");
+    let cols: Vec<Vec<&str>> = SCHEMA[..9].iter().map(|n| t.col(n)).collect();
+    let pred_text = t.col("F_pred");
+    let mut csv = SCHEMA.join(",");
     csv.push('\n');
     for i in 0..t.rows.len() {
-        for (k, c) in cols.iter().enumerate() {
-            if k > 0 {
-                csv.push(',');
-            }
+        for c in &cols {
             csv.push_str(c[i]);
+            csv.push(',');
         }
+        csv.push_str(if i == 0 { "0" } else { pred_text[i - 1] });
         csv.push('\n');
     }
     std::fs::write(&feats, csv).unwrap();
