@@ -35,9 +35,13 @@ if [ ! -f data/dataset/test_2.1.parquet ]; then
 fi
 
 if [ ! -f "models/$model.onnx" ]; then
-  spec=${model/_/:}
-  say "train the default model $model (haptics-train pipeline --models $spec)"
-  .venv/bin/haptics-train pipeline --models "$spec" --out data/up-report
+  case "$model" in
+    sd_*) spec=$model ;;
+    *) spec="${model%_*}:${model##*_}" ;; # rf_six -> rf:six, dnn_fb_six -> dnn_fb:six
+  esac
+  say "train the default model $model (haptics-train train --models $spec, then export)"
+  .venv/bin/haptics-train train --models "$spec"
+  .venv/bin/haptics-train export --names "$model"
 fi
 
 pids=()
