@@ -376,8 +376,9 @@ fn cmd_run(a: &RunArgs) -> anyhow::Result<ExitCode> {
                     a.shm.instance
                 );
             }
-            if cfg.clock == ClockKind::Lockstep {
-                // every step of a lockstep run must be answered by the model: wait until one is active
+            {
+                // every step should be answered by the model (in lockstep: must): wait until
+                // the server has one active
                 let left = Duration::from_secs_f64(a.server_wait_s.max(1.0));
                 client.wait_for_model(left).map_err(|e| {
                     anyhow::anyhow!(

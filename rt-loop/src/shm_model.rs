@@ -180,7 +180,8 @@ impl ShmClient {
                 self.settle_until = None;
                 return true;
             }
-            if Instant::now() >= end {
+            // Ctrl-C while waiting: give up at once
+            if Instant::now() >= end || crate::run::stop_requested() {
                 return false;
             }
             std::thread::sleep(Duration::from_millis(5));
@@ -221,6 +222,9 @@ impl ShmClient {
                         Err(_) => break,
                     }
                 }
+            }
+            if crate::run::stop_requested() {
+                return Err("interrupted".into());
             }
             if Instant::now() >= end {
                 return Err(match last_flags {

@@ -196,3 +196,30 @@ fn server_gone_falls_back_without_waiting_and_a_new_server_resumes() {
     drop(model);
     assert!(home.lock().unwrap().is_some());
 }
+
+#[test]
+fn run_with_model_shm_and_no_server_says_what_to_start_and_leaves_no_segment() {
+    let inst = instance("cli");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_rt-loop"))
+        .args(["run", "--experiment", "reproduction", "--model", "shm"])
+        .args([
+            "--instance",
+            &inst,
+            "--server-wait-s",
+            "0.3",
+            "--no-progress",
+        ])
+        .current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("no infer-server attached") && err.contains(&format!("--instance {inst}")),
+        "{err}"
+    );
+    assert!(
+        !std::path::Path::new(&format!("/dev/shm/haptics-{inst}")).exists(),
+        "segment removed on exit"
+    );
+}
