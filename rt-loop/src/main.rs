@@ -355,6 +355,7 @@ fn cmd_run(a: &RunArgs) -> anyhow::Result<ExitCode> {
     );
     let mut segment = None;
     let mut counters = None;
+    let mut home = None;
     let mut model: Option<Box<dyn rt_loop::model::ForceModel>> = None;
     if a.model == ModelArg::Shm || a.telemetry {
         let answer_wait = a.shm.answer_wait(cfg.clock)?;
@@ -389,7 +390,10 @@ fn cmd_run(a: &RunArgs) -> anyhow::Result<ExitCode> {
             }
             eprintln!("rt-loop: infer-server attached");
             counters = Some(client.counters.clone());
-            model = Some(Box::new(ShmModel::new(client, answer_wait, Duration::ZERO)));
+            let h = std::sync::Arc::new(std::sync::Mutex::new(Some(client)));
+            model = ShmModel::borrow_from(&h, answer_wait, Duration::ZERO)
+                .map(|m| Box::new(m) as Box<dyn rt_loop::model::ForceModel>);
+            home = Some(h);
         }
         segment = Some(seg.io);
     }
@@ -400,6 +404,20 @@ fn cmd_run(a: &RunArgs) -> anyhow::Result<ExitCode> {
         segment.as_mut(),
     )?;
     summary.shm = counters.map(|c| c.snapshot());
+    // the client is back home once the run's loop is dropped: its round-trip histogram
+    if let Some(c) = home.as_ref().and_then(|h| h.lock().ok()?.take()) {
+        let h = &c.round_trip_ns;
+        if !h.is_empty() {
+            let us = |q: f64| h.value_at_quantile(q) as f64 / 1e3;
+            summary.round_trip_us = Some(rt_loop::run::Percentiles {
+                p50: us(0.5),
+                p99: us(0.99),
+                p999: us(0.999),
+                max: h.max() as f64 / 1e3,
+                count: h.len(),
+            });
+        }
+    }
     print_summary(&summary);
     if let Some(p) = &a.summary_json {
         std::fs::write(p, serde_json::to_string_pretty(&summary)?)?;
@@ -440,6 +458,12 @@ fn print_summary(s: &rt_loop::run::RunSummary) {
         eprintln!(
             "rt-loop: shm: {} sent, {} answered in time, {} late (deadline misses), {} without a server, {} flagged by the server, {} ring full, {} stale answers discarded, server lost {} time(s), {} attachment(s) seen",
             c.sent, c.answered, c.late, c.no_server, c.flagged, c.ring_full, c.stale_discarded, c.server_lost, c.attachments_seen
+        );
+    }
+    if let Some(r) = &s.round_trip_us {
+        eprintln!(
+            "rt-loop: round trip (send to matching answer): p50 {:.2} us, p99 {:.2} us, p99.9 {:.2} us, max {:.1} us over {} answers",
+            r.p50, r.p99, r.p999, r.max, r.count
         );
     }
     if let Some(j) = &s.jitter {

@@ -34,6 +34,8 @@ pub struct RunSummary {
     pub model: Option<ModelStats>,
     /// The shared-memory client's counters (runs with a served model), filled in by the caller.
     pub shm: Option<crate::shm_model::ShmCountersSnapshot>,
+    /// Loop-observed round trip to the server (runs with a served model), filled in by the caller.
+    pub round_trip_us: Option<Percentiles>,
     /// Telemetry rows published into the segment (0 without one).
     pub telemetry_rows: u64,
     pub warnings: Vec<String>,
@@ -51,6 +53,16 @@ impl RunSummary {
             || self.stop == "stopped")
             && rec_ok
     }
+}
+
+/// Latency percentiles, microseconds.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct Percentiles {
+    pub p50: f64,
+    pub p99: f64,
+    pub p999: f64,
+    pub max: f64,
+    pub count: u64,
 }
 
 /// The run's metadata JSON (`haptics.run`).
@@ -345,6 +357,7 @@ pub fn run_with(
         jitter: clock.map(|c| c.stats()),
         model: rig.experiment.model_stats(),
         shm: None,
+        round_trip_us: None,
         telemetry_rows: io.map_or(0, |io| io.rows_sent),
         warnings,
     })

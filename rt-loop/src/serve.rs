@@ -145,10 +145,12 @@ pub fn serve(cfg: &ServeConfig) -> Result<u64> {
             }
             _ => None,
         };
-        let counters = home
-            .lock()
-            .ok()
-            .and_then(|h| h.as_ref().map(|c| c.counters.clone()));
+        let counters = home.lock().ok().and_then(|mut h| {
+            h.as_mut().map(|c| {
+                c.round_trip_ns.reset();
+                c.counters.clone()
+            })
+        });
         let before = counters.as_ref().map(|c| c.snapshot());
         eprintln!(
             "rt-loop: run {run_id}: {:?} (command {}), ramp {} N/s, {} cycles, F_max {} + {} N{}",
@@ -178,8 +180,23 @@ pub fn serve(cfg: &ServeConfig) -> Result<u64> {
                 let shm = match (counters.as_ref(), before) {
                     (Some(c), Some(b)) if s.model.is_some() => {
                         let a = c.snapshot();
+                        let rtt = home
+                            .lock()
+                            .ok()
+                            .and_then(|h| {
+                                h.as_ref().filter(|c| !c.round_trip_ns.is_empty()).map(|c| {
+                                    let h = &c.round_trip_ns;
+                                    format!(
+                                        ", round trip p50 {:.1} us p99 {:.1} us max {:.1} us",
+                                        h.value_at_quantile(0.5) as f64 / 1e3,
+                                        h.value_at_quantile(0.99) as f64 / 1e3,
+                                        h.max() as f64 / 1e3
+                                    )
+                                })
+                            })
+                            .unwrap_or_default();
                         format!(
-                            "; shm: {} sent, {} answered, {} late, {} no server, {} flagged",
+                            "; shm: {} sent, {} answered, {} late, {} no server, {} flagged{rtt}",
                             a.sent - b.sent,
                             a.answered - b.answered,
                             a.late - b.late,
