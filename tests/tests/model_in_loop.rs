@@ -188,6 +188,30 @@ fn lockstep_reproduction_renders_exactly_what_onnx_runtime_computes() {
     }
     assert_eq!(differ, 0, "every rendered force equals ONNX Runtime's");
 
+    // lockstep waits for every answer: a second run against the same server is identical
+    let rec2 = dir.join("repro2.csv");
+    let mut lp2 = Proc::spawn(
+        "rt-loop (second run)",
+        Command::new(bin("rt-loop"))
+            .args(["run", "--experiment", "reproduction", "--clock", "lockstep"])
+            .args([
+                "--model",
+                "shm",
+                "--instance",
+                &inst,
+                "--server-wait-s",
+                "60",
+            ])
+            .args(["--no-progress", "--record"])
+            .arg(&rec2),
+    );
+    let st = lp2.wait_exit(Duration::from_secs(300));
+    assert!(st.success(), "second run: {}", lp2.output());
+    assert!(
+        std::fs::read(&rec).unwrap() == std::fs::read(&rec2).unwrap(),
+        "two lockstep runs with the served model gave different recordings"
+    );
+
     drop(server.child.kill());
     let _ = server.wait_exit(Duration::from_secs(10));
     assert!(
