@@ -219,8 +219,18 @@ impl Proc {
 }
 
 impl Drop for Proc {
+    /// A test that fails leaves nothing behind: SIGINT first (rt-loop and infer-server exit
+    /// cleanly on it, removing the segment), SIGKILL after 3 s.
     fn drop(&mut self) {
         if let Ok(None) = self.child.try_wait() {
+            self.signal(libc::SIGINT);
+            let end = Instant::now() + Duration::from_secs(3);
+            while Instant::now() < end {
+                if let Ok(Some(_)) = self.child.try_wait() {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            }
             let _ = self.child.kill();
             let _ = self.child.wait();
         }
