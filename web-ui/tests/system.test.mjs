@@ -20,7 +20,7 @@ import { after, before, describe, test } from "node:test";
 import assert from "node:assert/strict";
 import { spawn, spawnSync } from "node:child_process";
 import { existsSync, readdirSync, readFileSync } from "node:fs";
-import { mkdtemp, rm } from "node:fs/promises";
+import { mkdir, mkdtemp, rm } from "node:fs/promises";
 import { createServer } from "node:net";
 import { cpus, loadavg, tmpdir } from "node:os";
 import { dirname, join, resolve } from "node:path";
@@ -341,7 +341,10 @@ describe("page against the real rt-loop and infer-server", () => {
     const m = await measureFrames(page, 5000, ctx.b.userDataDir);
     console.log(`page frame times (real infer-server, 10 kHz loop): ${m.fps.toFixed(1)} fps, rAF delta p50 ${m.frameDelta.p50.toFixed(1)} ms p99 ${m.frameDelta.p99.toFixed(1)} ms; draw p50 ${m.drawMs.p50.toFixed(2)} ms p99 ${m.drawMs.p99.toFixed(2)} ms over ${m.draws} draws; Chromium CPU ${m.cpuPct.toFixed(0)} % of a core (${m.cpuMsPerFrame.toFixed(1)} ms per frame); ${m.dataFrames} data frames, ${m.buckets} buckets; load ${loadavg()[0].toFixed(1)} on ${cpus().length} cores`);
     assert.ok(m.draws > 10, "the page drew new data");
-    await page.screenshot({ path: join(repo, "docs", "web-ui.png"), fullPage: true });
+    // The committed docs/web-ui.png is refreshed only on request, so a test run leaves the tree clean.
+    const shot = process.env.HAPTICS_UPDATE_SCREENSHOT === "1" ? join(repo, "docs", "web-ui.png") : join(repo, "web-ui", "test-output", "system.png");
+    await mkdir(dirname(shot), { recursive: true });
+    await page.screenshot({ path: shot, fullPage: true });
   });
 
   it("shadow started from the page: the served model's predicted force reaches the plots", async () => {
