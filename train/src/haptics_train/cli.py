@@ -1,5 +1,5 @@
 """Command line of haptics-train: analyze, train, evaluate, export, report, import, validate,
-pipeline. Run from the repository root (default paths are relative to it)."""
+pipeline, study. Run from the repository root (default paths are relative to it)."""
 
 from __future__ import annotations
 
@@ -178,6 +178,26 @@ def cmd_pipeline(a: argparse.Namespace) -> None:
     print(f"[pipeline] done in {time.perf_counter() - t0:.0f} s")
 
 
+def cmd_study(a: argparse.Namespace) -> None:
+    from .study import StudyError, run_study
+
+    try:
+        run_study(
+            root=Path.cwd(),
+            models_dir=Path(a.models_dir),
+            out_dir=Path(a.out),
+            work=Path(a.work),
+            trajectory=Path(a.trajectory),
+            names=_names(a),
+            seed=a.seed,
+            rt_loop=a.rt_loop,
+            infer_server=a.infer_server,
+            shadow_predictions=not a.no_shadow_predictions,
+        )
+    except StudyError as e:
+        raise RuntimeError(str(e)) from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="haptics-train", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -228,6 +248,28 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("files", nargs="+")
     s.add_argument("--schema", help="comma-separated feature names the loop provides")
     s.set_defaults(fn=cmd_validate)
+
+    s = sub.add_parser(
+        "study", help="reproduction study (thesis 6.4.3/6.4.4): served models vs the sponge"
+    )
+    s.add_argument("--models-dir", default=DEFAULT_MODELS, help="default %(default)s")
+    s.add_argument("--names", help="comma-separated model names (default: every *.onnx)")
+    s.add_argument("--out", default="docs/study", help="report folder (default %(default)s)")
+    s.add_argument("--work", default="data/study", help="raw recordings (default %(default)s)")
+    s.add_argument(
+        "--trajectory",
+        default=f"{DEFAULT_DATASET}/test_2.1.parquet",
+        help="recording whose position the replay follows (default %(default)s)",
+    )
+    s.add_argument("--seed", type=int, default=1)
+    s.add_argument("--rt-loop", help="rt-loop binary (default target/release/rt-loop)")
+    s.add_argument("--infer-server", help="default target/release/infer-server")
+    s.add_argument(
+        "--no-shadow-predictions",
+        action="store_true",
+        help="skip the models' predictions along the real interaction (halves the run time)",
+    )
+    s.set_defaults(fn=cmd_study)
 
     s = sub.add_parser("pipeline", help="analyze + train + evaluate + export + report")
     _common(s)

@@ -1,0 +1,131 @@
+"""The reproduction study's alignment and metrics on synthetic series, and one real rt-loop
+pair (reference and builtin reproduction) when the binary is built."""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from haptics_train.study import (
+    STUDY_HAND,
+    Tools,
+    align,
+    compare,
+    ratio,
+    run_loop,
+    write_config,
+)
+
+
+def test_align_identical_grid_is_identity() -> None:
+    t = np.arange(0.0, 1.0, 1e-4)
+    y = np.sin(7 * t)
+    out, covered = align(t, t, y)
+    assert covered.all()
+    np.testing.assert_array_equal(out, y)
+
+
+def test_align_interpolates_other_grid_and_start_offset() -> None:
+    # The run starts at device time 5 s and is sampled on a coarser, jittered grid: aligned by
+    # time since its own start, a linear signal comes back exactly on the reference's grid.
+    t_ref = np.linspace(0.0, 2.0, 2001)
+    rng = np.random.default_rng(0)
+    t_run = np.sort(np.concatenate([[0.0, 2.0], rng.uniform(0.0, 2.0, 300)])) + 5.0
+    y_run = 3.0 * (t_run - 5.0) - 1.0
+    out, covered = align(t_ref, t_run, y_run)
+    assert covered.all()
+    np.testing.assert_allclose(out, 3.0 * t_ref - 1.0, atol=1e-12)
+
+
+def test_short_run_is_scored_only_where_it_ran() -> None:
+    t = np.arange(0.0, 10.0, 0.01)
+    ref = np.where(t < 4.0, 1.0, 5.0)
+    # The run stopped at 3.99 s (e.g. a position-limit abort) and matched the reference
+    # exactly while it ran: no penalty from samples it never produced, coverage says 40 %.
+    n = 400
+    out, covered = align(t, t[:n], ref[:n])
+    assert covered.sum() == n
+    assert np.isnan(out[n:]).all()
+    m = compare(t, ref, t[:n], ref[:n])
+    assert m["rmse"] == 0.0
+    assert m["coverage"] == pytest.approx(0.4)
+
+
+def test_compare_known_offset() -> None:
+    t = np.linspace(0.0, 1.0, 1001)
+    ref = 10.0 * np.sin(2 * np.pi * t) ** 2
+    c = 0.5
+    m = compare(t, ref, t, ref + c)
+    assert m["mae"] == pytest.approx(c)
+    assert m["rmse"] == pytest.approx(c)
+    assert m["mse"] == pytest.approx(c * c)
+    assert m["r2"] == pytest.approx(1.0 - c * c / np.var(ref))
+    assert m["coverage"] == 1.0
+
+
+def test_compare_sees_a_time_lag() -> None:
+    # The same force delayed by 50 ms scores worse than the same force on time: the
+    # comparison is by time, not by sorting or by depth.
+    t = np.arange(0.0, 3.0, 1e-3)
+    ref = np.clip(8.0 * np.sin(2 * np.pi * t), 0.0, None)
+    on_time = compare(t, ref, t, ref)
+    late = compare(t, ref, t, np.interp(t - 0.05, t, ref, left=0.0))
+    assert on_time["rmse"] == 0.0
+    assert late["rmse"] > 0.5
+    assert late["r2"] < 0.99
+
+
+def test_align_refuses_bad_runs() -> None:
+    t = np.linspace(0.0, 1.0, 11)
+    with pytest.raises(ValueError):
+        align(t, t[::-1].copy(), t)  # time going backwards
+    with pytest.raises(ValueError):
+        align(t, t[:1], t[:1])  # one sample
+    with pytest.raises(ValueError):
+        align(t, t, t[:5])
+
+
+def test_ratio() -> None:
+    assert ratio(20.95, 1.21) == pytest.approx(17.31, abs=0.01)
+    assert ratio(1.0, 0.1) == pytest.approx(10.0)
+    assert math.isnan(ratio(1.0, 0.0))
+    assert math.isnan(ratio(math.inf, 1.0))
+
+
+def test_reference_and_builtin_reproduction_with_rt_loop(rt_loop: Path, tmp_path: Path) -> None:
+    hand = {**STUDY_HAND, "repeats": 1, "press_s": 0.5, "hold_s": 0.2, "release_s": 0.5}
+    cfg = tmp_path / "hand.toml"
+    write_config(cfg, 1, hand)
+    tools = Tools(rt_loop, rt_loop, dict(os.environ))
+    base = ["--config", str(cfg), "--clock", "lockstep"]
+    ref = run_loop(
+        tools, "ref", "reference", [*base, "--experiment", "shadow"], tmp_path / "ref.parquet"
+    )
+    again = run_loop(
+        tools, "ref2", "reference", [*base, "--experiment", "shadow"], tmp_path / "ref2.parquet"
+    )
+    rep = run_loop(
+        tools,
+        "sd",
+        "reproduction",
+        [*base, "--experiment", "reproduction"],
+        tmp_path / "rep.parquet",
+    )
+    assert ref.ok and again.ok and rep.ok, (ref.note, again.note, rep.note)
+    assert ref.steps == rep.steps > 10_000
+    # The hand pressed the sponge: several newtons felt at the 28 mm set-point.
+    assert 3.0 < float(np.max(ref.series["F_true"])) < 15.0
+    # Lockstep with one seed is deterministic: the reference compares to itself exactly.
+    same = compare(
+        ref.series["time"], ref.series["F_true"], again.series["time"], again.series["F_true"]
+    )
+    assert same["rmse"] == 0.0
+    # The built-in spring-damper feels like the sponge, roughly, but not exactly.
+    m = compare(ref.series["time"], ref.series["F_true"], rep.series["time"], rep.series["F_true"])
+    assert m["coverage"] == 1.0
+    assert 0.05 < m["rmse"] < 5.0
+    assert m["r2"] > 0.3
