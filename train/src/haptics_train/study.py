@@ -560,7 +560,7 @@ def _plots(out: Path, ref: Run, rows: list[Row], rec: dict, rep: dict) -> None:
     fig.savefig(out / "felt_force_depth.png", dpi=90)
     plt.close(fig)
 
-    ok = [r for r in rows if r.repro is not None]
+    ok = sorted((r for r in rows if r.repro is not None), key=_rmse)
     fig, ax = plt.subplots(figsize=(10, 4))
     names = [r.name.replace("rt-loop builtin spring-damper", "builtin sd") for r in ok]
     vals = [min(r.repro["rmse"], 10.0) for r in ok]  # type: ignore[index]
@@ -768,7 +768,9 @@ def _write_readme(
         "the RFOB estimate differs more because under position control the observer also sees "
         "the PID's different friction state (stick-slip happens at other moments than under "
         "force control) and the RFOB is not told about friction (`friction_model` = 0, as in "
-        "the thesis code). The models' predictions along this same trajectory (closed loop, "
+        "the thesis code); in the plot the replay's F_res chatters by 1-2 N around the "
+        "recording's during the presses (stick-slip of the ~1 N friction under the PID). "
+        "The models' predictions along this same trajectory (closed loop, "
         "each fed its own previous predictions) are the `closed-loop` column of "
         "docs/report/README.md.\n"
     )
