@@ -83,7 +83,53 @@ fn latency_of(s: &LatencySnapshot) -> Latency {
     }
 }
 
+/// The loop's own figures (the loop-status block) into the control plane's status: clock,
+/// board, scheduling obtained, recorder state, and the current (or last) run's fallbacks,
+/// deadline misses and round-trip percentiles as the loop counted them (exact, where the
+/// telemetry rows only give a lower bound once rows were dropped).
+pub fn apply_loop_block(status: &mut LoopStatus, b: &shm_ring::LoopStatus) {
+    let us = |ns: u64| ns as f64 / 1000.0;
+    status.clock = b.clock.as_str().into();
+    status.board = b.board.as_str().into();
+    status.scheduling = if b.running || b.steps == 0 {
+        b.scheduling.as_str().into()
+    } else {
+        format!("idle (last run: {})", b.scheduling)
+    };
+    status.recorder = b.recorder.as_str().into();
+    if b.steps > 0 {
+        status.fallbacks = b.fallbacks;
+        status.deadline_misses = b.deadline_misses;
+    }
+    let q = &b.round_trip;
+    if q.count > 0 {
+        status.round_trip_latency = Latency {
+            p50_us: us(q.p50_ns),
+            p99_us: us(q.p99_ns),
+            p999_us: us(q.p999_ns),
+            max_us: us(q.max_ns),
+            count: q.count,
+        };
+    }
+}
+
 impl ServerBackend {
+    /// The attached loop's status block, if it published one (a short lock on the endpoints,
+    /// then a seqlock read: never waits on the loop).
+    fn loop_block(&self, attachment: u64) -> Option<shm_ring::LoopStatus> {
+        if attachment == 0 {
+            return None;
+        }
+        let link = self
+            .registry
+            .server()
+            .endpoints()
+            .lock()
+            .as_ref()
+            .map(|ep| ep.link.clone())?;
+        link.loop_status()
+    }
+
     pub fn new(
         registry: Arc<Registry>,
         hub: TelemetryHub,
@@ -223,22 +269,21 @@ impl Backend for ServerBackend {
         } else {
             counters.last_seq.load(Ordering::Relaxed)
         };
+        let mut loop_status = LoopStatus {
+            alive,
+            rate_hz: if alive { o.rate_hz() } else { 0.0 },
+            step,
+            fallbacks: o.fallbacks.load(Ordering::Relaxed),
+            telemetry_drops: o.dropped.load(Ordering::Relaxed),
+            experiment: self.experiment(attachment, alive),
+            ..LoopStatus::default()
+        };
+        // What the loop publishes about itself (the segment's loop-status block, ~10 Hz).
+        if let Some(b) = self.loop_block(attachment) {
+            apply_loop_block(&mut loop_status, &b);
+        }
         StatusSnapshot {
-            loop_status: LoopStatus {
-                alive,
-                // Not published by the loop in the segment (see docs/infer-server.md).
-                clock: String::new(),
-                board: String::new(),
-                rate_hz: if alive { o.rate_hz() } else { 0.0 },
-                step,
-                fallbacks: o.fallbacks.load(Ordering::Relaxed),
-                deadline_misses: 0,
-                scheduling: String::new(),
-                recorder: String::new(),
-                telemetry_drops: o.dropped.load(Ordering::Relaxed),
-                experiment: self.experiment(attachment, alive),
-                round_trip_latency: Latency::default(),
-            },
+            loop_status,
             server: ServerStatus {
                 inference_latency: latency_of(&server.latency().snapshot()),
                 predictions: counters.predicted.load(Ordering::Relaxed),

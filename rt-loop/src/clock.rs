@@ -35,6 +35,11 @@ pub struct RealtimeGuard {
     affinity: Option<libc::cpu_set_t>,
     locked: bool,
     sched_changed: bool,
+    /// What was obtained, for the loop-status block: the CPU pinned to, the SCHED_FIFO
+    /// priority, and why SCHED_FIFO was refused (errno name).
+    pinned_cpu: Option<i32>,
+    fifo_priority: Option<i32>,
+    fifo_refused: Option<String>,
     /// One line per step that was not permitted (the run carries on without it).
     pub warnings: Vec<String>,
 }
@@ -56,6 +61,9 @@ pub fn make_thread_realtime(cfg: &RealtimeConfig) -> RealtimeGuard {
         affinity: None,
         locked: false,
         sched_changed: false,
+        pinned_cpu: None,
+        fifo_priority: None,
+        fifo_refused: None,
         warnings: Vec::new(),
     };
     // SAFETY: valid pointer to a local sched_param.
@@ -82,7 +90,9 @@ pub fn make_thread_realtime(cfg: &RealtimeConfig) -> RealtimeGuard {
             }
             let mut set: libc::cpu_set_t = std::mem::zeroed();
             libc::CPU_SET(cpu as usize, &mut set);
-            if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
+            if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) == 0 {
+                g.pinned_cpu = Some(cpu);
+            } else {
                 g.affinity = None;
                 g.warnings.push(format!(
                     "pinning to CPU {cpu} failed: {}",
@@ -99,7 +109,9 @@ pub fn make_thread_realtime(cfg: &RealtimeConfig) -> RealtimeGuard {
         let r = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
         if r == 0 {
             g.sched_changed = true;
+            g.fifo_priority = Some(param.sched_priority);
         } else {
+            g.fifo_refused = Some(errno_name(std::io::Error::last_os_error()));
             g.warnings.push(format!(
                 "SCHED_FIFO priority {} not permitted: {}",
                 cfg.priority,
@@ -108,6 +120,37 @@ pub fn make_thread_realtime(cfg: &RealtimeConfig) -> RealtimeGuard {
         }
     }
     g
+}
+
+/// `EPERM`, `EINVAL`, ... for the status line (the number for anything else).
+fn errno_name(e: std::io::Error) -> String {
+    match e.raw_os_error() {
+        Some(libc::EPERM) => "EPERM".into(),
+        Some(libc::EINVAL) => "EINVAL".into(),
+        Some(libc::EACCES) => "EACCES".into(),
+        Some(libc::ESRCH) => "ESRCH".into(),
+        Some(n) => format!("errno {n}"),
+        None => e.to_string(),
+    }
+}
+
+impl RealtimeGuard {
+    /// What the thread actually obtained, for the status: "SCHED_FIFO 80 cpu 1 mlocked",
+    /// "SCHED_OTHER (FIFO refused: EPERM) cpu 1", ...
+    pub fn describe(&self) -> String {
+        let mut s = match (self.fifo_priority, &self.fifo_refused) {
+            (Some(p), _) => format!("SCHED_FIFO {p}"),
+            (None, Some(why)) => format!("SCHED_OTHER (FIFO refused: {why})"),
+            (None, None) => "SCHED_OTHER".into(),
+        };
+        if let Some(cpu) = self.pinned_cpu {
+            s.push_str(&format!(" cpu {cpu}"));
+        }
+        if self.locked {
+            s.push_str(" mlocked");
+        }
+        s
+    }
 }
 
 impl Drop for RealtimeGuard {
@@ -243,6 +286,16 @@ impl RealtimeClock {
             .saturating_record(period.abs_diff(self.period_ns).max(1));
         self.last_wake = woke;
         self.next += self.period_ns;
+    }
+
+    /// Steps that overran so far.
+    pub fn overruns(&self) -> u64 {
+        self.overruns
+    }
+
+    /// The period jitter histogram (ns).
+    pub fn jitter(&self) -> &Histogram<u64> {
+        &self.jitter
     }
 
     pub fn stats(&self) -> JitterStats {

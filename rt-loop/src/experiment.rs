@@ -337,6 +337,13 @@ impl Experiment {
         }
     }
 
+    /// Lets the model fill its part of the loop-status block (no allocation, no lock).
+    pub fn report_status(&self, status: &mut shm_ring::LoopStatus) {
+        if let Experiment::Reproduction { model, .. } = self {
+            model.report_status(status);
+        }
+    }
+
     /// Decides the step. Runs on the loop thread: no allocation (the model hook is required
     /// to allocate nothing either).
     #[inline]

@@ -25,6 +25,9 @@ pub trait ForceModel: Send {
     /// Predicted reaction force (N, positive = the virtual object pushes back) for step
     /// `step` from its features; `None` when no prediction is available in time.
     fn predict(&mut self, step: u64, features: &Features) -> Option<f64>;
+    /// Fills what the model knows for the loop-status block (deadline misses, round-trip
+    /// percentiles). Called about every 100 ms on the loop thread: no allocation, no lock.
+    fn report_status(&self, _status: &mut shm_ring::LoopStatus) {}
 }
 
 /// `F = k1 x + k2 x^2 + b v` while in contact (x > 0), never pulling (F >= 0).

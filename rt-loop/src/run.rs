@@ -200,6 +200,30 @@ pub fn install_stop_signals() {
     }
 }
 
+/// The run's figures into the loop-status block (no allocation, no lock): steps, fallbacks,
+/// the model's misses and round trip, the clock's overruns and jitter, the recorder's rows.
+fn fill_status(
+    io: &mut crate::shm_io::LoopIo,
+    rig: &Rig<Box<dyn Board>>,
+    clock: Option<&RealtimeClock>,
+    recorder: Option<&RecorderHandle>,
+) {
+    let rows = recorder.map(|r| (r.pushed(), r.failed()));
+    match rows {
+        Some((_, true)) => io.set_recorder_text("failed (the run ends at 0 A; see its summary)"),
+        Some((n, false)) => io.set_recorder_rows(n),
+        None => io.set_recorder_rows(0),
+    }
+    let s = io.status_mut();
+    s.steps = rig.steps();
+    s.fallbacks = rig.experiment.model_stats().map_or(0, |m| m.fallbacks);
+    rig.experiment.report_status(s);
+    if let Some(c) = clock {
+        s.overruns = c.overruns();
+        s.period_jitter = crate::shm_io::quantiles_of(c.jitter());
+    }
+}
+
 /// Progress reporting for long lockstep runs (called off the step, every few thousand steps).
 pub trait Progress {
     fn update(&mut self, loop_time_s: f64);
@@ -252,11 +276,13 @@ pub fn run_with(
     let decimate = cfg.decimate as u64;
     let max_time = cfg.max_duration_s.unwrap_or(f64::INFINITY);
     let mut warnings = Vec::new();
-    let mut clock = None;
+    let mut clock: Option<RealtimeClock> = None;
+    let mut scheduling = "SCHED_OTHER (lockstep clock: no real-time set-up)".to_string();
     // Restores the thread's scheduling, affinity and memory locking when the run ends.
     let mut _rt_guard = None;
     if cfg.clock == ClockKind::Realtime {
         let g = make_thread_realtime(&cfg.realtime);
+        scheduling = g.describe();
         warnings = g.warnings.clone();
         for w in &warnings {
             eprintln!("rt-loop: warning: {w} (continuing without it)");
@@ -265,6 +291,9 @@ pub fn run_with(
         let mut c = RealtimeClock::new(cfg.rate_hz);
         c.start();
         clock = Some(c);
+    }
+    if let Some(io) = io.as_deref_mut() {
+        io.begin_run_status(cfg, &scheduling, cfg.record.as_deref());
     }
     let lockstep = cfg.clock == ClockKind::Lockstep;
     let wall = Instant::now();
@@ -282,6 +311,11 @@ pub fn run_with(
                     if io.on_step(&row) == crate::shm_io::StepAction::Stop {
                         rig.safe_stop();
                         break "stopped".into();
+                    }
+                    // about every 100 ms, never per step; allocation-free
+                    if io.status_due() {
+                        fill_status(io, &rig, clock.as_ref(), recorder.as_ref());
+                        io.publish_status();
                     }
                 }
                 if let Some(r) = recorder.as_mut() {
@@ -336,6 +370,9 @@ pub fn run_with(
     }
     let wall_s = wall.elapsed().as_secs_f64();
     let steps = rig.steps();
+    if let Some(io) = io.as_deref_mut() {
+        fill_status(io, &rig, clock.as_ref(), recorder.as_ref());
+    }
     let (rows_pushed, drops, report) = match recorder {
         Some(r) => {
             let (p, d) = (r.pushed(), r.dropped());
@@ -343,6 +380,18 @@ pub fn run_with(
         }
         None => (0, 0, None),
     };
+    if let Some(io) = io.as_deref_mut() {
+        if let Some(r) = &report {
+            match (&r.error, &r.path) {
+                (Some(e), _) => io.set_recorder_text(&format!("failed: {e}")),
+                (None, Some(p)) => {
+                    io.set_recorder_text(&format!("wrote {} rows {}", p.display(), r.rows_written))
+                }
+                (None, None) => {}
+            }
+        }
+        io.end_run_status();
+    }
     Ok(RunSummary {
         experiment: rig.experiment.name().into(),
         clock: format!("{:?}", cfg.clock).to_lowercase(),

@@ -78,6 +78,12 @@ pub fn serve(cfg: &ServeConfig) -> Result<u64> {
     let seg = create_segment(&cfg.instance, cfg.answer_wait)?;
     let name = seg.name.clone();
     let mut io = seg.io;
+    io.set_identity(
+        cfg.base.clock,
+        &format!("{:?}", cfg.base.board).to_lowercase(),
+        cfg.base.rate_hz,
+    );
+    io.publish_status();
     let home: Arc<Mutex<Option<ShmClient>>> = Arc::new(Mutex::new(Some(seg.client)));
     eprintln!(
         "rt-loop: serving segment {name} ({:?} clock, {} Hz, board {:?}); autostart {}",
@@ -101,8 +107,9 @@ pub fn serve(cfg: &ServeConfig) -> Result<u64> {
             break;
         }
         let Some(req) = next.take() else {
-            // Idle: 0 A (no run, the board is not driven), heartbeat, mailbox.
+            // Idle: 0 A (no run, the board is not driven), heartbeat, mailbox, status.
             io.heartbeat();
+            io.idle_status();
             match io.poll_command() {
                 Some(LoopCommand::Start(r)) => next = Some(r),
                 Some(LoopCommand::Stop { .. }) => {}

@@ -10,13 +10,41 @@ use crate::features::SCHEMA_NAMES;
 use crate::record::row::Row;
 use crate::shm_model::ShmClient;
 use anyhow::{anyhow, bail, Result};
+use hdrhistogram::Histogram;
 use shm_ring::{
-    Command, CommandKind, Config, Consumer, Link, OverwriteProducer, Segment, SegmentName,
-    TelemetryRow, WaitStrategy,
+    Command, CommandKind, Config, Consumer, Link, LoopClock, LoopStatus, OverwriteProducer,
+    Quantiles, Segment, SegmentName, StatusText, TelemetryRow, WaitStrategy, RECORDER_BYTES,
 };
+use std::fmt::Write as _;
+use std::time::{Duration, Instant};
 
 /// Steps between two polls of the command mailbox (1.6 ms at 10 kHz).
 pub const COMMAND_POLL_EVERY: u64 = 16;
+/// The loop-status block is published about this often (never per step).
+pub const STATUS_EVERY: Duration = Duration::from_millis(100);
+/// Steps between two looks at the clock for [`STATUS_EVERY`] (6.4 ms at 10 kHz).
+const STATUS_CHECK_EVERY: u32 = 64;
+
+/// Percentiles of an HDR histogram (ns) for the status block. No allocation: it walks the
+/// preallocated buckets (a few microseconds; called about every 100 ms, never per step).
+pub fn quantiles_of(h: &Histogram<u64>) -> Quantiles {
+    if h.is_empty() {
+        return Quantiles::default();
+    }
+    Quantiles {
+        p50_ns: h.value_at_quantile(0.5),
+        p99_ns: h.value_at_quantile(0.99),
+        p999_ns: h.value_at_quantile(0.999),
+        max_ns: h.max(),
+        count: h.len(),
+    }
+}
+
+fn unix_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
 
 /// The segment of one rt-loop instance, split into the model client and the side channel.
 pub struct LoopSegment {
@@ -156,6 +184,12 @@ pub struct LoopIo {
     pub refused_during_run: u64,
     pub last_refused: Option<(u64, &'static str)>,
     pub rows_sent: u64,
+    /// What goes into the segment's loop-status block (kept here, updated in place).
+    status: LoopStatus,
+    /// "writing PATH" of the current recording (the row count is appended at each publication).
+    recorder_prefix: StatusText<RECORDER_BYTES>,
+    status_countdown: u32,
+    last_status: Instant,
 }
 
 impl LoopIo {
@@ -172,6 +206,127 @@ impl LoopIo {
             refused_during_run: 0,
             last_refused: None,
             rows_sent: 0,
+            status: LoopStatus {
+                scheduling: StatusText::new("idle (no experiment yet)"),
+                recorder: StatusText::new("off"),
+                ..LoopStatus::default()
+            },
+            recorder_prefix: StatusText::default(),
+            status_countdown: STATUS_CHECK_EVERY,
+            last_status: Instant::now(),
+        }
+    }
+
+    /// Sets what does not change between runs (off the real-time path).
+    pub fn set_identity(&mut self, clock: crate::config::ClockKind, board: &str, rate_hz: f64) {
+        self.status.clock = match clock {
+            crate::config::ClockKind::Lockstep => LoopClock::Lockstep,
+            crate::config::ClockKind::Realtime => LoopClock::Realtime,
+        };
+        self.status.board.set(board);
+        self.status.rate_hz = rate_hz;
+    }
+
+    /// A run begins (off the real-time path): its counters start at 0, the scheduling it
+    /// obtained and its recording (`None`: "off") are set, and the block is published.
+    pub fn begin_run_status(
+        &mut self,
+        cfg: &crate::config::RunConfig,
+        scheduling: &str,
+        recording: Option<&std::path::Path>,
+    ) {
+        self.set_identity(
+            cfg.clock,
+            &format!("{:?}", cfg.board).to_lowercase(),
+            cfg.rate_hz,
+        );
+        let s = &mut self.status;
+        s.running = true;
+        s.run_id = u64::from(self.run_id);
+        s.steps = 0;
+        s.fallbacks = 0;
+        s.deadline_misses = 0;
+        s.overruns = 0;
+        s.round_trip = Quantiles::default();
+        s.period_jitter = Quantiles::default();
+        s.scheduling.set(scheduling);
+        self.recorder_prefix = match recording {
+            Some(p) => {
+                // Keep room for " rows N"; a long path loses its beginning, not its name.
+                let path = p.display().to_string();
+                let room = RECORDER_BYTES - "writing ".len() - 28;
+                let mut cut = path.len().saturating_sub(room);
+                while !path.is_char_boundary(cut) {
+                    cut += 1;
+                }
+                let shown = if cut > 0 {
+                    format!("...{}", &path[cut..])
+                } else {
+                    path
+                };
+                StatusText::new(&format!("writing {shown}"))
+            }
+            None => StatusText::default(),
+        };
+        self.set_recorder_rows(0);
+        self.publish_status();
+    }
+
+    /// The recorder's state with `rows` rows handed to it so far ("off" without a recording).
+    /// No allocation.
+    pub fn set_recorder_rows(&mut self, rows: u64) {
+        if self.recorder_prefix.is_empty() {
+            self.status.recorder.set("off");
+        } else {
+            self.status.recorder = self.recorder_prefix;
+            let _ = write!(self.status.recorder, " rows {rows}");
+        }
+    }
+
+    /// Sets the recorder's state text (e.g. "failed: ...") as is.
+    pub fn set_recorder_text(&mut self, text: &str) {
+        self.status.recorder.set(text);
+    }
+
+    /// The run ended (off the real-time path): `running` false, the final figures stay.
+    pub fn end_run_status(&mut self) {
+        self.status.running = false;
+        self.publish_status();
+    }
+
+    /// The status being built; [`LoopIo::publish_status`] writes it.
+    pub fn status_mut(&mut self) -> &mut LoopStatus {
+        &mut self.status
+    }
+
+    pub fn status(&self) -> &LoopStatus {
+        &self.status
+    }
+
+    /// Whether the status block is due (about every [`STATUS_EVERY`]). Per step: one
+    /// decrement, and every [`STATUS_CHECK_EVERY`] steps one monotonic clock read (vDSO).
+    #[inline]
+    pub fn status_due(&mut self) -> bool {
+        self.status_countdown -= 1;
+        if self.status_countdown > 0 {
+            return false;
+        }
+        self.status_countdown = STATUS_CHECK_EVERY;
+        self.last_status.elapsed() >= STATUS_EVERY
+    }
+
+    /// Writes the status into the segment (seqlock, no allocation, no lock, no syscall but
+    /// the vDSO clock reads).
+    pub fn publish_status(&mut self) {
+        self.last_status = Instant::now();
+        self.status.updated_unix_ns = unix_ns();
+        self.link.publish_loop_status(&self.status);
+    }
+
+    /// While idle (called every few ms): publishes about every [`STATUS_EVERY`].
+    pub fn idle_status(&mut self) {
+        if self.last_status.elapsed() >= STATUS_EVERY {
+            self.publish_status();
         }
     }
 

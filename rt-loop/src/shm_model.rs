@@ -117,6 +117,8 @@ pub struct ShmClient {
     settle_until: Option<Instant>,
     liveness_countdown: u32,
     origin: Instant,
+    /// `counters.late` when the current run began (the status reports the run's misses).
+    late_at_run_start: u64,
     /// Loop-observed round trip (send to matching answer), ns; preallocated, recording never
     /// allocates (`saturating_record` clamps to the range).
     pub round_trip_ns: Histogram<u64>,
@@ -148,6 +150,7 @@ impl ShmClient {
             settle_until: None,
             liveness_countdown: LIVENESS_EVERY,
             origin: Instant::now(),
+            late_at_run_start: 0,
             round_trip_ns: Histogram::new_with_bounds(1, 60_000_000_000, 3)
                 .expect("valid histogram bounds"),
             counters: Arc::new(ShmCounters::default()),
@@ -247,6 +250,19 @@ impl ShmClient {
             .fetch_add(stale, Ordering::Relaxed);
         self.connected = self.server_alive();
         self.seen_attachments = self.link.server_attachments();
+        self.late_at_run_start = self.counters.late.load(Ordering::Relaxed);
+    }
+
+    /// Deadline misses of the current run and the round-trip percentiles into the status
+    /// block's fields. About every 100 ms on the loop thread: no allocation (the percentiles
+    /// walk the preallocated histogram's buckets), no lock.
+    pub fn report_status(&self, status: &mut shm_ring::LoopStatus) {
+        status.deadline_misses = self
+            .counters
+            .late
+            .load(Ordering::Relaxed)
+            .saturating_sub(self.late_at_run_start);
+        status.round_trip = crate::shm_io::quantiles_of(&self.round_trip_ns);
     }
 
     pub fn run_id(&self) -> u32 {
@@ -434,6 +450,12 @@ impl ForceModel for ShmModel {
             c.wait_for_server(server_wait);
         }
         c.begin_run();
+    }
+
+    fn report_status(&self, status: &mut shm_ring::LoopStatus) {
+        if let Some(c) = self.client.as_ref() {
+            c.report_status(status);
+        }
     }
 
     #[inline]

@@ -4,6 +4,7 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use crate::fixed_str::{FixedStr, FIXED_STR_WORDS};
+use crate::loop_status::StatusBlock;
 use crate::message::Message;
 use crate::messages::{Command, FeatureMsg, ForceMsg, TelemetryRow, MAX_FEATURES};
 use crate::ring_mem::{slot_words, Padded, RingControl};
@@ -11,7 +12,8 @@ use crate::ring_mem::{slot_words, Padded, RingControl};
 /// "HAPTSHM1" little-endian: the first word of every segment.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"HAPTSHM1");
 /// Bumped whenever the header or ring protocol changes incompatibly.
-pub const LAYOUT_VERSION: u64 = 1;
+/// 2: the loop-status block (`loop_status`) was added after the heartbeats.
+pub const LAYOUT_VERSION: u64 = 2;
 
 /// The four channels, in header order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -82,6 +84,8 @@ pub(crate) struct Header {
     pub(crate) channels: [ChannelDesc; 4],
     pub(crate) loop_heartbeat: Padded<AtomicU64>,
     pub(crate) server_heartbeat: Padded<AtomicU64>,
+    /// Written by the loop about every 100 ms (a seqlock; see `loop_status`).
+    pub(crate) loop_status: Padded<StatusBlock>,
 }
 
 /// Where everything sits in a segment of given capacities.

@@ -73,6 +73,8 @@ mod error;
 #[cfg(not(loom))]
 mod header;
 #[cfg(not(loom))]
+mod loop_status;
+#[cfg(not(loom))]
 mod os;
 #[cfg(not(loom))]
 mod segment;
@@ -93,6 +95,10 @@ pub use endpoints::{LoopSide, ServerSide};
 pub use error::Error;
 #[cfg(not(loom))]
 pub use header::{Channel, LAYOUT_VERSION, MAGIC};
+#[cfg(not(loom))]
+pub use loop_status::{
+    LoopClock, LoopStatus, Quantiles, StatusText, BOARD_BYTES, RECORDER_BYTES, SCHEDULING_BYTES,
+};
 #[cfg(not(loom))]
 pub use segment::{
     Config, Link, Role, Segment, SegmentInfo, SegmentName, StaleSegment, MAX_CAPACITY,

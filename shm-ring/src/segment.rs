@@ -783,6 +783,19 @@ impl Link {
             .load(Ordering::Acquire)
     }
 
+    /// Publishes the loop's status in the header's loop-status block (a seqlock; readers
+    /// never see a torn snapshot). Loop side only (the single writer): returns `None` on a
+    /// server's handle, else the generation written. Call it about every 100 ms, not per
+    /// step; it allocates nothing, takes no lock and makes no syscall.
+    pub fn publish_loop_status(&self, status: &crate::loop_status::LoopStatus) -> Option<u64> {
+        (self.shared.role == Role::Loop).then(|| self.shared.header().loop_status.0.publish(status))
+    }
+
+    /// The loop's last published status, `None` if it never published (or died mid-write).
+    pub fn loop_status(&self) -> Option<crate::loop_status::LoopStatus> {
+        self.shared.header().loop_status.0.read()
+    }
+
     /// The feature schema (names in `FeatureMsg::values` order).
     pub fn feature_names(&self) -> Vec<String> {
         self.shared.header().schema().unwrap_or_default()
