@@ -675,6 +675,24 @@ def _write_readme(
         f"- At least ten times closer than the 2nd-order spring-damper: "
         f"**{'met' if met_ratio else 'not met'}** ({_fmt(k, 2)}x).\n"
     )
+    pb = _best(rows, True, key="shadow")
+    if pb is not None and pb.shadow is not None and sd2 is not None and sd2.shadow is not None:
+        L.append(
+            "The thesis's Table 6.19 itself compared the forces *predicted* along a real "
+            "interaction (model and spring-damper) with the measured one. The same here "
+            "(`pred along real` below: each model fed the hand-on-sponge run, F_pred vs the "
+            f"felt force): best learned `{pb.name}` RMSE {_fmt(pb.shadow['rmse'])} N "
+            f"(R2 {_fmt(pb.shadow['r2'])}), `sd_poly2` {_fmt(sd2.shadow['rmse'])} N "
+            f"(R2 {_fmt(sd2.shadow['r2'])}): "
+            f"{_fmt(ratio(sd2.shadow['rmse'], pb.shadow['rmse']), 2)}x.\n"
+        )
+    fast_note = "not run."
+    if fast_rows:
+        fb, fsd = _best(fast_rows, True), _sd2(fast_rows)
+        if fb and fsd and fb.repro and fsd.repro:
+            fast_note = (
+                f"{_fmt(ratio(fsd.repro['rmse'], fb.repro['rmse']), 2)}x (sensitivity run below)."
+            )
     if not met_ratio:
         L.append(
             "Why the 10x is missed: the thesis's spring-damper rendered 20.95 N RMSE (R2 -72): "
@@ -694,8 +712,8 @@ def _write_readme(
             "~1 N stick-slip friction the RFOB does not compensate with `friction_model` = 0, "
             "the 3 % force-constant error), which the shadow reference does not go through. "
             "That rendering floor was not measured here (it needs an rt-loop 'oracle' model "
-            "that renders the simulated sponge's own force; proposed). A faster hand does not "
-            "change the picture (sensitivity run below: about 3x as well). What could: a "
+            "that renders the simulated sponge's own force; proposed). A faster hand: "
+            f"{fast_note} What could: a "
             "learned model closer to the sponge on unloading and at rest (the set), a friction "
             "model in the RFOB for both abstraction and reproduction (lowers the rendering "
             "floor), or a comparison on the rendered force itself (`pred along real` below) "
