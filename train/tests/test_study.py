@@ -129,3 +129,35 @@ def test_reference_and_builtin_reproduction_with_rt_loop(rt_loop: Path, tmp_path
     assert m["coverage"] == 1.0
     assert 0.05 < m["rmse"] < 5.0
     assert m["r2"] > 0.3
+
+
+def test_a_refused_model_is_reported_not_waited_for(
+    rt_loop: Path, infer_server: Path, tmp_path: Path
+) -> None:
+    # A corrupt model: infer-server refuses it at start (exit 1); the study must stop the
+    # loop that waits for a server, say why, and leave no shared-memory segment behind.
+    bad = tmp_path / "broken.onnx"
+    bad.write_bytes(b"not an onnx model")
+    cfg = tmp_path / "hand.toml"
+    write_config(cfg, 1, {**STUDY_HAND, "repeats": 1})
+    env = dict(os.environ)
+    ort = Path(__file__).resolve().parents[2] / ".ort" / "libonnxruntime.so"
+    if "ORT_DYLIB_PATH" not in env and ort.is_file():
+        env["ORT_DYLIB_PATH"] = str(ort)
+    tools = Tools(rt_loop, infer_server, env)
+    inst = f"study-test-{os.getpid()}"
+    r = run_loop(
+        tools,
+        "broken",
+        "reproduction",
+        ["--config", str(cfg), "--clock", "lockstep", "--experiment", "reproduction"],
+        tmp_path / "rep.parquet",
+        server_model=bad,
+        instance=inst,
+        timeout_s=60,
+    )
+    assert not r.ok
+    assert "refused" in r.note, r.note
+    assert r.wall_s < 15  # not the loop's 20 s server wait
+    assert not (tmp_path / "rep.parquet").exists()
+    assert not Path(f"/dev/shm/haptics-{inst}").exists()
