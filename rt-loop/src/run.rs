@@ -307,17 +307,7 @@ pub fn run_with(
             Ok(row) => {
                 last_time = row.time;
                 last_row = Some(row);
-                if let Some(io) = io.as_deref_mut() {
-                    if io.on_step(&row) == crate::shm_io::StepAction::Stop {
-                        rig.safe_stop();
-                        break "stopped".into();
-                    }
-                    // about every 100 ms, never per step; allocation-free
-                    if io.status_due() {
-                        fill_status(io, &rig, clock.as_ref(), recorder.as_ref());
-                        io.publish_status();
-                    }
-                }
+                // The step was rendered: it is recorded even when a stop command ends the run here.
                 if let Some(r) = recorder.as_mut() {
                     if row.step % decimate == 0 {
                         if lockstep {
@@ -330,6 +320,17 @@ pub fn run_with(
                         // Nothing more can be recorded: end the run with the motor at 0 A.
                         rig.safe_stop();
                         break "recorder-failed".into();
+                    }
+                }
+                if let Some(io) = io.as_deref_mut() {
+                    if io.on_step(&row) == crate::shm_io::StepAction::Stop {
+                        rig.safe_stop();
+                        break "stopped".into();
+                    }
+                    // about every 100 ms, never per step; allocation-free
+                    if io.status_due() {
+                        fill_status(io, &rig, clock.as_ref(), recorder.as_ref());
+                        io.publish_status();
                     }
                 }
                 if row.time >= max_time {

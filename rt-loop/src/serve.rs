@@ -138,6 +138,13 @@ pub fn serve(cfg: &ServeConfig) -> Result<u64> {
             );
             rc.record = Some(d.join(n));
         }
+        // Before the client is lent to the run: its counters, and a fresh histogram per run.
+        let counters = home.lock().ok().and_then(|mut h| {
+            h.as_mut().map(|c| {
+                c.round_trip_ns.reset();
+                c.counters.clone()
+            })
+        });
         let model: Option<Box<dyn crate::model::ForceModel>> = match rc.experiment {
             ExperimentKind::Reproduction | ExperimentKind::Shadow => {
                 match ShmModel::borrow_from(&home, cfg.answer_wait_mode(), cfg.server_wait) {
@@ -152,12 +159,6 @@ pub fn serve(cfg: &ServeConfig) -> Result<u64> {
             }
             _ => None,
         };
-        let counters = home.lock().ok().and_then(|mut h| {
-            h.as_mut().map(|c| {
-                c.round_trip_ns.reset();
-                c.counters.clone()
-            })
-        });
         let before = counters.as_ref().map(|c| c.snapshot());
         eprintln!(
             "rt-loop: run {run_id}: {:?} (command {}), ramp {} N/s, {} cycles, F_max {} + {} N{}",

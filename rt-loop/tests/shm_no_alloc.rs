@@ -76,6 +76,14 @@ fn exchange_allocates_nothing() {
         safety: Duration::from_secs(2),
     };
     let row = rt_loop::record::Row::default();
+    // the loop-status block: set up off the real-time path (allocates), then published in the
+    // loop below on the step path (must not)
+    let cfg = rt_loop::config::RunConfig::default();
+    io.begin_run_status(
+        &cfg,
+        "SCHED_OTHER (test)",
+        Some(std::path::Path::new("/tmp/some/recording.parquet")),
+    );
     COUNT_HERE.with(|c| c.set(true));
     let mut answered = 0;
     for step in 0..5000u64 {
@@ -87,9 +95,21 @@ fn exchange_allocates_nothing() {
             answered += 1;
         }
         io.on_step(&row);
+        if step % 500 == 0 {
+            io.set_recorder_rows(step);
+            client.report_status(io.status_mut());
+            io.publish_status();
+        }
     }
     COUNT_HERE.with(|c| c.set(false));
     assert_eq!(answered, 5000);
+    let st = io.link().loop_status().expect("published");
+    assert_eq!(
+        st.recorder.as_str(),
+        "writing /tmp/some/recording.parquet rows 4500"
+    );
+    assert_eq!(st.round_trip.count, 4501, "{st:?}");
+    assert_eq!(st.scheduling.as_str(), "SCHED_OTHER (test)");
     assert_eq!(
         ALLOCS.load(Ordering::Relaxed),
         0,

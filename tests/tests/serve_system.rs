@@ -79,6 +79,9 @@ fn serve_hapticctl_experiments_and_clean_sigint() {
 
     let s = wait_status(&addr, "loop alive", |s| s["loop"]["alive"] == true);
     assert_eq!(s["loop"]["mode"], "idle", "serve idles until asked: {s}");
+    // published by the idle loop already
+    assert_eq!(s["loop"]["clock"], "realtime", "{s}");
+    assert_eq!(s["loop"]["recorder"], "off", "{s}");
 
     let (ok, out) = ctl(
         &addr,
@@ -114,6 +117,36 @@ fn serve_hapticctl_experiments_and_clean_sigint() {
     wait_status(&addr, "model predictions during shadow", |s| {
         s["server"]["predictions"].as_u64().unwrap_or(0) > 500
     });
+    // The loop-status block (written by the loop ~10 Hz into the segment header): clock,
+    // board, the scheduling actually obtained, the recorder, and the loop-observed round trip.
+    let s = wait_status(&addr, "round trips in the loop's status block", |s| {
+        s["loop"]["round_trip_latency"]["count"]
+            .as_u64()
+            .unwrap_or(0)
+            > 200
+    });
+    let l = &s["loop"];
+    assert_eq!(l["clock"], "realtime", "{s}");
+    assert_eq!(l["board"], "sim", "{s}");
+    let sched = l["scheduling"].as_str().unwrap_or("");
+    assert!(
+        sched.starts_with("SCHED_FIFO ") || sched.starts_with("SCHED_OTHER"),
+        "scheduling obtained: {s}"
+    );
+    let rec = l["recorder"].as_str().unwrap_or("");
+    assert!(
+        rec.starts_with("writing ") && rec.contains("shadow-") && rec.contains(" rows "),
+        "recorder state: {s}"
+    );
+    let rtt = &l["round_trip_latency"];
+    let (p50, p99, max) = (
+        rtt["p50_us"].as_f64().unwrap(),
+        rtt["p99_us"].as_f64().unwrap(),
+        rtt["max_us"].as_f64().unwrap(),
+    );
+    assert!(p50 > 0.0 && p50 <= p99 && p99 <= max, "round trip: {s}");
+    assert!(l["deadline_misses"].is_u64(), "{s}");
+    eprintln!("status during shadow: {}", l);
     ctl(&addr, &["experiment", "stop"]);
     let out = lp.wait_for("run 2 ended: stopped", Duration::from_secs(10));
     let line = out.lines().find(|l| l.contains("run 2 ended")).unwrap();
