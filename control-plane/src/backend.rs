@@ -194,6 +194,10 @@ pub struct LoopStatus {
     pub experiment: ExperimentStatus,
     /// Round trip features -> force, as the loop observed it.
     pub round_trip_latency: Latency,
+    /// Realtime steps that ended after the next period had begun.
+    pub overruns: u64,
+    /// |actual period - nominal period| (realtime clock).
+    pub period_jitter: Latency,
 }
 
 /// The server side of the status.

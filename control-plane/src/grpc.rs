@@ -280,6 +280,8 @@ pub fn status_to_pb(
         active_model: s.active_model.as_ref().map(model_to_pb),
         inference_latency: Some(latency_to_pb(&s.server.inference_latency)),
         round_trip_latency: Some(latency_to_pb(&l.round_trip_latency)),
+        overruns: l.overruns,
+        period_jitter: Some(latency_to_pb(&l.period_jitter)),
         predictions: s.server.predictions,
         uptime_s: s.server.uptime_s,
         server_version: s.server.version.clone(),

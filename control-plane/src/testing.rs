@@ -424,6 +424,8 @@ impl Backend for SimBackend {
                 telemetry_drops: 0,
                 experiment: s.experiment.clone(),
                 round_trip_latency: latency,
+                overruns: 0,
+                period_jitter: Latency::default(),
             },
             server: ServerStatus {
                 inference_latency: latency,

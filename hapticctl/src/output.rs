@@ -114,6 +114,8 @@ pub fn status_json(s: &pb::Status) -> Value {
             "telemetry_drops": s.telemetry_drops,
             "experiment": { "kind": e.kind, "running": e.running, "cycle": e.cycle, "phase": e.phase },
             "round_trip_latency": latency_json(s.round_trip_latency.as_ref()),
+            "overruns": s.overruns,
+            "period_jitter": latency_json(s.period_jitter.as_ref()),
         },
         "server": {
             "version": s.server_version,
@@ -177,6 +179,11 @@ pub fn status_text(s: &pb::Status) -> String {
     out.push_str(&format!(
         "inference:   {}\n",
         lat(s.inference_latency.as_ref())
+    ));
+    out.push_str(&format!(
+        "jitter:      {}    overruns: {}\n",
+        lat(s.period_jitter.as_ref()),
+        s.overruns
     ));
     out.push_str(&format!("scheduling:  {}\n", or_dash(&s.scheduling)));
     out.push_str(&format!("recorder:    {}\n", or_dash(&s.recorder)));

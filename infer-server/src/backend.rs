@@ -101,15 +101,19 @@ pub fn apply_loop_block(status: &mut LoopStatus, b: &shm_ring::LoopStatus) {
         status.fallbacks = b.fallbacks;
         status.deadline_misses = b.deadline_misses;
     }
-    let q = &b.round_trip;
-    if q.count > 0 {
-        status.round_trip_latency = Latency {
-            p50_us: us(q.p50_ns),
-            p99_us: us(q.p99_ns),
-            p999_us: us(q.p999_ns),
-            max_us: us(q.max_ns),
-            count: q.count,
-        };
+    let lat = |q: &shm_ring::Quantiles| Latency {
+        p50_us: us(q.p50_ns),
+        p99_us: us(q.p99_ns),
+        p999_us: us(q.p999_ns),
+        max_us: us(q.max_ns),
+        count: q.count,
+    };
+    if b.round_trip.count > 0 {
+        status.round_trip_latency = lat(&b.round_trip);
+    }
+    status.overruns = b.overruns;
+    if b.period_jitter.count > 0 {
+        status.period_jitter = lat(&b.period_jitter);
     }
 }
 

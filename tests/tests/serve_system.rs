@@ -26,6 +26,23 @@ fn ctl(addr: &str, args: &[&str]) -> (bool, String) {
     )
 }
 
+/// GET over a plain TCP connection (HTTP/1.0, the body after the headers).
+fn http_get(addr: &str, path: &str) -> String {
+    use std::io::{Read, Write};
+    let mut c = std::net::TcpStream::connect(addr).expect("connect HTTP");
+    c.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    write!(c, "GET {path} HTTP/1.0\r\nHost: {addr}\r\n\r\n").unwrap();
+    let mut out = String::new();
+    c.read_to_string(&mut out).expect("HTTP response");
+    assert!(
+        out.starts_with("HTTP/1.") && out.contains(" 200 "),
+        "{path}: {out}"
+    );
+    out.split_once("\r\n\r\n")
+        .map(|(_, b)| b.to_string())
+        .unwrap_or_default()
+}
+
 fn status(addr: &str) -> serde_json::Value {
     let (ok, out) = ctl(addr, &["--json", "status"]);
     assert!(ok, "hapticctl status: {out}");
@@ -147,6 +164,37 @@ fn serve_hapticctl_experiments_and_clean_sigint() {
     assert!(p50 > 0.0 && p50 <= p99 && p99 <= max, "round trip: {s}");
     assert!(l["deadline_misses"].is_u64(), "{s}");
     eprintln!("status during shadow: {}", l);
+    assert!(
+        l["period_jitter"]["count"].as_u64().unwrap_or(0) > 0 && l["overruns"].is_u64(),
+        "period jitter of the realtime clock: {s}"
+    );
+    // The same block through HTTP: the page's status object and the Prometheus metrics.
+    let http = server
+        .output()
+        .lines()
+        .find_map(|l| l.split(" HTTP http://").nth(1))
+        .and_then(|r| r.split_whitespace().next())
+        .expect("HTTP address in infer-server's ready line")
+        .to_string();
+    let api: serde_json::Value =
+        serde_json::from_str(&http_get(&http, "/api/status")).expect("/api/status JSON");
+    assert_eq!(api["loop"]["clock"], "realtime", "{api}");
+    assert!(
+        api["loop"]["latency_us"]["count"].as_u64().unwrap_or(0) > 0,
+        "{api}"
+    );
+    assert!(
+        api["loop"]["latency_us"]["p50"].as_f64().unwrap_or(0.0) > 0.0,
+        "{api}"
+    );
+    let metrics = http_get(&http, "/metrics");
+    let p50 = metrics
+        .lines()
+        .find(|l| l.starts_with("haptics_round_trip_latency_us{quantile=\"0.5\"}"))
+        .and_then(|l| l.rsplit(' ').next())
+        .and_then(|v| v.parse::<f64>().ok())
+        .unwrap_or_else(|| panic!("round trip p50 in /metrics:\n{metrics}"));
+    assert!(p50 > 0.0, "round trip p50 {p50} in /metrics");
     ctl(&addr, &["experiment", "stop"]);
     let out = lp.wait_for("run 2 ended: stopped", Duration::from_secs(10));
     let line = out.lines().find(|l| l.contains("run 2 ended")).unwrap();

@@ -59,6 +59,8 @@ pub struct LoopJson {
     pub scheduling: String,
     pub recorder: String,
     pub telemetry_drops: u64,
+    pub overruns: u64,
+    pub period_jitter_us: LatencyJson,
 }
 
 #[derive(Debug, Serialize)]
@@ -118,6 +120,8 @@ impl StatusJson {
                 scheduling: l.scheduling.clone(),
                 recorder: l.recorder.clone(),
                 telemetry_drops: l.telemetry_drops,
+                overruns: l.overruns,
+                period_jitter_us: (&l.period_jitter).into(),
             },
             active_model: s.active_model.as_ref().map(|m| ActiveModelJson {
                 name: m.name.clone(),

@@ -43,6 +43,11 @@ pub async fn metrics(State(core): State<Core>) -> Result<Response, ControlError>
         l.deadline_misses as f64,
     );
     m.counter(
+        "haptics_loop_overruns_total",
+        "Realtime steps that ended after the next period began",
+        l.overruns as f64,
+    );
+    m.counter(
         "haptics_loop_telemetry_drops_total",
         "Telemetry samples the loop could not publish",
         l.telemetry_drops as f64,
@@ -57,6 +62,11 @@ pub async fn metrics(State(core): State<Core>) -> Result<Response, ControlError>
         "haptics_round_trip_latency_us",
         "Features to force round trip as the loop sees it, microseconds",
         &l.round_trip_latency,
+    );
+    m.latency(
+        "haptics_period_jitter_us",
+        "Loop period minus its nominal value (absolute), microseconds",
+        &l.period_jitter,
     );
     m.latency(
         "haptics_inference_latency_us",
