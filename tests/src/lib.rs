@@ -126,6 +126,9 @@ pub struct Proc {
     pub name: String,
     pub child: Child,
     pub out: Arc<Mutex<String>>,
+    /// The stdout/stderr readers: joined once the child has exited, so `output()` after
+    /// `wait_exit` holds everything the process printed (a fixed sleep raced on a loaded machine).
+    readers: Vec<std::thread::JoinHandle<()>>,
 }
 
 impl Proc {
@@ -138,24 +141,26 @@ impl Proc {
             .spawn()
             .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
         let out = Arc::new(Mutex::new(String::new()));
+        let mut readers = Vec::new();
         for stream in [
             Box::new(child.stdout.take().unwrap()) as Box<dyn Read + Send>,
             Box::new(child.stderr.take().unwrap()),
         ] {
             let out = out.clone();
-            std::thread::spawn(move || {
+            readers.push(std::thread::spawn(move || {
                 for line in BufReader::new(stream).lines() {
                     let Ok(line) = line else { break };
                     let mut o = out.lock().unwrap();
                     o.push_str(&line);
                     o.push('\n');
                 }
-            });
+            }));
         }
         Proc {
             name: name.into(),
             child,
             out,
+            readers,
         }
     }
 
@@ -204,7 +209,11 @@ impl Proc {
         let end = Instant::now() + timeout;
         loop {
             if let Some(st) = self.child.try_wait().expect("try_wait") {
-                std::thread::sleep(Duration::from_millis(50)); // let the readers finish
+                // The pipes close with the process (no grandchildren hold them), so the readers
+                // end once they have read everything.
+                for reader in self.readers.drain(..) {
+                    let _ = reader.join();
+                }
                 return st;
             }
             assert!(
