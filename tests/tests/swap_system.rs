@@ -4,8 +4,10 @@
 //! `infer-server serve`. From the loop's own recording it checks: no step lost (every step
 //! present, in order, and each one sent to the server), every step the model answered in time
 //! carries the output of the model its step's interval says (so each swap's reported effective
-//! step is exactly where the served output changes), and it prints the deadline misses near
-//! swaps and away from them.
+//! step is exactly where the served output changes), that a corrupt model, one whose warm-up
+//! gives NaN, one with wrong inputs and one wanting a feature the loop lacks are refused
+//! half-way with their reason while the active model serves on, and it prints the deadline
+//! misses near swaps and away from them.
 //!
 //! Parking/spin-then-park waits on both sides: this machine has two cores.
 
@@ -45,6 +47,21 @@ fn hundred_swaps_under_the_realtime_loop_lose_nothing() {
     write_linear_model(&dir.join("a.onnx"), &["position_x"], &[0.0], VALUE_A as f32);
     write_linear_model(&dir.join("b.onnx"), &["position_x"], &[0.0], VALUE_B as f32);
     // A shadow run long enough for 100 swaps (1 s rest + 8 presses of 4 s); stopped early.
+    // Models that must be refused while the loop runs, the active model serving on.
+    std::fs::write(dir.join("corrupt.onnx"), b"this is not an ONNX model").unwrap();
+    write_linear_model(&dir.join("nan.onnx"), &["position_x"], &[0.0], f32::NAN);
+    write_linear_model(&dir.join("missing.onnx"), &["no_such_feature"], &[1.0], 0.0);
+    haptics_system_tests::run_python(
+        "import sys, onnx\n\
+         m = onnx.load(sys.argv[1])\n\
+         m.graph.input[0].name = 'x'\n\
+         m.graph.node[0].input[0] = 'x'\n\
+         onnx.save(m, sys.argv[2])\n",
+        &[
+            dir.join("a.onnx").to_str().unwrap(),
+            dir.join("wrong_inputs.onnx").to_str().unwrap(),
+        ],
+    );
     let config = dir.join("loop.toml");
     std::fs::write(&config, "[hand]\nrepeats = 8\n").unwrap();
     let inst = instance("swap");
@@ -122,6 +139,39 @@ fn hundred_swaps_under_the_realtime_loop_lose_nothing() {
         };
         swaps.push((activate(&rt, &mut models, name), value));
         std::thread::sleep(Duration::from_millis(20));
+        if k == SWAPS / 2 {
+            // Half-way: bad models refused with their reason; nothing changes for the loop
+            // (checked below: every answered step still carries the active model's output).
+            for (bad, code, says) in [
+                ("corrupt.onnx", tonic::Code::InvalidArgument, "corrupt"),
+                ("nan.onnx", tonic::Code::InvalidArgument, "non_finite"),
+                ("wrong_inputs.onnx", tonic::Code::InvalidArgument, "input"),
+                (
+                    "missing.onnx",
+                    tonic::Code::FailedPrecondition,
+                    "no_such_feature",
+                ),
+            ] {
+                let e = rt
+                    .block_on(models.activate_model(ActivateModelRequest {
+                        name: bad.into(),
+                        load_if_needed: true,
+                    }))
+                    .expect_err(bad);
+                eprintln!("refused {bad}: {:?} {}", e.code(), e.message());
+                assert_eq!(e.code(), code, "{bad}: {e}");
+                assert!(
+                    e.message().to_lowercase().contains(says),
+                    "{bad}: the reason should mention {says:?}: {}",
+                    e.message()
+                );
+            }
+            let active = rt
+                .block_on(models.get_active_model(GetActiveModelRequest {}))
+                .unwrap()
+                .into_inner();
+            assert_eq!(active.name, name, "the active model stays after refusals");
+        }
     }
     let swap_s = t_swaps.elapsed().as_secs_f64();
     std::thread::sleep(Duration::from_millis(100));
