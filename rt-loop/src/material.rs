@@ -66,9 +66,19 @@ pub struct PermanentSet {
 }
 
 impl Material {
+    /// Reads a material file. A relative path that does not exist from the working directory is
+    /// also looked up from the folders above the executable (`target/release/rt-loop` finds the
+    /// repository's `materials/`) and under `/usr/share/haptics` (containers, lab installs), so
+    /// the default `materials/sponge.toml` works from any directory.
     pub fn load(path: &Path) -> anyhow::Result<(Material, String)> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| anyhow::anyhow!("cannot read material file {}: {e}", path.display()))?;
+        let found = resolve(path);
+        let text = std::fs::read_to_string(&found).map_err(|e| {
+            anyhow::anyhow!(
+                "cannot read material file {}: {e} (also looked above the executable and in /usr/share/haptics)",
+                path.display()
+            )
+        })?;
+        let path = found.as_path();
         let m = Material::parse(&text)
             .map_err(|e| anyhow::anyhow!("material file {}: {e}", path.display()))?;
         Ok((m, text))
@@ -151,4 +161,23 @@ impl Material {
         }
         Ok(())
     }
+}
+
+fn resolve(path: &Path) -> std::path::PathBuf {
+    if path.is_absolute() || path.exists() {
+        return path.to_path_buf();
+    }
+    let exe_dirs = std::env::current_exe().ok().into_iter().flat_map(|exe| {
+        exe.ancestors()
+            .skip(1)
+            .map(Path::to_path_buf)
+            .collect::<Vec<_>>()
+    });
+    exe_dirs
+        .chain(std::iter::once(std::path::PathBuf::from(
+            "/usr/share/haptics",
+        )))
+        .map(|dir| dir.join(path))
+        .find(|candidate| candidate.is_file())
+        .unwrap_or_else(|| path.to_path_buf())
 }

@@ -244,3 +244,23 @@ fn sigint_stops_cleanly_with_a_complete_recording() {
     assert!(!partial.exists(), "renamed to its final name");
     assert!(err.contains(&format!("{steps} written")), "{err}");
 }
+
+#[test]
+fn default_material_is_found_from_any_working_directory() {
+    // The default `materials/sponge.toml` is relative; run from a directory that has none, as
+    // train/'s tests and the study do, and it is found from the executable's location.
+    let dir = std::env::temp_dir().join(format!("rt-loop-cwd-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = bin()
+        .current_dir(&dir)
+        .args(["run", "--experiment", "shadow", "--clock", "lockstep"])
+        .args(["--duration", "0.05", "--no-progress"])
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
