@@ -27,17 +27,8 @@ pub const OUTPUT_C: &str = "c_out";
 
 /// The nine features of thesis Table 3.1, in that order (docs/recording-format.md). A model uses
 /// any subset of these, in any order.
-pub const FEATURE_NAMES: [&str; 9] = [
-    "position_x",
-    "velocity",
-    "acceleration",
-    "f_previous_x",
-    "f_previous_v",
-    "f_previous_a",
-    "cycle_no",
-    "deformation",
-    "area_fx",
-];
+/// One list for the whole system: shm-ring's, which the segment's schema is built from.
+pub const FEATURE_NAMES: [&str; 9] = shm_ring::THESIS_FEATURES;
 
 /// How the server steps a model.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]

@@ -20,17 +20,8 @@
 use serde::{Deserialize, Serialize};
 
 /// The feature names in the order of thesis Table 3.1 (and of [`Features::as_array`]).
-pub const FEATURE_NAMES: [&str; 9] = [
-    "position_x",
-    "velocity",
-    "acceleration",
-    "f_previous_x",
-    "f_previous_v",
-    "f_previous_a",
-    "cycle_no",
-    "deformation",
-    "area_fx",
-];
+/// One list for the whole system: shm-ring's, which the segment's schema is built from.
+pub const FEATURE_NAMES: [&str; 9] = shm_ring::THESIS_FEATURES;
 
 /// The names the loop publishes to a served model (the shared-memory segment's schema, in
 /// [`Features::as_schema_array`] order): the nine of thesis Table 3.1, then `f_previous`
