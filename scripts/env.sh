@@ -7,3 +7,9 @@ if [ -d "$_root/.venv/bin" ]; then
   export HAPTICS_PYTHON="$_root/.venv/bin/python"
 fi
 unset _root
+
+# One build command for every script: cargo unifies dependency features over the packages it is
+# asked for, so building a different set (rt-loop alone, say) recompiles shared dependencies.
+haptics_build() {
+  cargo build --release -p rt-loop -p infer-server -p hapticctl
+}

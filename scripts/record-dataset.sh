@@ -14,7 +14,9 @@ out=${1:-data/dataset}
 decimate=${DECIMATE:-1}
 seed=${SEED:-1}
 mkdir -p "$out"
-cargo build --release -p rt-loop --bin rt-loop
+# shellcheck disable=SC1091
+source scripts/env.sh
+haptics_build
 bin=target/release/rt-loop
 
 record() { # name ramp_rate seed

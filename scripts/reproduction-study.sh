@@ -22,8 +22,8 @@ if ! ls models/*.onnx >/dev/null 2>&1; then
   exit 2
 fi
 start=$(date +%s)
-echo "[study] cargo build --release -p rt-loop -p infer-server"
-cargo build --release -p rt-loop -p infer-server
+echo "[study] build: rt-loop, infer-server, hapticctl (release)"
+haptics_build
 built=$(date +%s)
 .venv/bin/haptics-train study "$@"
 echo "[study] build $((built - start)) s, study $(( $(date +%s) - built )) s"

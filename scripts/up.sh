@@ -27,7 +27,7 @@ HAPTICS_NO_BROWSER=1 bash scripts/setup.sh
 source scripts/env.sh
 
 say "build (release): rt-loop, infer-server, hapticctl"
-cargo build --release -p rt-loop -p infer-server -p hapticctl
+haptics_build
 
 if [ ! -f data/dataset/test_2.1.parquet ]; then
   say "record the default dataset (ramp rates 0.8, 1.8, 3.9, 6.2 N/s and the 2.1 N/s test run)"
