@@ -64,15 +64,23 @@ loop_args=(serve --clock realtime --instance "$instance")
 [ "$autostart" != none ] && loop_args+=(--autostart "$autostart")
 target/release/rt-loop "${loop_args[@]}" &
 pids+=($!)
-target/release/infer-server serve --instance "$instance" --models models --model "$model" \
+target/release/infer-server serve --instance "$instance" --models models --model "$model.onnx" \
   --grpc "$grpc" --http "$http" &
 pids+=($!)
 
-# Wait for the page to answer before printing its address.
-for _ in $(seq 1 100); do
-  if (exec 3<>"/dev/tcp/${http%:*}/${http##*:}") 2>/dev/null; then break; fi
+# Wait for the page to answer before printing its address; stop if either process died.
+up=0
+for _ in $(seq 1 300); do
+  if (exec 3<>"/dev/tcp/${http%:*}/${http##*:}") 2>/dev/null; then up=1; break; fi
+  for pid in "${pids[@]}"; do
+    kill -0 "$pid" 2>/dev/null || { echo "up: a process failed to start (see above)" >&2; exit 1; }
+  done
   sleep 0.1
 done
+if [ "$up" != 1 ]; then
+  echo "up: the page did not answer on http://$http/ within 30 s" >&2
+  exit 1
+fi
 cat <<EOF
 
   The system is up on the simulated bench.
