@@ -106,6 +106,21 @@ impl Registry {
         &self.dir
     }
 
+    /// `rf_six` names `rf_six.onnx` when only the latter exists (in memory or in the model
+    /// directory): people type model names without the extension.
+    fn canonical_name(&self, name: &str) -> String {
+        if name.ends_with(".onnx") || self.lock().entries.contains_key(name) {
+            return name.to_string();
+        }
+        let with_ext = format!("{name}.onnx");
+        let known = self.lock().entries.contains_key(&with_ext);
+        if !self.dir.join(name).is_file() && (known || self.dir.join(&with_ext).is_file()) {
+            with_ext
+        } else {
+            name.to_string()
+        }
+    }
+
     fn lock(&self) -> MutexGuard<'_, State> {
         self.state.lock().unwrap_or_else(|p| p.into_inner())
     }
@@ -218,7 +233,10 @@ impl Registry {
     }
 
     fn load_locked(&self, source: ModelSource) -> Result<ModelInfo, ControlError> {
-        let name = source.name().to_string();
+        let name = match &source {
+            ModelSource::Directory { name } => self.canonical_name(name),
+            ModelSource::Upload { name, .. } => name.clone(),
+        };
         validate_model_name(&name)?;
         if self.lock().active.as_deref() == Some(name.as_str()) {
             return Err(ControlError::FailedPrecondition(format!(
@@ -296,6 +314,8 @@ impl Registry {
         let _ops = self.lock_ops();
         self.collect_returned();
         validate_model_name(name)?;
+        let name = self.canonical_name(name);
+        let name = name.as_str();
         if !self.server.attached() {
             return Err(ControlError::FailedPrecondition(format!(
                 "no loop is attached to take {name} (is rt-loop running?); nothing changed"
@@ -459,6 +479,8 @@ impl Registry {
     pub fn unload(&self, name: &str) -> Result<(), ControlError> {
         let _ops = self.lock_ops();
         self.collect_returned();
+        let name = self.canonical_name(name);
+        let name = name.as_str();
         let mut st = self.lock();
         if st.active.as_deref() == Some(name) {
             return Err(ControlError::FailedPrecondition(format!(

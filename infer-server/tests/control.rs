@@ -439,7 +439,9 @@ async fn models_load_activate_swap_and_refusals_over_grpc() {
         assert_eq!(w[1].seq, w[0].seq + 1);
     }
     // Activating the active model again: a fresh engine (new id, fresh state) from a later step.
-    let again = activate(&mut c, "tree.onnx", false).await.unwrap();
+    // Named without its extension, as people type it: `tree` is `tree.onnx`.
+    let again = activate(&mut c, "tree", false).await.unwrap();
+    assert_eq!(again.model.as_ref().unwrap().name, "tree.onnx");
     let tree_id_again = again.model.as_ref().unwrap().model_id;
     assert!(again.effective_step > effective);
     assert_ne!(tree_id_again, tree_id);
