@@ -11,8 +11,9 @@
 //! Env: BENCH_WAIT=spin|park|spin-park (default spin-park), BENCH_SPINS, BENCH_SWAPS (100),
 //! BENCH_SWAP_EVERY_MS (30), BENCH_SERVER_CPU / BENCH_LOOP_CPU, BENCH_RT_PRIO.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod common;
+
+use common::{bench_models, repo_root};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -22,40 +23,6 @@ use infer_server::serve::ServeConfig;
 use infer_server::server::Server;
 use infer_server::{Runtime, SessionConfig};
 use shm_ring::{Config, FeatureMsg, Segment, SegmentName, WaitStrategy};
-
-fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .canonicalize()
-        .unwrap()
-        .parent()
-        .unwrap()
-        .to_path_buf()
-}
-
-fn bench_models() -> PathBuf {
-    let dir = repo_root().join("target/bench-models");
-    if ["rf", "dense"]
-        .iter()
-        .all(|m| dir.join(format!("{m}.onnx")).exists())
-    {
-        return dir;
-    }
-    let py = std::env::var_os("HAPTICS_PYTHON")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| repo_root().join(".venv/bin/python"));
-    assert!(
-        py.exists(),
-        "{} missing: run `bash scripts/setup.sh`",
-        py.display()
-    );
-    let status = Command::new(&py)
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/make_bench_models.py"))
-        .arg(&dir)
-        .status()
-        .unwrap();
-    assert!(status.success(), "make_bench_models.py failed");
-    dir
-}
 
 fn env_usize(name: &str) -> Option<usize> {
     std::env::var(name).ok().and_then(|s| s.parse().ok())

@@ -13,48 +13,15 @@
 //! run both threads SCHED_FIFO at N (use with park or spin-park: never spin FIFO on two cores).
 //! Models come from benches/make_bench_models.py (see step_latency.rs).
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod common;
+
+use common::bench_models;
 use std::time::{Duration, Instant};
 
 use infer_server::handoff;
 use infer_server::serve::{InferenceThread, ServeConfig};
 use infer_server::{FeatureSchema, Runtime, SessionConfig, StepEngine};
 use shm_ring::{Config, FeatureMsg, Segment, SegmentName, WaitStrategy};
-
-fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .canonicalize()
-        .unwrap()
-        .parent()
-        .unwrap()
-        .to_path_buf()
-}
-
-fn models() -> PathBuf {
-    let dir = repo_root().join("target/bench-models");
-    if ["rf", "dense", "lstm"]
-        .iter()
-        .all(|m| dir.join(format!("{m}.onnx")).exists())
-    {
-        return dir;
-    }
-    let py = std::env::var_os("HAPTICS_PYTHON")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| repo_root().join(".venv/bin/python"));
-    assert!(
-        py.exists(),
-        "{} missing: run `bash scripts/setup.sh`",
-        py.display()
-    );
-    let status = Command::new(&py)
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/make_bench_models.py"))
-        .arg(&dir)
-        .status()
-        .unwrap();
-    assert!(status.success(), "make_bench_models.py failed");
-    dir
-}
 
 fn quantile(sorted: &[u64], q: f64) -> u64 {
     sorted[((sorted.len() as f64 * q).ceil() as usize).clamp(1, sorted.len()) - 1]
@@ -104,7 +71,7 @@ fn main() {
     let steps = env_usize("BENCH_STEPS").unwrap_or(100_000) as u64;
     let wait = wait_env();
     let rt = Runtime::init(None).unwrap_or_else(|e| panic!("{e}"));
-    let dir = models();
+    let dir = bench_models();
     if let Some(cpu) = env_usize("BENCH_LOOP_CPU") {
         if let Err(e) = infer_server::serve::pin_current_thread(cpu) {
             println!("loop thread not pinned: {e}");

@@ -10,9 +10,11 @@
 // The interposers below are `unsafe extern "C"` with the libc contracts; no per-function docs.
 #![allow(clippy::missing_safety_doc)]
 
+mod common;
+
+use common::bench_models;
 use std::ffi::c_void;
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Instant;
 
@@ -82,41 +84,6 @@ pub unsafe extern "C" fn memalign(align: usize, size: usize) -> *mut c_void {
 }
 
 // ---- benchmark ------------------------------------------------------------------------------
-
-fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .canonicalize()
-        .unwrap()
-        .parent()
-        .unwrap()
-        .to_path_buf()
-}
-
-fn models() -> PathBuf {
-    let dir = repo_root().join("target/bench-models");
-    if ["rf", "dense", "lstm"]
-        .iter()
-        .all(|m| dir.join(format!("{m}.onnx")).exists())
-    {
-        return dir;
-    }
-    let py = std::env::var_os("HAPTICS_PYTHON")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| repo_root().join(".venv/bin/python"));
-    assert!(
-        py.exists(),
-        "{} missing: run `bash scripts/setup.sh` (the bench models are built with scikit-learn, skl2onnx and torch)",
-        py.display()
-    );
-    eprintln!("generating benchmark models in {} ...", dir.display());
-    let status = Command::new(&py)
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/make_bench_models.py"))
-        .arg(&dir)
-        .status()
-        .unwrap();
-    assert!(status.success(), "make_bench_models.py failed");
-    dir
-}
 
 struct Percentiles {
     p50: u64,
@@ -240,7 +207,7 @@ fn main() {
             Err(e) => println!("not pinned ({e})"),
         }
     }
-    let dir = models();
+    let dir = bench_models();
     println!(
         "infer-server step latency, in process, one thread, ONNX Runtime {} ({} steps per row, ns; load average {})",
         rt.version(),
