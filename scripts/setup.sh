@@ -22,7 +22,8 @@ if [ -f train/pyproject.toml ]; then
   fi
 fi
 
-if [ ! -f .ort/libonnxruntime.so ]; then
+# Again when the venv was (re)installed since: the pinned wheel may have changed version.
+if [ ! -f .ort/libonnxruntime.so ] || [ .venv/.train-installed -nt .ort/libonnxruntime.so ]; then
   lib=""
   if [ -x .venv/bin/python ]; then
     lib=$(.venv/bin/python - <<'PY' 2>/dev/null || true
