@@ -4,6 +4,13 @@ use std::sync::Arc;
 
 use crate::error::ControlError;
 
+/// The WebSocket subprotocol the server selects for `/ws/telemetry`.
+pub const WS_PROTOCOL: &str = "haptics.v1";
+/// Prefix of the subprotocol that carries the token on a WebSocket, hex-encoded (a browser
+/// cannot set `Authorization` on a WebSocket, and a subprotocol, unlike a query parameter, is
+/// not written into access logs): `haptics-token.<hex of the token's UTF-8 bytes>`.
+pub const WS_TOKEN_PREFIX: &str = "haptics-token.";
+
 #[derive(Debug, Clone, Default)]
 pub struct Auth {
     token: Option<Arc<str>>,
@@ -47,6 +54,35 @@ impl Auth {
         }
     }
 
+    /// Checks the token of a WebSocket upgrade: `Authorization: Bearer <token>` (clients that
+    /// can set headers), or the subprotocol `haptics-token.<hex>` (the page). Without a
+    /// configured token every upgrade passes.
+    pub fn check_ws(&self, headers: &http::HeaderMap) -> Result<(), ControlError> {
+        if !self.required() {
+            return Ok(());
+        }
+        if let Some(auth) = headers
+            .get(http::header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok())
+        {
+            return self.check(Some(auth));
+        }
+        let offered = headers
+            .get_all(http::header::SEC_WEBSOCKET_PROTOCOL)
+            .iter()
+            .filter_map(|v| v.to_str().ok())
+            .flat_map(|v| v.split(','))
+            .map(str::trim)
+            .find_map(|p| p.strip_prefix(WS_TOKEN_PREFIX));
+        match offered {
+            None => self.check(None),
+            Some(hex) => {
+                let token = decode_hex(hex).unwrap_or_default();
+                self.check(Some(&format!("Bearer {token}")))
+            }
+        }
+    }
+
     pub fn check_grpc<T>(&self, request: &tonic::Request<T>) -> Result<(), tonic::Status> {
         let header = request
             .metadata()
@@ -54,6 +90,19 @@ impl Auth {
             .and_then(|v| v.to_str().ok());
         self.check(header).map_err(Into::into)
     }
+}
+
+/// `hex` to the string it encodes; None when it is not hex of UTF-8.
+fn decode_hex(hex: &str) -> Option<String> {
+    let bytes: Option<Vec<u8>> = hex
+        .as_bytes()
+        .chunks(2)
+        .map(|pair| match pair {
+            [hi, lo] => u8::from_str_radix(std::str::from_utf8(&[*hi, *lo]).ok()?, 16).ok(),
+            _ => None,
+        })
+        .collect();
+    String::from_utf8(bytes?).ok()
 }
 
 /// Compares without an early exit, so the time taken does not tell how much of a guess matched.
@@ -86,6 +135,46 @@ mod tests {
         ] {
             assert!(
                 matches!(auth.check(bad), Err(ControlError::Unauthenticated(_))),
+                "{bad:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn websocket_token_by_header_or_subprotocol() {
+        let ws = |pairs: &[(&str, &str)]| {
+            let mut h = http::HeaderMap::new();
+            for (k, v) in pairs {
+                h.append(
+                    http::HeaderName::from_bytes(k.as_bytes()).unwrap(),
+                    v.parse().unwrap(),
+                );
+            }
+            h
+        };
+        let open = Auth::new(None);
+        assert!(open.check_ws(&ws(&[])).is_ok());
+        let auth = Auth::new(Some("s3cret"));
+        let hex: String = "s3cret".bytes().map(|b| format!("{b:02x}")).collect();
+        let good = format!("haptics.v1, haptics-token.{hex}");
+        assert!(auth
+            .check_ws(&ws(&[("sec-websocket-protocol", &good)]))
+            .is_ok());
+        assert!(auth
+            .check_ws(&ws(&[("authorization", "Bearer s3cret")]))
+            .is_ok());
+        for bad in [
+            vec![],
+            vec![("sec-websocket-protocol", "haptics.v1")],
+            vec![("sec-websocket-protocol", "haptics-token.7333637265")],
+            vec![("sec-websocket-protocol", "haptics-token.zz")],
+            vec![("authorization", "Bearer nope")],
+        ] {
+            assert!(
+                matches!(
+                    auth.check_ws(&ws(&bad)),
+                    Err(ControlError::Unauthenticated(_))
+                ),
                 "{bad:?}"
             );
         }

@@ -14,6 +14,14 @@ pub struct Config {
     pub allow_public_without_token: bool,
     /// Largest model upload accepted, in bytes (64 MiB by default).
     pub max_upload_bytes: usize,
+    /// Most bytes of uploads being received at once, over gRPC and HTTP together (256 MiB by
+    /// default). Each upload in progress reserves `max_upload_bytes` of it before its body is
+    /// read, so at most `max_uploads_in_flight_bytes / max_upload_bytes` uploads are received at
+    /// once; one more is refused with RESOURCE_EXHAUSTED / 413 without being read.
+    pub max_uploads_in_flight_bytes: usize,
+    /// Names (besides the loopback names and the bound addresses) that HTTP requests may carry
+    /// in `Host`; any other name is refused with 403 (DNS rebinding; see `http::host`).
+    pub allowed_hosts: Vec<String>,
     /// Smallest bucket of the WebSocket frames, in loop steps (10 = 1 ms at 10 kHz).
     pub ws_bucket_steps: u32,
     /// Most buckets in one WebSocket frame: faster loops get longer buckets.
@@ -36,6 +44,8 @@ impl Default for Config {
             token: None,
             allow_public_without_token: false,
             max_upload_bytes: 64 << 20,
+            max_uploads_in_flight_bytes: 256 << 20,
+            allowed_hosts: Vec::new(),
             ws_bucket_steps: 10,
             ws_max_buckets_per_frame: 400,
             shutdown_grace: Duration::from_secs(2),
@@ -62,9 +72,112 @@ impl Config {
                 }
             }
         }
-        if self.max_upload_bytes == 0 {
-            return Err("the upload limit must be > 0".into());
+        if self.max_upload_bytes == 0 || self.max_upload_bytes > MAX_UPLOAD_LIMIT {
+            return Err(format!(
+                "the upload limit is {} bytes; it must be between 1 byte and {} MiB",
+                self.max_upload_bytes,
+                MAX_UPLOAD_LIMIT >> 20
+            ));
+        }
+        if self.max_uploads_in_flight_bytes < self.max_upload_bytes {
+            return Err(format!(
+                "the cap on uploads in flight ({} bytes) is below one upload's limit ({} bytes): \
+                 no upload could ever be received",
+                self.max_uploads_in_flight_bytes, self.max_upload_bytes
+            ));
+        }
+        for (what, v, max) in [
+            ("ws_bucket_steps", self.ws_bucket_steps, 1_000_000),
+            (
+                "ws_max_buckets_per_frame",
+                self.ws_max_buckets_per_frame,
+                100_000,
+            ),
+        ] {
+            if v == 0 || v > max {
+                return Err(format!("{what} is {v}; it must be between 1 and {max}"));
+            }
+        }
+        if self.worker_threads == 0 || self.worker_threads > 64 {
+            return Err(format!(
+                "worker_threads is {}; it must be between 1 and 64",
+                self.worker_threads
+            ));
+        }
+        if self.shutdown_grace > Duration::from_secs(60) {
+            return Err(format!(
+                "shutdown_grace is {:?}; at most 60 s",
+                self.shutdown_grace
+            ));
+        }
+        for name in &self.allowed_hosts {
+            let ok = !name.is_empty()
+                && name.len() <= 253
+                && name
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '-' | '_'));
+            if !ok {
+                return Err(format!(
+                    "allowed host {name:?} is not a host name (letters, digits, '.', '-', '_'; \
+                     no port, no scheme)"
+                ));
+            }
         }
         Ok(())
+    }
+}
+
+/// The largest upload limit a configuration may set (1 GiB): uploads are held in memory.
+pub const MAX_UPLOAD_LIMIT: usize = 1 << 30;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_numeric_setting_is_checked() {
+        assert!(Config::default().check().is_ok());
+        let bad = [
+            Config {
+                max_upload_bytes: 0,
+                ..Config::default()
+            },
+            Config {
+                max_upload_bytes: MAX_UPLOAD_LIMIT + 1,
+                max_uploads_in_flight_bytes: usize::MAX,
+                ..Config::default()
+            },
+            Config {
+                max_uploads_in_flight_bytes: (64 << 20) - 1,
+                ..Config::default()
+            },
+            Config {
+                ws_bucket_steps: 0,
+                ..Config::default()
+            },
+            Config {
+                ws_max_buckets_per_frame: 0,
+                ..Config::default()
+            },
+            Config {
+                worker_threads: 0,
+                ..Config::default()
+            },
+            Config {
+                shutdown_grace: Duration::from_secs(3600),
+                ..Config::default()
+            },
+            Config {
+                allowed_hosts: vec!["http://lab-pc:8080".into()],
+                ..Config::default()
+            },
+            Config {
+                allowed_hosts: vec![String::new()],
+                ..Config::default()
+            },
+        ];
+        for c in bad {
+            assert!(c.check().is_err(), "{c:?} accepted");
+        }
     }
 }

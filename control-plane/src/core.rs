@@ -9,8 +9,10 @@ use crate::backend::{
 };
 use crate::config::Config;
 use crate::error::ControlError;
+use crate::http::host::HostPolicy;
 use crate::shutdown::Shutdown;
 use crate::stats::Stats;
+use crate::uploads::UploadBudget;
 
 #[derive(Clone)]
 pub struct Core {
@@ -19,12 +21,21 @@ pub struct Core {
     pub config: Arc<Config>,
     pub stats: Arc<Stats>,
     pub shutdown: Shutdown,
+    /// The names HTTP requests may carry in `Host` (DNS rebinding).
+    pub hosts: Arc<HostPolicy>,
+    /// Bytes of uploads being received, over both servers.
+    pub uploads: UploadBudget,
 }
 
 impl Core {
     pub fn new(config: Config, backend: Arc<dyn Backend>, shutdown: Shutdown) -> Self {
         Self {
             auth: Auth::new(config.token.as_deref()),
+            hosts: Arc::new(HostPolicy::new(
+                &[config.http_addr, config.grpc_addr],
+                &config.allowed_hosts,
+            )),
+            uploads: UploadBudget::new(config.max_uploads_in_flight_bytes),
             backend,
             config: Arc::new(config),
             stats: Arc::new(Stats::default()),

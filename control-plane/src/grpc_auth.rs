@@ -2,11 +2,20 @@
 //! method path and the headers before the request body is read, so an unauthenticated 64 MiB
 //! upload is refused without being received and decoded. The handlers check again (the same
 //! `Auth`), so a mutating call never depends on this layer alone.
+//!
+//! The same layer holds `LoadModel` calls to the cap on uploads in flight: before the body is
+//! read, the call reserves what its message may take (its `content-length` when given, else the
+//! decoding limit), and a call that would pass the cap is refused with RESOURCE_EXHAUSTED
+//! without being read.
 use std::future::Future;
 use std::pin::Pin;
 use std::task::{Context, Poll};
 
 use crate::auth::Auth;
+use crate::uploads::UploadBudget;
+
+/// The method whose request carries an upload.
+pub const LOAD_MODEL: &str = "/haptics.v1.ModelService/LoadModel";
 
 /// The gRPC methods that change the server or the loop.
 pub const MUTATING_METHODS: [&str; 5] = [
@@ -20,11 +29,21 @@ pub const MUTATING_METHODS: [&str; 5] = [
 #[derive(Debug, Clone)]
 pub struct AuthLayer {
     auth: Auth,
+    uploads: Option<(UploadBudget, usize)>,
 }
 
 impl AuthLayer {
     pub fn new(auth: Auth) -> Self {
-        Self { auth }
+        Self {
+            auth,
+            uploads: None,
+        }
+    }
+
+    /// Reserves up to `message_limit` bytes of `budget` for every `LoadModel` call.
+    pub fn with_upload_budget(mut self, budget: UploadBudget, message_limit: usize) -> Self {
+        self.uploads = Some((budget, message_limit));
+        self
     }
 }
 
@@ -35,6 +54,7 @@ impl<S> tower::Layer<S> for AuthLayer {
         AuthService {
             inner,
             auth: self.auth.clone(),
+            uploads: self.uploads.clone(),
         }
     }
 }
@@ -43,6 +63,7 @@ impl<S> tower::Layer<S> for AuthLayer {
 pub struct AuthService<S> {
     inner: S,
     auth: Auth,
+    uploads: Option<(UploadBudget, usize)>,
 }
 
 type BoxFuture<T> = Pin<Box<dyn Future<Output = T> + Send>>;
@@ -71,6 +92,29 @@ where
                 return Box::pin(async move { Ok(response) });
             }
         }
-        Box::pin(self.inner.call(request))
+        let mut reservation = None;
+        if let Some((budget, limit)) = &self.uploads {
+            if request.uri().path() == LOAD_MODEL {
+                let declared = request
+                    .headers()
+                    .get(http::header::CONTENT_LENGTH)
+                    .and_then(|v| v.to_str().ok())
+                    .and_then(|v| v.parse::<usize>().ok());
+                match budget.reserve(declared.unwrap_or(*limit).min(*limit)) {
+                    Ok(r) => reservation = Some(r),
+                    Err(e) => {
+                        let response = tonic::Status::from(e).into_http();
+                        return Box::pin(async move { Ok(response) });
+                    }
+                }
+            }
+        }
+        let call = self.inner.call(request);
+        Box::pin(async move {
+            let response = call.await;
+            // Held until the call has answered: the decoded upload lives that long.
+            drop(reservation);
+            response
+        })
     }
 }

@@ -24,6 +24,7 @@ pub mod stats;
 pub mod telemetry;
 #[cfg(feature = "testing")]
 pub mod testing;
+pub mod uploads;
 
 /// The generated `haptics.v1` messages, clients and servers.
 #[allow(clippy::all, clippy::pedantic)]

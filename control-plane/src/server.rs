@@ -84,7 +84,10 @@ impl Bound {
         let grpc_shutdown = shutdown.clone();
         let health_on_shutdown = health.clone();
         let grpc = tonic::transport::Server::builder()
-            .layer(crate::grpc_auth::AuthLayer::new(core.auth.clone()))
+            .layer(
+                crate::grpc_auth::AuthLayer::new(core.auth.clone())
+                    .with_upload_budget(core.uploads.clone(), limit),
+            )
             .add_service(health_svc)
             .add_service(reflection_v1)
             .add_service(reflection_v1alpha)

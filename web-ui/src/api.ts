@@ -30,6 +30,17 @@ export function setToken(token: string | null): void {
   }
 }
 
+/**
+ * The WebSocket subprotocols that carry the token (a browser cannot set Authorization on a
+ * WebSocket): `haptics.v1`, which the server selects, and `haptics-token.<hex of the token>`.
+ */
+export function wsProtocols(): string[] {
+  const token = getToken();
+  if (!token) return [];
+  const hex = Array.from(new TextEncoder().encode(token), (b) => b.toString(16).padStart(2, "0")).join("");
+  return ["haptics.v1", `haptics-token.${hex}`];
+}
+
 /** Asks the person for a token; resolves to null when they cancel. Set by the page. */
 export type TokenPrompt = (reason: string) => Promise<string | null>;
 let askToken: TokenPrompt = async () => null;

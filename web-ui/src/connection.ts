@@ -20,6 +20,8 @@ export class TelemetryConnection {
   constructor(
     private readonly url: string,
     private readonly ev: ConnEvents,
+    /** Subprotocols offered on each (re)open: they carry the token when the server needs one. */
+    private readonly protocols: () => string[] = () => [],
   ) {}
 
   start(): void {
@@ -38,7 +40,8 @@ export class TelemetryConnection {
     this.ev.onState("connecting", { attempt: this.attempt });
     let ws: WebSocket;
     try {
-      ws = new WebSocket(this.url);
+      const protocols = this.protocols();
+      ws = protocols.length ? new WebSocket(this.url, protocols) : new WebSocket(this.url);
     } catch {
       this.scheduleRetry();
       return;

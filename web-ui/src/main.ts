@@ -3,7 +3,7 @@
 // WebSocket only appends to the store, so pausing the plots never stops data reception.
 import "uplot/dist/uPlot.min.css";
 import "./style.css";
-import { api, getToken, setToken, setTokenPrompt, type ExperimentRequest } from "./api";
+import { api, getToken, setToken, setTokenPrompt, wsProtocols, type ExperimentRequest } from "./api";
 import { TelemetryConnection, type ConnState } from "./connection";
 import { decodeFrame, normalizeModels, normalizeStatus, SERIES, type ModelInfo, type Status } from "./protocol";
 import { readColumns, TelemetryStore, toCsv, type Columns } from "./store";
@@ -492,6 +492,9 @@ const connection = new TelemetryConnection(wsUrl, {
     }
   },
   onState(st, info) {
+    // Refused before it opened (a server that needs a token for the telemetry socket too): the
+    // status over HTTP says whether a token is wanted, and the token button lights up.
+    if (st === "closed" && conn !== "open") void pollStatus();
     conn = st;
     if (st === "closed") retryAt = performance.now() + (info.retryInMs ?? 0);
     if (st === "open") {
@@ -501,7 +504,7 @@ const connection = new TelemetryConnection(wsUrl, {
     }
     updateConnView();
   },
-});
+}, wsProtocols);
 $("retry").addEventListener("click", () => connection.retryNow());
 
 async function pollStatus(): Promise<void> {
@@ -656,6 +659,7 @@ $("token-btn").addEventListener("click", () => {
       setToken(t);
       $("token-btn").classList.remove("primary");
       log("Token set for this tab", "ok");
+      connection.retryNow();
     }
   });
 });

@@ -25,8 +25,12 @@ impl IntoResponse for ControlError {
 
 type ApiResult = Result<Response, ControlError>;
 
-/// Token and origin checks of a mutating call.
+/// Host, origin and token checks of a mutating call, in that order. The router's middleware
+/// checks the host of every request already; checking it here again means a mutating route
+/// never depends on that layer alone.
 fn authorize(core: &Core, headers: &HeaderMap) -> Result<(), ControlError> {
+    core.hosts
+        .check(headers.get(header::HOST).and_then(|v| v.to_str().ok()))?;
     check_origin(headers)?;
     let auth = headers
         .get(header::AUTHORIZATION)
@@ -36,7 +40,9 @@ fn authorize(core: &Core, headers: &HeaderMap) -> Result<(), ControlError> {
 
 /// Refuses a mutating request that a browser sent from another site (a page elsewhere posting to
 /// 127.0.0.1:8080 without a token). Same-origin requests and loopback origins (a dev server on
-/// another port) pass; clients that are not browsers send no Origin.
+/// another port) pass; clients that are not browsers send no Origin. "Same origin" is only
+/// meaningful once `Host` is known to name this server (a DNS-rebound page sends an Origin equal
+/// to its Host): callers check the host first.
 pub fn check_origin(headers: &HeaderMap) -> Result<(), ControlError> {
     let Some(origin) = headers.get(header::ORIGIN).and_then(|v| v.to_str().ok()) else {
         return Ok(());
@@ -98,6 +104,21 @@ pub async fn load_model(
 ) -> ApiResult {
     authorize(&core, &headers)?;
     let limit = core.config.max_upload_bytes;
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<usize>().ok());
+    if let Some(n) = declared {
+        // Declared over the limit: refused before a byte of it is read.
+        core.check_upload_size(n)?;
+    }
+    // The body is held in memory: reserve it from the cap on uploads in flight first.
+    let reserve = declared.unwrap_or(limit + 1);
+    let _reservation = if reserve > 0 {
+        Some(core.uploads.reserve(reserve)?)
+    } else {
+        None
+    };
     let bytes = match to_bytes(body, limit + 1).await {
         Ok(b) => b,
         Err(_) => {

@@ -2,6 +2,7 @@
 //! `docs/web-protocol.md`.
 pub mod api;
 pub mod assets;
+pub mod host;
 pub mod json;
 pub mod metrics;
 pub mod ws;
@@ -28,5 +29,11 @@ pub fn router(core: Core) -> Router {
         .fallback(get(assets::asset))
         // Uploads are read by the handler with the configured limit and a clear error.
         .layer(DefaultBodyLimit::disable())
+        // Outermost: a request to a name this server does not know is refused before any
+        // handler, Origin or token check (DNS rebinding, see host.rs).
+        .layer(axum::middleware::from_fn_with_state(
+            core.clone(),
+            host::require_known_host,
+        ))
         .with_state(core)
 }

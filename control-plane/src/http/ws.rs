@@ -30,10 +30,21 @@ pub async fn telemetry(
     headers: HeaderMap,
     ws: WebSocketUpgrade,
 ) -> Response {
-    // A page of another site must not read the telemetry either.
-    if let Err(e) = super::api::check_origin(&headers) {
+    // A page of another site must not read the telemetry either: the host (DNS rebinding),
+    // then the origin, then the token when one is set (a browser cannot set `Authorization` on
+    // a WebSocket: the page offers it as a subprotocol, see `Auth::check_ws`).
+    let host = headers
+        .get(axum::http::header::HOST)
+        .and_then(|v| v.to_str().ok());
+    if let Err(e) = core
+        .hosts
+        .check(host)
+        .and_then(|()| super::api::check_origin(&headers))
+        .and_then(|()| core.auth.check_ws(&headers))
+    {
         return e.into_response();
     }
+    let ws = ws.protocols([crate::auth::WS_PROTOCOL]);
     let fps = q.fps.unwrap_or(DEFAULT_FPS).clamp(1, MAX_FPS);
     ws.on_upgrade(move |socket| run(core, socket, fps))
 }
