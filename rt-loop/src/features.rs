@@ -124,6 +124,66 @@ impl FeatureParams {
     }
 }
 
+/// Fraction of the force range below which contact cannot be told from rest: thresholds are
+/// at least this far above zero (the loop's 0.25 / 0.5 N are 2.5 / 5 % of the bench's ~10 N).
+pub const CONTACT_OFF_RANGE_FRACTION: f64 = 0.025;
+/// Contact ends this many noise standard deviations above zero (at the least).
+pub const CONTACT_OFF_NOISE_SIGMAS: f64 = 3.0;
+
+/// The force's noise floor, N: a robust standard deviation (1.4826 x the median absolute
+/// deviation) of the second differences, divided by sqrt(6) (the second difference of white
+/// noise has variance 6 sigma^2; a smooth signal's second differences are small). Non-finite
+/// samples are skipped; fewer than 3 samples give 0.
+pub fn force_noise_floor(force: &[f64]) -> f64 {
+    let mut d2: Vec<f64> = force
+        .windows(3)
+        .map(|w| w[2] - 2.0 * w[1] + w[0])
+        .filter(|v| v.is_finite())
+        .collect();
+    if d2.is_empty() {
+        return 0.0;
+    }
+    let med = median(&mut d2);
+    let mut dev: Vec<f64> = d2.iter().map(|v| (v - med).abs()).collect();
+    1.4826 * median(&mut dev) / 6f64.sqrt()
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[v.len() / 2]
+}
+
+impl FeatureParams {
+    /// Contact thresholds from a series' own force (offline import): contact ends at
+    /// max(3 sigma, 2.5 % of the force's 1-99 percentile range) and starts at twice that, so
+    /// the noise at rest never counts as contact and the hysteresis is as wide as the loop's.
+    /// Returns the parameters and the noise floor sigma (N).
+    pub fn from_force(force: &[f64]) -> (FeatureParams, f64) {
+        let sigma = force_noise_floor(force);
+        let mut f: Vec<f64> = force.iter().cloned().filter(|v| v.is_finite()).collect();
+        let range = if f.is_empty() {
+            0.0
+        } else {
+            f.sort_by(|a, b| a.total_cmp(b));
+            let q = |p: f64| f[((f.len() - 1) as f64 * p).round() as usize];
+            q(0.99) - q(0.01)
+        };
+        let off = (CONTACT_OFF_NOISE_SIGMAS * sigma).max(CONTACT_OFF_RANGE_FRACTION * range);
+        let off = if off > 0.0 {
+            off
+        } else {
+            FeatureParams::default().contact_off_n
+        };
+        (
+            FeatureParams {
+                contact_on_n: 2.0 * off,
+                contact_off_n: off,
+            },
+            sigma,
+        )
+    }
+}
+
 #[derive(Clone, Debug)]
 pub struct FeatureExtractor {
     p: FeatureParams,
@@ -282,6 +342,38 @@ mod tests {
         assert_eq!(f2.as_schema_array()[9], 3.0);
         assert_eq!(f2.as_schema_array()[..9], f2.as_array());
         assert_eq!(SCHEMA_NAMES[..9], FEATURE_NAMES);
+    }
+
+    #[test]
+    fn contact_thresholds_follow_the_noise_floor_and_the_range() {
+        // a clean 1.2 N cycle: 2.5 % of the range
+        let f: Vec<f64> = (0..1000)
+            .map(|i| 1.2 * (std::f64::consts::PI * i as f64 / 999.0).sin())
+            .collect();
+        let (p, sigma) = FeatureParams::from_force(&f);
+        assert!(sigma < 1e-4, "{sigma}");
+        assert!((p.contact_off_n - 0.03).abs() < 1e-3, "{p:?}");
+        assert_eq!(p.contact_on_n, 2.0 * p.contact_off_n);
+        // the same with 0.02 N Gaussian noise (Box-Muller on a small LCG): 3 sigma dominates
+        let mut state: u64 = 12345;
+        let mut uniform = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let noisy: Vec<f64> = f
+            .iter()
+            .map(|v| {
+                let (u1, u2) = (uniform(), uniform());
+                v + 0.02 * (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+            })
+            .collect();
+        let sigma = force_noise_floor(&noisy);
+        assert!((sigma - 0.02).abs() < 0.003, "{sigma}");
+        let (p, _) = FeatureParams::from_force(&noisy);
+        assert!((p.contact_off_n - 3.0 * sigma).abs() < 1e-12, "{p:?}");
+        assert!(p.validate().is_ok());
     }
 
     /// A synthetic loop: load along F = k x, unload along F = k (x - d) (a set d). The area

@@ -3,8 +3,7 @@
 
 use clap::{Args, Parser, Subcommand};
 use rt_loop::config::{BoardKind, ClockKind, ExperimentKind, RunConfig};
-use rt_loop::features::FeatureParams;
-use rt_loop::import::{ForceUnit, ImportSpec, PositionUnit, TimeUnit};
+use rt_loop::import::{ForceUnit, ImportOptions, PositionUnit, TimeUnit};
 use rt_loop::record::Format;
 use rt_loop::shm_model::{AnswerWait, ShmModel};
 use shm_ring::WaitStrategy;
@@ -224,25 +223,43 @@ enum FormatArg {
 struct FeaturesArgs {
     #[arg(long)]
     input: PathBuf,
+    /// Column name; `t` also finds a header `t [ms]` (and takes its unit).
     #[arg(long)]
     time_col: String,
     #[arg(long)]
     position_col: String,
     #[arg(long)]
     force_col: String,
-    #[arg(long, value_enum, default_value = "s")]
-    time_unit: TimeUnit,
-    #[arg(long, value_enum, default_value = "m")]
-    position_unit: PositionUnit,
-    #[arg(long, value_enum, default_value = "N")]
-    force_unit: ForceUnit,
+    /// Default: the header's unit (`t [ms]`), else s. Refused if it contradicts the header.
+    #[arg(long, value_enum)]
+    time_unit: Option<TimeUnit>,
+    /// Default: the header's unit, else m.
+    #[arg(long, value_enum)]
+    position_unit: Option<PositionUnit>,
+    /// Default: the header's unit, else N.
+    #[arg(long, value_enum)]
+    force_unit: Option<ForceUnit>,
     /// Output recording (.parquet, or .csv).
     #[arg(long)]
     out: PathBuf,
-    #[arg(long, default_value_t = 30.0)]
-    g_v: f64,
-    #[arg(long, default_value_t = 100.0)]
-    g_a: f64,
+    /// Velocity filter gain, rad/s (default: the loop's 30, capped at g dt = 0.2).
+    #[arg(long)]
+    g_v: Option<f64>,
+    /// Acceleration filter gain, rad/s (default: the loop's 100, capped at g dt = 0.2).
+    #[arg(long)]
+    g_a: Option<f64>,
+    /// Contact starts above this force, N (default: from the force's noise floor and range).
+    #[arg(long)]
+    contact_on_n: Option<f64>,
+    /// Contact ends below this force, N (default: half the derived contact_on_n).
+    #[arg(long)]
+    contact_off_n: Option<f64>,
+    /// A period above this multiple of the median period is a gap, refused.
+    #[arg(long, default_value_t = rt_loop::import::DEFAULT_MAX_GAP_FACTOR)]
+    max_gap_factor: f64,
+    /// JSON object recorded in the metadata as `preprocessing` (what a caller did before).
+    #[arg(long)]
+    meta_json: Option<String>,
 }
 
 #[derive(Args)]
@@ -483,22 +500,37 @@ fn print_summary(s: &rt_loop::run::RunSummary) {
 }
 
 fn cmd_features(a: &FeaturesArgs) -> anyhow::Result<ExitCode> {
-    let spec = ImportSpec {
+    let opts = ImportOptions {
         input: a.input.clone(),
+        out: a.out.clone(),
         time_col: a.time_col.clone(),
         position_col: a.position_col.clone(),
         force_col: a.force_col.clone(),
         time_unit: a.time_unit,
         position_unit: a.position_unit,
         force_unit: a.force_unit,
-        out: a.out.clone(),
         g_v: a.g_v,
         g_a: a.g_a,
+        contact_on_n: a.contact_on_n,
+        contact_off_n: a.contact_off_n,
+        max_gap_factor: a.max_gap_factor,
         meters_per_count: 5e-6,
-        features: FeatureParams::default(),
+        extra_meta: a.meta_json.clone(),
     };
-    let n = rt_loop::import::import(&spec)?;
-    eprintln!("rt-loop: wrote {n} rows to {}", a.out.display());
+    let r = rt_loop::import::import(&opts)?;
+    eprintln!(
+        "rt-loop: wrote {} rows to {} ({:.3} Hz; g_v {:.3}, g_a {:.3} rad/s; contact {:.4}/{:.4} N, \
+         force noise floor {:.2e} N; {} cycles)",
+        r.rows,
+        a.out.display(),
+        r.timing.sample_rate_hz,
+        r.g_v,
+        r.g_a,
+        r.features.contact_on_n,
+        r.features.contact_off_n,
+        r.force_noise_floor_n,
+        r.cycles
+    );
     Ok(ExitCode::SUCCESS)
 }
 

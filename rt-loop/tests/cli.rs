@@ -165,7 +165,8 @@ fn features_imports_a_foreign_series() {
         g_v: 30.0,
         g_a: 100.0,
         meters_per_count: 5e-6,
-        features: Default::default(),
+        // the command derives the contact thresholds from the force's noise floor
+        features: rt_loop::features::FeatureParams::from_force(&f).0,
     };
     let rows = rt_loop::import::rows_from_series(&t, &x, &f, &spec).unwrap();
     for i in 0..rows.len() {

@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import onnx
 import pytest
 
@@ -24,7 +25,9 @@ def test_pipeline_end_to_end(tmp_path, capsys):
     for name, r in res.items():
         t = r["test"][0]
         assert t["recording"] == "test_2.1"
-        assert set(t["one_step"]) == {"r2", "mae", "mse", "rmse"}
+        assert {"r2", "mae", "mse", "rmse", "max_abs", "rmse_pct_range", "contact_rmse",
+                "loop_work_error", "loop_work_error_pct"} <= set(t["one_step"])  # fmt: skip
+        assert r["test_pooled"]["closed_loop"]["rmse"] == t["closed_loop"]["rmse"]  # one test
         assert "closed_loop" in t
         assert r["parity"]["max_abs_diff"] < 1e-3, name
         m = onnx.load(str(models / f"{name}.onnx"))
@@ -78,3 +81,84 @@ def test_step_by_step_commands(tmp_path):
     main(["report", *common, "--out", str(tmp_path / "r")])
     text = (tmp_path / "r" / "README.md").read_text()
     assert "`dnn_fb_six`" in text and "`sd_poly1`" in text
+
+
+def test_manifest_validation_selection_and_baselines(tmp_path, capsys):
+    """A TOML manifest with a validation recording: the feedback noise is chosen on it (free
+    run), the test is scored per recording and pooled, the baselines are printed first."""
+    from haptics_train.synthetic import write_recording
+
+    d = tmp_path / "recs"
+    for name, rate, seed in (("a", 0.8, 0), ("b", 3.9, 1), ("v", 2.9, 2), ("t1", 2.1, 3),
+                             ("t2", 6.2, 4)):  # fmt: skip
+        write_recording(d / f"{name}.parquet", ramp_rate=rate, seed=seed, cycles=2)
+    man = tmp_path / "set.toml"
+    man.write_text("\n".join(
+        f'[recordings.{n}]\npath = "recs/{n}.parquet"\nrole = "{role}"\nsource = "synthetic"\n'
+        for n, role in (("a", "train"), ("b", "train"), ("v", "validation"), ("t1", "test"),
+                        ("t2", "test"))
+    ))  # fmt: skip
+    models = tmp_path / "m"
+    main(["pipeline", "--manifest", str(man), "--models-dir", str(models), "--out",
+          str(tmp_path / "r"), "--no-progress", "--models", "sd_poly2,dnn_fb:six",
+          "--dnn-epochs", "1", "--feedback-noise-candidates", "0.05,0.3"])  # fmt: skip
+    out = capsys.readouterr().out
+    res = json.loads((models / "results.json").read_text())
+    sel = res["dnn_fb_six"]["training"]["selection"]
+    assert sel["validation"] == ["v"] and set(sel["candidates"]) == {"0.05", "0.3"}
+    assert sel["chosen"] == float(min(sel["candidates"], key=sel["candidates"].get))
+    assert res["dnn_fb_six"]["hyperparameters"]["feedback_noise_frac"] == sel["chosen"]
+    assert [e["recording"] for e in res["dnn_fb_six"]["test"]] == ["t1", "t2"]
+    assert [e["recording"] for e in res["dnn_fb_six"]["validation"]] == ["v"]
+    pool = res["dnn_fb_six"]["test_pooled"]["closed_loop"]
+    per = [e["closed_loop"] for e in res["dnn_fb_six"]["test"]]
+    rows = [e["rows"] for e in res["dnn_fb_six"]["test"]]
+    mse = sum(p["mse"] * n for p, n in zip(per, rows, strict=True)) / sum(rows)
+    assert pool["mse"] == pytest.approx(mse, rel=1e-9)
+    base = json.loads((models / "baselines.json").read_text())
+    assert set(base) == {"persistence", "mean", "sd_poly2"}
+    # persistence wins one-step by far and loses free run: both printed, free run first
+    p = base["persistence"]["test_pooled"]
+    assert p["one_step"]["rmse"] < 0.2 * p["closed_loop"]["rmse"]
+    table = out[out.index("[evaluate] test, pooled"):].splitlines()
+    assert table[1].split()[:3] == ["model", "free-run", "RMSE"]
+    assert [ln.split()[0] for ln in table[2:6]] == ["persistence", "mean", "sd_poly2",
+                                                     "dnn_fb_six"]  # fmt: skip
+    text = (tmp_path / "r" / "README.md").read_text()
+    assert "persistence" in text and "validation" in text
+
+
+def test_manifest_errors_are_clear(tmp_path, capsys):
+    man = tmp_path / "m.toml"
+    man.write_text('[recordings.a]\npath = "a.parquet"\nrole = "training"\n')
+    with pytest.raises(SystemExit):
+        main(["train", "--manifest", str(man), "--models-dir", str(tmp_path)])
+    assert "role must be one of" in capsys.readouterr().err
+    man.write_text('[recordings.a]\npath = "nope.parquet"\nrole = "train"\n')
+    with pytest.raises(SystemExit):
+        main(["train", "--manifest", str(man), "--models-dir", str(tmp_path)])
+    assert "no such recording" in capsys.readouterr().err
+
+
+def test_defaults_scale_with_the_data(tmp_path):
+    """Decimation from the rate, feedback noise from the force range, LSTM horizon in s."""
+    from haptics_train.data import load_recording
+    from haptics_train.models import TrainConfig, make_model
+    from haptics_train.models.base import row_stride
+    from haptics_train.synthetic import write_recording
+
+    rec = load_recording(write_recording(tmp_path / "r.parquet", ramp_rate=6.2, cycles=2))
+    assert rec.sample_rate_hz == pytest.approx(10_000)
+    assert row_stride(rec, None, 500.0) == 20 and row_stride(rec, 10) == 10
+    slow = rec.head(len(rec))
+    slow.columns = {**rec.columns, "time": rec.columns["time"] * 200}  # 50 Hz rows
+    assert row_stride(slow, None, 500.0) == 1
+    m = make_model("dnn_fb", "six", hyper={"epochs": 1})
+    m.fit([rec], TrainConfig(progress=False))
+    y = rec.target()
+    span = np.percentile(y, 99) - np.percentile(y, 1)
+    assert m.train_info["feedback_noise_n"] == pytest.approx(0.2 * span, rel=0.05)
+    lstm = make_model("lstm", "xva", hyper={"iterations": 1, "streams": 2, "horizon_s": 0.002})
+    lstm.fit([rec], TrainConfig(progress=False))
+    assert lstm.train_info["chunk_steps"] == 20
+    assert lstm.train_info["horizon_s_effective"] == pytest.approx(0.002)

@@ -1,16 +1,28 @@
+import json
 import os
 import stat
+import subprocess
 import sys
 import textwrap
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
+import pyarrow.parquet as pq
 import pytest
 
-from haptics_train.closed_loop import replay_features
+from haptics_train.closed_loop import contact_thresholds, replay_features
 from haptics_train.data import DataError
-from haptics_train.importer import RtLoopMissing, find_rt_loop, import_series
+from haptics_train.features import NINE
+from haptics_train.import_fixtures import CASES, cycle, run_case
+from haptics_train.importer import (
+    FORCE_UNITS,
+    POSITION_UNITS,
+    TIME_UNITS,
+    RtLoopMissing,
+    find_rt_loop,
+    import_series,
+)
 from haptics_train.synthetic import make_recording_columns, write_recording
 
 
@@ -34,13 +46,14 @@ def test_bad_input_is_refused_before_running_anything(tmp_path):
     csv = tmp_path / "s.csv"
     _series_csv(csv)
     with pytest.raises(DataError, match="no column"):
-        import_series(csv, tmp_path / "o.parquet", "t_ms", "nope", "load_N", "ms", "mm")
+        import_series(csv, tmp_path / "o.parquet", "t_ms", "nope", "load_N", time_unit="ms",
+                      position_unit="mm")  # fmt: skip
     with pytest.raises(DataError, match="must end in .parquet"):
-        import_series(csv, tmp_path / "o.txt", "t_ms", "disp_mm", "load_N", "ms", "mm")
+        import_series(csv, tmp_path / "o.txt", "t_ms", "disp_mm", "load_N", time_unit="ms")
     with pytest.raises(DataError, match="no such input"):
         import_series(tmp_path / "x.csv", tmp_path / "o.parquet", "a", "b", "c")
     with pytest.raises(DataError, match="time-unit"):
-        import_series(csv, tmp_path / "o.parquet", "t_ms", "disp_mm", "load_N", "h", "mm")
+        import_series(csv, tmp_path / "o.parquet", "t_ms", "disp_mm", "load_N", time_unit="h")
 
 
 def test_arguments_reach_rt_loop_features(tmp_path):
@@ -59,14 +72,21 @@ def test_arguments_reach_rt_loop_features(tmp_path):
     fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
     csv = tmp_path / "s.csv"
     _series_csv(csv)
-    rec = import_series(csv, tmp_path / "o.parquet", "t_ms", "disp_mm", "load_N", "ms", "mm",
-                        rt_loop=str(fake))  # fmt: skip
+    rec = import_series(csv, tmp_path / "o.parquet", "t_ms", "disp_mm", "load_N", time_unit="ms",
+                        position_unit="mm", force_unit="mN", rt_loop=str(fake), g_v=7.0,
+                        g_a=9.0, contact_on_n=0.2, contact_off_n=0.1)  # fmt: skip
     argv = log.read_text().split("\n")
     assert argv[0] == "features"
     pairs = dict(zip(argv[1::2], argv[2::2], strict=False))
-    assert pairs["--time-col"] == "t_ms" and pairs["--time-unit"] == "ms"
-    assert pairs["--position-col"] == "disp_mm" and pairs["--position-unit"] == "mm"
-    assert pairs["--force-col"] == "load_N" and pairs["--input"] == str(csv)
+    # the series reaches rt-loop converted to SI, the units in its headers
+    assert pairs["--time-col"] == "time [s]" and pairs["--position-col"] == "position [m]"
+    assert pairs["--force-col"] == "force [N]"
+    assert (pairs["--g-v"], pairs["--g-a"]) == ("7.0", "9.0")
+    assert (pairs["--contact-on-n"], pairs["--contact-off-n"]) == ("0.2", "0.1")
+    pre = json.loads(pairs["--meta-json"])
+    assert pre["source"] == str(csv.resolve())
+    assert pre["units"]["force"] == {"unit": "mN", "from": "option", "column": "load_N"}
+    assert pre["units"]["time"]["unit"] == "ms" and pre["units"]["position"]["unit"] == "mm"
     assert len(rec) > 0
 
 
@@ -77,15 +97,15 @@ def test_failing_rt_loop_reports_its_stderr(tmp_path):
     csv = tmp_path / "s.csv"
     _series_csv(csv)
     with pytest.raises(RuntimeError, match="bad time column"):
-        import_series(csv, tmp_path / "o.parquet", "t_ms", "disp_mm", "load_N", "ms", "mm",
-                      rt_loop=str(fake))  # fmt: skip
+        import_series(csv, tmp_path / "o.parquet", "t_ms", "disp_mm", "load_N", time_unit="ms",
+                      position_unit="mm", rt_loop=str(fake))  # fmt: skip
 
 
 def test_real_import_through_rt_loop(tmp_path, rt_loop):
     csv = tmp_path / "s.csv"
     t, x_mm, f = _series_csv(csv)
-    rec = import_series(csv, tmp_path / "o.parquet", "t_ms", "disp_mm", "load_N", "ms", "mm",
-                        rt_loop=str(rt_loop))  # fmt: skip
+    rec = import_series(csv, tmp_path / "o.parquet", "t_ms", "disp_mm", "load_N", time_unit="ms",
+                        position_unit="mm", rt_loop=str(rt_loop))  # fmt: skip
     assert len(rec) == len(t)
     np.testing.assert_allclose(rec.column("position_x"), x_mm * 1e-3, atol=1e-9)
     np.testing.assert_allclose(rec.column("rtob_force"), f, atol=1e-9)
@@ -105,3 +125,181 @@ def test_synthetic_writer_round_trips(tmp_path):
     np.testing.assert_array_equal(rec.column("rtob_force"), cols["rtob_force"])
     assert rec.meta["haptics.run"]["ramp_rate"] == 6.2
     assert os.path.getsize(p) > 0
+
+
+# --- external-looking fixtures (haptics_train.import_fixtures), through the real rt-loop ---
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
+def test_fixture_is_imported_or_refused_with_its_reason(case, tmp_path, rt_loop):
+    status, res = run_case(case, tmp_path, str(rt_loop))
+    if case.refused is None:
+        assert status == "ok", res
+        assert np.isfinite(res.matrix(NINE)).all()
+    else:
+        assert status == "refused" and case.refused in str(res), res
+
+
+def _import(tmp_path, rt_loop, cols, **kw):
+    src = tmp_path / "in.csv"
+    pacsv.write_csv(pa.table(cols), src)
+    names = list(cols)
+    return import_series(src, tmp_path / "out.parquet", *names, rt_loop=str(rt_loop), **kw)
+
+
+UNIT_OPTIONS = [("time", u) for u in TIME_UNITS] + [("position", u) for u in POSITION_UNITS] + [
+    ("force", u) for u in FORCE_UNITS
+]
+
+
+@pytest.mark.parametrize(("what", "unit"), UNIT_OPTIONS, ids=[f"{w}-{u}" for w, u in UNIT_OPTIONS])
+def test_every_unit_option_is_honoured(what, unit, tmp_path, rt_loop):
+    """The same physical cycle written in `unit` (plain headers) comes out in SI."""
+    c = cycle()
+    si = {"time": c["time"], "position": 1e-3 * c["displacement"], "force": c["force"]}
+    table = {"time": TIME_UNITS, "position": POSITION_UNITS, "force": FORCE_UNITS}[what]
+    cols = {k: v / table[unit] if k == what else v for k, v in si.items()}
+    rec = _import(tmp_path, rt_loop, cols, **{f"{what}_unit": unit})
+    for k, col in (("time", "time"), ("position", "position_x"), ("force", "rtob_force")):
+        np.testing.assert_allclose(rec.column(col), si[k] - (si[k][0] if k == "time" else 0),
+                                   rtol=1e-9, atol=1e-12, err_msg=f"{k} ({what} in {unit})")
+    units = rec.meta["haptics.run"]["units"]
+    assert units[what] == {"unit": unit, "from": "option", "column": what}
+
+
+def test_header_units_and_metadata(tmp_path, rt_loop):
+    c = cycle()
+    rec = _import(tmp_path, rt_loop, {"t [ms]": 1e3 * c["time"], "x (mm)": c["displacement"],
+                                      "F [mN]": 1e3 * c["force"]})  # fmt: skip
+    np.testing.assert_allclose(rec.column("rtob_force"), c["force"], rtol=1e-12)
+    np.testing.assert_allclose(rec.column("position_x"), 1e-3 * c["displacement"], rtol=1e-12)
+    run = rec.meta["haptics.run"]
+    assert {k: v["from"] for k, v in run["units"].items()} == dict.fromkeys(
+        ("time", "position", "force"), "header")
+    assert run["units"]["force"]["unit"] == "mN"
+    assert run["source"].endswith("in.csv") and len(run["preprocessing"]["source_sha256"]) == 64
+    assert run["timing"]["sample_rate_hz"] == pytest.approx(50.0)
+    # gains derived from the rate (g dt = 0.2), contact from the force's noise floor
+    assert run["filters"]["g_v"] == pytest.approx(10.0) and run["filters"]["g_v_from"] == "derived"
+    assert run["filters"]["g_a_dt"] <= 1.0
+    assert run["contact"]["from"] == "noise_floor"
+    assert 0.001 < run["contact"]["force_noise_floor_n"] < 0.004  # the cycle's 2 mN noise
+    on, off = contact_thresholds(rec)
+    assert (on, off) == (run["features"]["contact_on_n"], run["features"]["contact_off_n"])
+    assert 3 * run["contact"]["force_noise_floor_n"] <= off < 0.1  # not the bench's 0.25 N
+    assert run["contact"]["cycles"] == 1
+
+
+def test_given_gains_and_thresholds_are_used(tmp_path, rt_loop):
+    c = cycle()
+    rec = _import(tmp_path, rt_loop, {"t": c["time"], "x [mm]": c["displacement"],
+                                      "f": c["force"]}, g_v=5.0, g_a=20.0,
+                  contact_on_n=0.3, contact_off_n=0.2)  # fmt: skip
+    run = rec.meta["haptics.run"]
+    assert (run["filters"]["g_v"], run["filters"]["g_a"]) == (5.0, 20.0)
+    assert run["filters"]["g_a_from"] == "given"
+    assert contact_thresholds(rec) == (0.3, 0.2)
+    with pytest.raises(RuntimeError, match="contact_off_n must be below"):
+        _import(tmp_path, rt_loop, {"t": c["time"], "x": c["displacement"], "f": c["force"]},
+                contact_on_n=0.1, contact_off_n=0.2)  # fmt: skip
+
+
+def test_derived_filters_do_not_ring_at_50_hz(tmp_path, rt_loop):
+    """The issue's failure: at 50 Hz the 100 rad/s acceleration filter oscillated on 99 % of
+    rows. With the derived gain the acceleration changes sign only where the motion does."""
+    c = cycle()
+    rec = _import(tmp_path, rt_loop, {"t": c["time"], "x [mm]": c["displacement"],
+                                      "f": c["force"]})  # fmt: skip
+    a = rec.column("acceleration")
+    big = a[np.abs(a) > 0.01 * np.abs(a).max()]  # rounding-level residues on the ramps aside
+    flips = int(np.sum(np.sign(big[1:]) != np.sign(big[:-1])))
+    assert flips <= 3, flips  # the cycle's corners: start, top, end
+    v = rec.column("velocity")
+    assert v.max() == pytest.approx(2e-3, rel=0.05)  # the 2 mm/s ramp, in m/s
+
+
+def test_repair_counts_and_interpolates(tmp_path, rt_loop):
+    case = next(c for c in CASES if c.name == "nan_holes.csv --repair")
+    status, rec = run_case(case, tmp_path, str(rt_loop))
+    assert status == "ok"
+    pre = rec.meta["haptics.run"]["preprocessing"]
+    assert pre["repair"] is True and pre["repairs"]["interpolated_force"] == 4
+    f = rec.column("rtob_force")
+    assert f[101] == pytest.approx(0.5 * (f[100] + f[102]), abs=0.05 * abs(f[100]) + 1e-3)
+
+
+def test_resampling_keeps_the_cycle(tmp_path, rt_loop):
+    c = cycle(sample_hz=1000.0)
+    rec = _import(tmp_path, rt_loop, {"t": c["time"], "x [mm]": c["displacement"],
+                                      "f": c["force"]}, resample_hz=50.0)  # fmt: skip
+    assert rec.sample_rate_hz == pytest.approx(50.0)
+    assert len(rec) == 601
+    ref = cycle(sample_hz=50.0)
+    # window averages of the noisy 1 kHz force: within a few noise sd of the 50 Hz truth
+    assert np.max(np.abs(rec.column("rtob_force") - ref["force"])) < 0.03
+    pre = rec.meta["haptics.run"]["preprocessing"]
+    assert pre["resample_hz"] == 50.0 and pre["sample_rate_in_hz"] == pytest.approx(1000.0)
+
+
+def test_rt_loop_features_alone_refuses_bad_series(tmp_path, rt_loop):
+    """`rt-loop features` itself (no Python in front) refuses NaN, backwards time, unstable
+    gains and a unit that contradicts its header, naming the row."""
+    c = cycle()
+
+    def run(cols, *extra):
+        src = tmp_path / "s.csv"
+        pacsv.write_csv(pa.table(cols), src)
+        names = list(cols)
+        return subprocess.run(
+            [str(rt_loop), "features", "--input", str(src), "--out", str(tmp_path / "o.parquet"),
+             "--time-col", names[0], "--position-col", names[1], "--force-col", names[2],
+             *extra], capture_output=True, text=True)  # fmt: skip
+
+    f = c["force"].copy()
+    f[10] = np.nan
+    p = run({"t": c["time"], "x": c["displacement"], "f": f})
+    assert p.returncode != 0 and "row 11: force is missing" in p.stderr
+    p = run({"t": c["time"], "x": c["displacement"], "f [mN]": c["force"]}, "--force-unit", "N")
+    assert p.returncode != 0 and "says its unit is mN" in p.stderr
+    p = run({"t": c["time"], "x": c["displacement"], "f": c["force"]}, "--g-a", "100")
+    assert p.returncode != 0 and "g dt = 2.000" in p.stderr
+    p = run({"t": c["time"], "x [mm]": c["displacement"], "f [mN]": c["force"]})
+    assert p.returncode == 0, p.stderr
+    assert "50.000 Hz" in p.stderr
+
+
+def test_loader_refuses_non_finite_rows(tmp_path):
+    from haptics_train.data import load_recording
+
+    p = write_recording(tmp_path / "r.parquet", ramp_rate=6.2, cycles=1)
+    t = pq.read_table(p)
+    f = t.column("rtob_force").to_numpy().copy()
+    f[17] = np.nan
+    bad = tmp_path / "bad.parquet"
+    pq.write_table(t.set_column(t.schema.get_field_index("rtob_force"), "rtob_force",
+                                pa.array(f)), bad)  # fmt: skip
+    with pytest.raises(DataError, match="row 18: column 'rtob_force' is nan"):
+        load_recording(bad)
+
+
+def test_cli_import_honours_force_unit_and_writes_a_manifest(tmp_path, rt_loop, capsys):
+    """The issue's bug: `--force-unit mN` was silently ignored by the command."""
+    from haptics_train.cli import main
+    from haptics_train.data import load_manifest
+
+    c = cycle()
+    src = tmp_path / "in.csv"
+    pacsv.write_csv(pa.table({"t": c["time"], "x": c["displacement"],
+                              "F": 1e3 * c["force"]}), src)  # fmt: skip
+    man = tmp_path / "dataset.toml"
+    for role in ("train", "validation", "test"):
+        main(["import", "--input", str(src), "--out", str(tmp_path / f"{role}.parquet"),
+              "--time-col", "t", "--position-col", "x", "--force-col", "F",
+              "--position-unit", "mm", "--force-unit", "mN", "--rt-loop", str(rt_loop),
+              "--manifest", str(man), "--role", role, "--source", "fixture",
+              "--notes", f"the {role} copy"])  # fmt: skip
+    assert "force mN (option)" in capsys.readouterr().out
+    ds = load_manifest(man)
+    assert [r.name for r in ds.train] == ["train"] and [r.name for r in ds.test] == ["test"]
+    assert ds.validation[0].notes == "the validation copy" and ds.train[0].origin == "fixture"
+    np.testing.assert_allclose(ds.train[0].column("rtob_force"), c["force"], rtol=1e-12)

@@ -14,6 +14,28 @@ fn is_csv(path: &Path) -> bool {
         .is_some_and(|e| e.eq_ignore_ascii_case("csv"))
 }
 
+/// The column names of a Parquet or CSV file (for matching `name [unit]` headers).
+pub fn column_names(path: &Path) -> Result<Vec<String>> {
+    if is_csv(path) {
+        let mut rdr = csv::ReaderBuilder::new()
+            .trim(csv::Trim::All)
+            .from_path(path)
+            .with_context(|| format!("cannot open {}", path.display()))?;
+        Ok(rdr.headers()?.iter().map(str::to_string).collect())
+    } else {
+        let file =
+            std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+        let builder = ParquetRecordBatchReaderBuilder::try_new(file)
+            .with_context(|| format!("{} is not a readable Parquet file", path.display()))?;
+        Ok(builder
+            .schema()
+            .fields()
+            .iter()
+            .map(|f| f.name().clone())
+            .collect())
+    }
+}
+
 /// The named columns, in the order asked, converted to f64 (integers and booleans exactly).
 pub fn read_columns(path: &Path, names: &[&str]) -> Result<Vec<Vec<f64>>> {
     if is_csv(path) {

@@ -87,7 +87,8 @@ def _bars(
 def _loops(recs: list[Recording], path: Path, stride: int) -> None:
     fig, ax = plt.subplots(figsize=(6, 4))
     for r in recs:
-        ax.plot(1e3 * r.column("position_x")[::stride], r.target()[::stride], lw=0.6,
+        k = max(1, min(stride, len(r) // 2000))  # every row of a short (low-rate) recording
+        ax.plot(1e3 * r.column("position_x")[::k], r.target()[::k], lw=0.6,
                 label=f"{r.name}")  # fmt: skip
     ax.set_xlabel("compression x [mm]")
     ax.set_ylabel("F_res (RFOB) [N]")
@@ -100,32 +101,40 @@ def _loops(recs: list[Recording], path: Path, stride: int) -> None:
 
 
 def analyze(
-    dataset: Dataset, out: Path, decimate: int = 20, mi_rows: int = 20_000, seed: int = 0
+    dataset: Dataset,
+    out: Path,
+    decimate: int | None = None,
+    mi_rows: int = 20_000,
+    seed: int = 0,
+    target_rate_hz: float = 500.0,
 ) -> Path:
     """Writes `analysis.md` and its PNGs into `out`; returns the Markdown path."""
     out.mkdir(parents=True, exist_ok=True)
     names = list(NINE)
     recs = dataset.train
-    x = np.concatenate([r.matrix(NINE, row_stride(r, decimate)) for r in recs])
-    y = np.concatenate([r.target(TARGET_DEFAULT, row_stride(r, decimate)) for r in recs])
+    strides = [row_stride(r, decimate, target_rate_hz) for r in recs]
+    x = np.concatenate([r.matrix(NINE, k) for r, k in zip(recs, strides, strict=True)])
+    y = np.concatenate([r.target(TARGET_DEFAULT, k) for r, k in zip(recs, strides, strict=True)])
     ok = np.isfinite(x).all(axis=1) & np.isfinite(y)
     x, y = x[ok], y[ok]
     allx = np.column_stack([x, y])
     alln = [*names, "F_res"]
     md = ["# Dataset analysis", ""]
     md.append(
-        f"Training recordings ({', '.join(r.name for r in recs)}), every {decimate}th control "
-        f"step: {len(y)} rows. Target F_res = `{TARGET_DEFAULT}` (the RFOB estimate). "
+        f"Training recordings ({', '.join(r.name for r in recs)}), every "
+        f"{'/'.join(str(k) for k in sorted(set(strides)))}th row: {len(y)} rows. "
+        f"Target F_res = `{TARGET_DEFAULT}` (the RFOB estimate). "
         "Held-out test recordings are not analysed here (they stay unseen)."
     )
     md += ["", "## Recordings", ""]
     md.append(md_table(
-        ["split", "name", "rows", "control steps per row", "duration [s]", "ramp rate [N/s]",
-         "sha256"],
-        [[d["split"], d["name"], str(d["rows"]), str(d["row_step"]), f"{d['duration_s']:.1f}",
-          str(d["ramp_rate"]), d["sha256"]] for d in dataset.describe()],
+        ["split", "name", "rows", "rate [Hz]", "control steps per row", "duration [s]",
+         "ramp rate [N/s]", "source", "sha256"],
+        [[d["split"], d["name"], str(d["rows"]), f"{d['sample_rate_hz']:.4g}", str(d["row_step"]),
+          f"{d['duration_s']:.1f}", str(d["ramp_rate"]), d["source"] or "-", d["sha256"]]
+         for d in dataset.describe()],
     ))  # fmt: skip
-    _loops(recs + dataset.test, out / "loops.png", 20)
+    _loops(recs + dataset.validation + dataset.test, out / "loops.png", 20)
     md += ["", "![force-displacement loops](loops.png)", ""]
 
     md += ["## Item statistics (thesis Table 3.2)", ""]

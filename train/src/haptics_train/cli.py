@@ -10,8 +10,9 @@ from pathlib import Path
 
 import torch
 
-from .data import DataError, load_dataset
+from .data import DataError, Dataset, load_data
 from .features import FEATURE_SETS
+from .importer import DEFAULT_MAX_GAP_FACTOR, FORCE_UNITS, POSITION_UNITS, TIME_UNITS
 from .models import ALGOS, TrainConfig
 from .pipeline import DEFAULT_SPECS
 
@@ -24,10 +25,36 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--dataset",
         default=DEFAULT_DATASET,
-        help="folder with train_*.parquet and test_*.parquet (default %(default)s)",
+        help="folder with train_*.parquet, validation_*.parquet (optional) and test_*.parquet "
+        "(default %(default)s)",
+    )
+    p.add_argument(
+        "--manifest",
+        help="TOML dataset manifest naming each recording with its role (train, validation, "
+        "test), source and notes; replaces --dataset (docs/train.md)",
     )
     p.add_argument("--models-dir", default=DEFAULT_MODELS, help="default %(default)s")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def _data(a: argparse.Namespace) -> Dataset:
+    return load_data(a.dataset, getattr(a, "manifest", None))
+
+
+def _rows_opts(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--decimate",
+        type=int,
+        help="keep every Nth control step for stateless training (default: derived per "
+        "recording from its rate and --target-rate-hz)",
+    )
+    p.add_argument(
+        "--target-rate-hz",
+        type=float,
+        default=500.0,
+        help="row rate stateless models train at when --decimate is not given (default "
+        "%(default)s: every 20th step of the 10 kHz bench, every row of a 50 Hz import)",
+    )
 
 
 def _train_opts(p: argparse.ArgumentParser) -> None:
@@ -44,12 +71,7 @@ def _train_opts(p: argparse.ArgumentParser) -> None:
         default="default",
         help="thesis = the thesis's hyperparameters (SPEC section 6)",
     )
-    p.add_argument(
-        "--decimate",
-        type=int,
-        default=20,
-        help="keep every Nth control step for stateless training (default 20)",
-    )
+    _rows_opts(p)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--target", default="rtob_force")
     p.add_argument("--rf-trees", type=int)
@@ -58,9 +80,29 @@ def _train_opts(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dnn-epochs", type=int)
     p.add_argument("--lstm-iterations", type=int)
     p.add_argument(
+        "--lstm-horizon-s",
+        type=float,
+        help="LSTM truncated-BPTT window in seconds (default 1.0, capped at 50 steps)",
+    )
+    p.add_argument(
         "--feedback-noise",
         type=float,
-        help="N, scale of the previous-force error dnn_fb/lstm_fb train with (default 2.5)",
+        help="N, scale of the previous-force error dnn_fb/lstm_fb train with (default: "
+        "--feedback-noise-frac of the training force's range)",
+    )
+    p.add_argument(
+        "--feedback-noise-frac",
+        type=float,
+        help="feedback noise as a fraction of the training force's 1-99 percentile range "
+        "(default 0.2)",
+    )
+    p.add_argument(
+        "--feedback-noise-candidates",
+        default="0.1,0.2,0.4",
+        help="fractions of the force range tried for dnn_fb/lstm_fb, the one with the lowest "
+        "free-run RMSE on the validation recordings kept (needs a validation recording; "
+        "'' or an explicit --feedback-noise/--feedback-noise-frac: no search; "
+        "default %(default)s)",
     )
     p.add_argument(
         "--threads",
@@ -84,10 +126,26 @@ def _hyper(a: argparse.Namespace) -> dict[str, dict]:
         h["dnn"]["epochs"] = a.dnn_epochs
     if a.lstm_iterations:
         h["lstm"]["iterations"] = a.lstm_iterations
+    if a.lstm_horizon_s:
+        h["lstm"]["horizon_s"] = a.lstm_horizon_s
     if a.feedback_noise is not None:
-        h["dnn_fb"] = {"feedback_noise": a.feedback_noise}
-        h["lstm_fb"] = {"feedback_noise": a.feedback_noise}
+        h["dnn_fb"] = {"feedback_noise": a.feedback_noise, "feedback_noise_frac": None}
+        h["lstm_fb"] = dict(h["dnn_fb"])
+    elif a.feedback_noise_frac is not None:
+        h["dnn_fb"] = {"feedback_noise_frac": a.feedback_noise_frac}
+        h["lstm_fb"] = dict(h["dnn_fb"])
     return {k: v for k, v in h.items() if v}
+
+
+def _candidates(a: argparse.Namespace) -> list[float]:
+    if a.feedback_noise is not None or a.feedback_noise_frac is not None:
+        return []
+    return [float(c) for c in a.feedback_noise_candidates.split(",") if c.strip()]
+
+
+def _cfg(a: argparse.Namespace) -> TrainConfig:
+    return TrainConfig(decimate=a.decimate, target=a.target, seed=a.seed,
+                       progress=not a.no_progress, target_rate_hz=a.target_rate_hz)  # fmt: skip
 
 
 def _names(a: argparse.Namespace) -> list[str] | None:
@@ -97,23 +155,22 @@ def _names(a: argparse.Namespace) -> list[str] | None:
 def cmd_analyze(a: argparse.Namespace) -> None:
     from .analysis import analyze
 
-    ds = load_dataset(a.dataset)
-    print(analyze(ds, Path(a.out), decimate=a.decimate))
+    ds = _data(a)
+    print(analyze(ds, Path(a.out), decimate=a.decimate, target_rate_hz=a.target_rate_hz))
 
 
 def cmd_train(a: argparse.Namespace) -> None:
     from .pipeline import train_models
 
-    ds = load_dataset(a.dataset)
-    cfg = TrainConfig(decimate=a.decimate, target=a.target, seed=a.seed, progress=not a.no_progress)
+    ds = _data(a)
     specs = [s.strip() for s in a.models.split(",") if s.strip()]
-    train_models(ds, specs, cfg, Path(a.models_dir), a.preset, _hyper(a))
+    train_models(ds, specs, _cfg(a), Path(a.models_dir), a.preset, _hyper(a), _candidates(a))
 
 
 def cmd_evaluate(a: argparse.Namespace) -> None:
     from .pipeline import evaluate_models, load_models
 
-    ds = load_dataset(a.dataset)
+    ds = _data(a)
     models = load_models(Path(a.models_dir), _names(a))
     for _, cfg in models:
         cfg.progress = not a.no_progress
@@ -123,31 +180,47 @@ def cmd_evaluate(a: argparse.Namespace) -> None:
 def cmd_export(a: argparse.Namespace) -> None:
     from .pipeline import export_models, load_models
 
-    ds = load_dataset(a.dataset) if not a.no_parity else None
+    ds = _data(a) if not a.no_parity else None
     export_models(load_models(Path(a.models_dir), _names(a)), ds, Path(a.models_dir))
 
 
 def cmd_report(a: argparse.Namespace) -> None:
     from .report import write_report
 
-    ds = load_dataset(a.dataset)
+    ds = _data(a)
     print(write_report(Path(a.models_dir), ds, Path(a.out)))
 
 
 def cmd_import(a: argparse.Namespace) -> None:
-    from .importer import import_series
+    from .data import write_manifest_entry
+    from .importer import describe_import, import_series
 
+    if a.role and not a.manifest:
+        raise DataError("--role needs --manifest (the manifest the recording is added to)")
     rec = import_series(
         a.input,
         a.out,
         a.time_col,
         a.position_col,
         a.force_col,
-        a.time_unit,
-        a.position_unit,
-        a.rt_loop,
+        time_unit=a.time_unit,
+        position_unit=a.position_unit,
+        force_unit=a.force_unit,
+        rt_loop=a.rt_loop,
+        g_v=a.g_v,
+        g_a=a.g_a,
+        contact_on_n=a.contact_on_n,
+        contact_off_n=a.contact_off_n,
+        resample_hz=a.resample_hz,
+        repair=a.repair,
+        max_gap_factor=a.max_gap_factor,
     )
-    print(f"{a.out}: {len(rec)} rows, columns {len(rec.columns)}")
+    print(f"{a.out}: {describe_import(rec)}")
+    if a.manifest:
+        name = a.name or Path(a.out).stem
+        write_manifest_entry(a.manifest, name, a.out, a.role or "train",
+                             a.source or str(Path(a.input).resolve()), a.notes or "")  # fmt: skip
+        print(f"{a.manifest}: recordings.{name} (role {a.role or 'train'})")
 
 
 def cmd_validate(a: argparse.Namespace) -> None:
@@ -165,13 +238,15 @@ def cmd_pipeline(a: argparse.Namespace) -> None:
     from .report import write_report
 
     t0 = time.perf_counter()
-    ds = load_dataset(a.dataset)
+    ds = _data(a)
     out = Path(a.out)
     folder = Path(a.models_dir)
-    print(f"[pipeline] analysis -> {analyze(ds, out, decimate=a.decimate)}", flush=True)
-    cfg = TrainConfig(decimate=a.decimate, target=a.target, seed=a.seed, progress=not a.no_progress)
+    an = analyze(ds, out, decimate=a.decimate, target_rate_hz=a.target_rate_hz)
+    print(f"[pipeline] analysis -> {an}", flush=True)
+    cfg = _cfg(a)
     specs = [s.strip() for s in a.models.split(",") if s.strip()]
-    models = [(m, cfg) for m in train_models(ds, specs, cfg, folder, a.preset, _hyper(a))]
+    trained = train_models(ds, specs, cfg, folder, a.preset, _hyper(a), _candidates(a))
+    models = [(m, cfg) for m in trained]
     evaluate_models(models, ds, folder)
     export_models(models, ds, folder)
     print(f"[pipeline] report -> {write_report(folder, ds, out)}")
@@ -181,13 +256,21 @@ def cmd_pipeline(a: argparse.Namespace) -> None:
 def cmd_study(a: argparse.Namespace) -> None:
     from .study import StudyError, run_study
 
+    trajectory = a.trajectory
+    if trajectory is None:
+        # the first test recording: the manifest's when given, else the bench's test_2.1
+        trajectory = (
+            load_data(DEFAULT_DATASET, a.manifest).test[0].source
+            if a.manifest
+            else f"{DEFAULT_DATASET}/test_2.1.parquet"
+        )
     try:
         run_study(
             root=Path.cwd(),
             models_dir=Path(a.models_dir),
             out_dir=Path(a.out),
             work=Path(a.work),
-            trajectory=Path(a.trajectory),
+            trajectory=Path(trajectory),
             names=_names(a),
             seed=a.seed,
             rt_loop=a.rt_loop,
@@ -205,7 +288,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("analyze", help="dataset statistics as the thesis did (Markdown + PNG)")
     _common(s)
     s.add_argument("--out", default=DEFAULT_REPORT)
-    s.add_argument("--decimate", type=int, default=20)
+    _rows_opts(s)
     s.set_defaults(fn=cmd_analyze)
 
     s = sub.add_parser("train", help="train models on the training recordings")
@@ -235,12 +318,35 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--input", required=True, help="CSV or Parquet file")
     s.add_argument("--out", required=True, help="recording to write (.parquet)")
-    s.add_argument("--time-col", required=True)
+    s.add_argument("--time-col", required=True, help="name, or name of a 'name [unit]' header")
     s.add_argument("--position-col", required=True)
     s.add_argument("--force-col", required=True)
-    s.add_argument("--time-unit", default="s", choices=("s", "ms", "us"))
-    s.add_argument("--position-unit", default="m", choices=("m", "mm", "um"))
-    s.add_argument("--force-unit", default="N", choices=("N", "mN"))
+    s.add_argument("--time-unit", choices=tuple(TIME_UNITS),
+                   help="default: the header's unit ('t [ms]'), else s")  # fmt: skip
+    s.add_argument("--position-unit", choices=tuple(POSITION_UNITS),
+                   help="default: the header's unit, else m")  # fmt: skip
+    s.add_argument("--force-unit", choices=tuple(FORCE_UNITS),
+                   help="default: the header's unit, else N")  # fmt: skip
+    s.add_argument("--g-v", type=float,
+                   help="velocity filter gain, rad/s (default: the loop's 30 capped at g dt 0.2)")
+    s.add_argument("--g-a", type=float,
+                   help="acceleration filter gain, rad/s (default: 100 capped at g dt 0.2)")
+    s.add_argument("--contact-on-n", type=float,
+                   help="contact starts above this force, N (default: from the noise floor)")
+    s.add_argument("--contact-off-n", type=float, help="contact ends below this force, N")
+    s.add_argument("--resample-hz", type=float, help="put the series on a uniform grid")
+    s.add_argument("--repair", action="store_true",
+                   help="interpolate non-finite values and gaps, drop rows whose time does not "
+                   "increase (counted in the metadata) instead of refusing them")
+    s.add_argument("--max-gap-factor", type=float, default=DEFAULT_MAX_GAP_FACTOR,
+                   help="a period above this multiple of the median is a gap "
+                   "(default %(default)s)")
+    s.add_argument("--manifest", help="add the recording to this TOML manifest")
+    s.add_argument("--role", choices=("train", "validation", "test"),
+                   help="its role in the manifest (default train)")
+    s.add_argument("--name", help="its name in the manifest (default: the output's stem)")
+    s.add_argument("--source", help="where the data came from (default: the input path)")
+    s.add_argument("--notes", help="remarks recorded in the manifest")
     s.add_argument("--rt-loop", help="rt-loop binary (else $HAPTICS_RT_LOOP, target/release)")
     s.set_defaults(fn=cmd_import)
 
@@ -258,9 +364,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--work", default="data/study", help="raw recordings (default %(default)s)")
     s.add_argument(
         "--trajectory",
-        default=f"{DEFAULT_DATASET}/test_2.1.parquet",
-        help="recording whose position the replay follows (default %(default)s)",
+        help="recording whose position the replay follows (default: the first test recording "
+        f"of --manifest, else {DEFAULT_DATASET}/test_2.1.parquet)",
     )
+    s.add_argument("--manifest", help="TOML dataset manifest (its first test recording)")
     s.add_argument("--seed", type=int, default=1)
     s.add_argument("--rt-loop", help="rt-loop binary (default target/release/rt-loop)")
     s.add_argument("--infer-server", help="default target/release/infer-server")

@@ -1,10 +1,16 @@
-"""Recordings (docs/recording-format.md) as column arrays, and the train/test dataset layout."""
+"""Recordings (docs/recording-format.md) as column arrays, and the dataset: which recordings
+train, which validate (every choice is made on them) and which test (scored once).
+
+A dataset is either a folder (the bench's own convention: `train_*.parquet`,
+`validation_*.parquet`, `test_*.parquet`) or a TOML manifest naming each recording with its
+role, source and notes (`load_manifest`), for data that did not come from the bench."""
 
 from __future__ import annotations
 
 import hashlib
 import json
 import re
+import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,6 +38,17 @@ class Recording:
     meta: dict = field(default_factory=dict)
     source: str = ""
     sha256: str = ""
+    #: where the data came from and remarks (a manifest's `source` and `notes`)
+    origin: str = ""
+    notes: str = ""
+
+    @property
+    def sample_rate_hz(self) -> float:
+        """Rows per second (the median period of the time column)."""
+        t = self.columns["time"]
+        d = np.diff(t[: min(len(t), 100_000)])
+        d = d[d > 0]
+        return float(1.0 / np.median(d)) if len(d) else float("nan")
 
     @property
     def row_step(self) -> int:
@@ -45,7 +62,9 @@ class Recording:
         """The first n control steps (a causal prefix: closed loop on it equals the prefix of
         the closed loop on the whole recording)."""
         cols = {k: v[:n] for k, v in self.columns.items()}
-        return Recording(self.name, cols, self.meta, self.source, self.sha256)
+        return Recording(
+            self.name, cols, self.meta, self.source, self.sha256, self.origin, self.notes
+        )
 
     def column(self, name: str) -> np.ndarray:
         try:
@@ -108,7 +127,7 @@ def row_step(columns: dict[str, np.ndarray]) -> int:
     return max(int(np.median(d)), 1)
 
 
-def _sha256(path: Path) -> str:
+def sha256_file(path: Path) -> str:
     h = hashlib.sha256()
     with path.open("rb") as fh:
         for chunk in iter(lambda: fh.read(1 << 20), b""):
@@ -162,10 +181,24 @@ def load_recording(path: str | Path, name: str | None = None) -> Recording:
         raise DataError(f"{path}: missing columns {missing} (see docs/recording-format.md)")
     if len(cols["time"]) < 3:
         raise DataError(f"{path}: only {len(cols['time'])} rows")
+    check_finite(cols, str(path))
     add_previous_force(cols)
     return Recording(
-        name=name or path.stem, columns=cols, meta=meta, source=str(path), sha256=_sha256(path)
+        name=name or path.stem, columns=cols, meta=meta, source=str(path), sha256=sha256_file(path)
     )
+
+
+def check_finite(cols: dict[str, np.ndarray], where: str) -> None:
+    """Every required column finite on every row: one NaN force would poison the ratio
+    features of every later row, so it is refused with its row (data rows from 1)."""
+    for c in REQUIRED_COLUMNS:
+        bad = ~np.isfinite(cols[c])
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise DataError(
+                f"{where}: row {i + 1}: column {c!r} is {cols[c][i]} ({int(bad.sum())} "
+                "non-finite rows); re-import it (haptics-train import --repair interpolates)"
+            )
 
 
 def recording_from_columns(
@@ -175,8 +208,12 @@ def recording_from_columns(
     missing = [c for c in REQUIRED_COLUMNS if c not in cols]
     if missing:
         raise DataError(f"{name}: missing columns {missing}")
+    check_finite(cols, name)
     add_previous_force(cols)
     return Recording(name=name, columns=cols, meta=meta or {})
+
+
+ROLES = ("train", "validation", "test")
 
 
 @dataclass
@@ -184,36 +221,135 @@ class Dataset:
     train: list[Recording]
     test: list[Recording]
     root: str = ""
+    #: recordings every choice is made on (hyperparameters, feedback noise, the recommended
+    #: model); empty when the dataset has none, and then nothing is chosen on data
+    validation: list[Recording] = field(default_factory=list)
+    #: the manifest file it came from ("" for a folder)
+    manifest: str = ""
+
+    def split(self, role: str) -> list[Recording]:
+        return {"train": self.train, "validation": self.validation, "test": self.test}[role]
 
     def describe(self) -> list[dict]:
         out = []
-        for split, recs in (("train", self.train), ("test", self.test)):
-            for r in recs:
+        for split in ROLES:
+            for r in self.split(split):
                 out.append(
                     {
                         "split": split,
                         "name": r.name,
                         "rows": len(r),
                         "duration_s": float(r.columns["time"][-1] - r.columns["time"][0]),
+                        "sample_rate_hz": r.sample_rate_hz,
                         "ramp_rate": r.ramp_rate,
                         "row_step": r.row_step,
                         "sha256": r.sha256[:16],
+                        "source": r.origin,
+                        "notes": r.notes,
                     }
                 )
         return out
 
 
 def load_dataset(root: str | Path) -> Dataset:
-    """`train_*.parquet` are the training recordings, `test_*.parquet` the held-out ones."""
+    """The bench's folder convention: `train_*.parquet` train, `validation_*.parquet` (optional)
+    validate, `test_*.parquet` are held out."""
     root = Path(root)
     if not root.is_dir():
         raise DataError(
             f"dataset directory {root} does not exist (record it with scripts/record-dataset.sh)"
         )
     train = [load_recording(p) for p in sorted(root.glob("train_*.parquet"))]
+    val = [load_recording(p) for p in sorted(root.glob("validation_*.parquet"))]
     test = [load_recording(p) for p in sorted(root.glob("test_*.parquet"))]
     if not train:
         raise DataError(f"{root}: no train_*.parquet recordings")
     if not test:
         raise DataError(f"{root}: no test_*.parquet recording (held-out ramp rate)")
-    return Dataset(train=train, test=test, root=str(root))
+    for r in (*train, *val, *test):
+        r.origin = r.origin or "rt-loop recording"
+    return Dataset(train=train, test=test, root=str(root), validation=val)
+
+
+def load_manifest(path: str | Path) -> Dataset:
+    """A TOML manifest: one table per recording, named by its key.
+
+    ```toml
+    [recordings.slow]
+    path = "imported/rate_0.01.parquet"   # relative to the manifest's folder
+    role = "train"                        # train | validation | test
+    source = "Instron 5944, sample A, 2024-03-02"
+    notes = "one cycle, 0.01 /s"
+    ```
+    """
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise DataError(f"no such manifest: {path}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise DataError(f"{path}: not valid TOML: {e}") from None
+    recs = doc.get("recordings")
+    if not isinstance(recs, dict) or not recs:
+        raise DataError(f"{path}: no [recordings.<name>] tables")
+    unknown = set(doc) - {"recordings", "name", "notes"}
+    if unknown:
+        raise DataError(f"{path}: unknown keys {sorted(unknown)} (recordings, name, notes)")
+    by_role: dict[str, list[Recording]] = {r: [] for r in ROLES}
+    for name, e in recs.items():
+        if not isinstance(e, dict):
+            raise DataError(f"{path}: recordings.{name} must be a table")
+        bad = set(e) - {"path", "role", "source", "notes"}
+        if bad:
+            raise DataError(f"{path}: recordings.{name}: unknown keys {sorted(bad)}")
+        role = e.get("role")
+        if role not in ROLES:
+            raise DataError(f"{path}: recordings.{name}: role must be one of {ROLES}, not {role!r}")
+        if not isinstance(e.get("path"), str):
+            raise DataError(f"{path}: recordings.{name}: no path")
+        p = Path(e["path"])
+        rec = load_recording(p if p.is_absolute() else path.parent / p, name=name)
+        rec.origin = str(e.get("source", ""))
+        rec.notes = str(e.get("notes", ""))
+        by_role[role].append(rec)
+    if not by_role["train"]:
+        raise DataError(f"{path}: no recording with role = \"train\"")
+    if not by_role["test"]:
+        raise DataError(f"{path}: no recording with role = \"test\"")
+    return Dataset(
+        train=by_role["train"], test=by_role["test"], validation=by_role["validation"],
+        root=str(path.parent), manifest=str(path),
+    )  # fmt: skip
+
+
+def write_manifest_entry(
+    path: str | Path, name: str, rec_path: str | Path, role: str, source: str, notes: str = ""
+) -> None:
+    """Adds (or replaces) one recording in a manifest, keeping the others as they are."""
+    if role not in ROLES:
+        raise DataError(f"role must be one of {ROLES}, not {role!r}")
+    if not re.fullmatch(r"[A-Za-z0-9_.-]+", name):
+        raise DataError(f"manifest name {name!r}: use letters, digits, _ . -")
+    path = Path(path)
+    doc = tomllib.loads(path.read_text()) if path.exists() else {}
+    recs = doc.setdefault("recordings", {})
+    rp = Path(rec_path).resolve()
+    try:
+        rel = str(rp.relative_to(path.parent.resolve()))
+    except ValueError:
+        rel = str(rp)
+    recs[name] = {"path": rel, "role": role, "source": source, "notes": notes}
+    lines = ["# dataset manifest (haptics-train --manifest); roles: train, validation, test", ""]
+    for k in ("name", "notes"):
+        if k in doc:
+            lines.append(f"{k} = {json.dumps(str(doc[k]))}")
+    for n, e in recs.items():
+        lines += ["", f"[recordings.{json.dumps(n)}]"]
+        lines += [f"{k} = {json.dumps(str(v))}" for k, v in e.items()]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+
+
+def load_data(dataset: str | Path, manifest: str | Path | None = None) -> Dataset:
+    """A manifest when given, else the folder convention."""
+    return load_manifest(manifest) if manifest else load_dataset(dataset)

@@ -1,4 +1,8 @@
-"""One-step and closed-loop evaluation of a trained model on held-out recordings."""
+"""Free-run (closed-loop) and one-step evaluation of a trained model on held-out recordings,
+and the baselines every model is printed beside: persistence F(t-1), the training mean and the
+spring-damper sd_poly2. At 10 kHz repeating the previous force is nearly perfect one-step, so a
+one-step figure means nothing without persistence's beside it; free run is what reproduction
+feels, so it comes first."""
 
 from __future__ import annotations
 
@@ -7,11 +11,11 @@ import time
 import numpy as np
 import onnx
 
-from .closed_loop import OnnxStepper, simulate
-from .data import Recording
-from .features import FEEDBACK_FEATURES
-from .metrics import regression_metrics
-from .models.base import ForceModel, TrainConfig
+from .closed_loop import OnnxStepper, contact_thresholds, simulate
+from .data import Dataset, Recording
+from .features import F_PREVIOUS, FEEDBACK_FEATURES
+from .metrics import force_metrics, pooled
+from .models.base import ForceModel, TrainConfig, stacked
 
 
 def needs_feedback(model: ForceModel) -> bool:
@@ -35,13 +39,15 @@ def evaluate(
       its closed-loop result is its one-step result (`closed_loop_same_as_one_step`).
     """
     y = rec.target(cfg.target)
+    x = rec.column("position_x")
+    contact = contact_thresholds(rec)[1]
     t0 = time.perf_counter()
     one = model.predict_recording(rec)
     res: dict = {
         "recording": rec.name,
         "rows": int(len(y)),
         "row_step": rec.row_step,
-        "one_step": regression_metrics(y, one),
+        "one_step": force_metrics(y, one, x, contact),
         "one_step_seconds": round(time.perf_counter() - t0, 2),
     }
     preds = {"one_step": one}
@@ -52,7 +58,7 @@ def evaluate(
                 OnnxStepper(onnx_model), rec, model.features, progress=cfg.progress,
                 desc=f"{model.name} closed loop",
             )  # fmt: skip
-            res["closed_loop"] = regression_metrics(y, cl)
+            res["closed_loop"] = force_metrics(y, cl, x, contact)
             res["closed_loop_seconds"] = round(time.perf_counter() - t0, 2)
             res["closed_loop_us_per_step"] = round(1e6 * res["closed_loop_seconds"] / len(y), 2)
             res["closed_loop_same_as_one_step"] = False
@@ -62,3 +68,82 @@ def evaluate(
             res["closed_loop_same_as_one_step"] = True
             preds["closed_loop"] = one
     return res, preds
+
+
+def pooled_metrics(
+    recs: list[Recording], preds: list[dict[str, np.ndarray]], target: str
+) -> dict[str, dict]:
+    """Per kind (one_step, closed_loop), the metrics over all recordings taken together."""
+    out: dict[str, dict] = {}
+    for kind in ("closed_loop", "one_step"):
+        if all(kind in p for p in preds):
+            out[kind] = pooled([
+                (r.target(target), p[kind], r.column("position_x"), contact_thresholds(r)[1])
+                for r, p in zip(recs, preds, strict=True)
+            ])  # fmt: skip
+    return out
+
+
+BASELINES = ("persistence", "mean", "sd_poly2")
+
+
+def baseline_predictions(
+    dataset: Dataset, cfg: TrainConfig, sd_poly2: ForceModel | None = None
+) -> dict[str, dict[str, list[dict[str, np.ndarray]]]]:
+    """name -> split -> per recording {one_step, closed_loop} predictions:
+
+    - persistence: one-step F(t-1), the measured force of the previous control step; in free
+      run it has only its own output to repeat, so it holds the first measured force;
+    - mean: the training recordings' mean force, everywhere;
+    - sd_poly2: the 2nd-order spring-damper fitted on the training recordings (kinematics
+      only, so free run equals one-step); the trained one when given.
+    """
+    if sd_poly2 is None:
+        from .models import make_model
+
+        sd_poly2 = make_model("sd_poly2")
+        sd_poly2.fit(dataset.train, cfg)
+    _, y_train = stacked(dataset.train, ("position_x",), cfg)
+    mean = float(np.mean(y_train))
+    out: dict[str, dict[str, list[dict[str, np.ndarray]]]] = {b: {} for b in BASELINES}
+    for split in ("validation", "test"):
+        for b in BASELINES:
+            out[b][split] = []
+        for rec in dataset.split(split):
+            y = rec.target(cfg.target)
+            out["persistence"][split].append(
+                {"one_step": rec.column(F_PREVIOUS), "closed_loop": np.full(len(y), y[0])}
+            )
+            m = np.full(len(y), mean)
+            out["mean"][split].append({"one_step": m, "closed_loop": m})
+            sd = sd_poly2.predict_recording(rec)
+            out["sd_poly2"][split].append({"one_step": sd, "closed_loop": sd})
+    return out
+
+
+def score_baselines(
+    dataset: Dataset, cfg: TrainConfig, sd_poly2: ForceModel | None = None
+) -> dict[str, dict]:
+    """name -> {split: [per recording metrics], split_pooled: {kind: metrics}}."""
+    preds = baseline_predictions(dataset, cfg, sd_poly2)
+    out: dict[str, dict] = {}
+    for b, by_split in preds.items():
+        entry: dict = {}
+        for split, plist in by_split.items():
+            recs = dataset.split(split)
+            entry[split] = [
+                {
+                    "recording": r.name,
+                    "rows": len(r),
+                    **{
+                        k: force_metrics(r.target(cfg.target), p[k], r.column("position_x"),
+                                         contact_thresholds(r)[1])
+                        for k in ("closed_loop", "one_step")
+                    },
+                }
+                for r, p in zip(recs, plist, strict=True)
+            ]  # fmt: skip
+            if recs:
+                entry[f"{split}_pooled"] = pooled_metrics(recs, plist, cfg.target)
+        out[b] = entry
+    return out

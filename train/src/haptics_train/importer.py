@@ -1,30 +1,105 @@
 """Import of a time/displacement/force series measured elsewhere (another device, a
-materials-testing machine) into the recording format.
+materials-testing machine, an indenter) into the recording format.
 
-The features are computed by rt-loop's own offline feature code (`rt-loop features`), so the
-definitions exist once, in the loop, and training never drifts from serving. This module only
-finds the binary, checks the input early with clear messages, runs it and checks its output.
+Such files come at any rate and in any unit, with holes and glitches. Nothing is assumed
+silently here:
+
+- units come from the options, else from the column headers (`force [mN]`,
+  `displacement (mm)`), else SI; an option that contradicts its header is refused;
+- non-finite values, time that does not increase and gaps are refused with the row number
+  (data rows counted from 1), or, with `repair=True`, interpolated (or dropped) and counted;
+- `resample_hz` puts the series on a uniform grid (a window average when it lowers the rate);
+- the series goes to rt-loop's own offline feature code (`rt-loop features`) in SI units, so
+  the feature definitions exist once, in the loop; rt-loop derives the filter gains from the
+  rate (and refuses gains the rate cannot carry) and the contact thresholds from the force's
+  noise floor, unless they are given here;
+- the output's metadata (`haptics.run`) records the source, its units and where each came
+  from, the rate, the repairs and every setting used.
 """
 
 from __future__ import annotations
 
+import json
 import os
+import re
 import shutil
 import subprocess
+import tempfile
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import numpy as np
+import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from .data import DataError, Recording, load_recording
+from .data import DataError, Recording, load_recording, sha256_file
 
-TIME_UNITS = ("s", "ms", "us")
-POSITION_UNITS = ("m", "mm", "um")
-FORCE_UNITS = ("N", "mN")
+#: unit -> factor to SI (s, m, N); the same set as `rt-loop features` (rt-loop/src/import.rs).
+TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "min": 60.0}
+POSITION_UNITS: dict[str, float] = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "in": 0.0254}
+FORCE_UNITS: dict[str, float] = {"N": 1.0, "mN": 1e-3, "kN": 1e3, "lbf": 4.4482216152605}
+#: spellings seen in headers -> the unit's name above
+_ALIASES: dict[str, str] = {
+    "sec": "s", "secs": "s", "second": "s", "seconds": "s", "msec": "ms", "µs": "us",
+    "μs": "us", "usec": "us", "µm": "um", "μm": "um", "inch": "in",
+}  # fmt: skip
+DEFAULT_MAX_GAP_FACTOR = 1.5
+
+_HEADER_UNIT = re.compile(r"^(?P<base>.*?)\s*(?:\[(?P<u1>[^\]]+)\]|\((?P<u2>[^)]+)\))\s*$")
 
 
 class RtLoopMissing(RuntimeError):
     pass
+
+
+def header_unit(header: str) -> tuple[str, str] | None:
+    """`"force [mN]"` -> `("force", "mN")`; None when the header names no unit."""
+    m = _HEADER_UNIT.match(header)
+    if not m:
+        return None
+    unit = (m.group("u1") or m.group("u2") or "").strip()
+    return (m.group("base"), unit) if unit else None
+
+
+def resolve_unit(
+    what: str, header: str, option: str | None, table: dict[str, float]
+) -> tuple[str, str]:
+    """(unit, where it came from: option | header | default)."""
+    if option is not None and option not in table:
+        raise DataError(f"--{what}-unit must be one of {tuple(table)}, not {option!r}")
+    hu = header_unit(header)
+    parsed = None
+    if hu is not None:
+        parsed = _ALIASES.get(hu[1], hu[1])
+        if parsed not in table:
+            if option is None:
+                raise DataError(
+                    f"column {header!r}: unknown unit {hu[1]!r}; give --{what}-unit explicitly "
+                    f"(one of {tuple(table)})"
+                )
+            parsed = None
+    if option is not None:
+        if parsed is not None and parsed != option:
+            raise DataError(
+                f"column {header!r} says its unit is {parsed}, but --{what}-unit {option} was given"
+            )
+        return option, "option"
+    if parsed is not None:
+        return parsed, "header"
+    return next(iter(table)), "default"
+
+
+def find_column(headers: list[str], name: str) -> str:
+    """The exact header, else the one header `name [unit]`."""
+    if name in headers:
+        return name
+    hits = [h for h in headers if (hu := header_unit(h)) is not None and hu[0] == name]
+    if len(hits) == 1:
+        return hits[0]
+    if not hits:
+        raise DataError(f"no column {name!r}; the file has {headers}")
+    raise DataError(f"column name {name!r} is ambiguous: {hits}")
 
 
 def _repo_candidates() -> list[Path]:
@@ -64,11 +139,177 @@ def find_rt_loop(explicit: str | None = None) -> Path:
     )
 
 
+def _read_table(path: Path) -> pa.Table:
+    try:
+        if path.suffix.lower() == ".csv":
+            # every column as text first: a cell that is not a number is then reported with its
+            # row instead of turning the whole column into strings
+            names = pacsv.open_csv(path).schema.names
+            conv = pacsv.ConvertOptions(column_types=dict.fromkeys(names, pa.string()))
+            return pacsv.read_csv(path, convert_options=conv)
+        return pq.read_table(path)
+    except (OSError, pa.ArrowException) as e:
+        raise DataError(f"cannot read {path}: {e}") from e
+
+
 def input_columns(path: Path) -> list[str]:
     if path.suffix.lower() == ".csv":
         with pacsv.open_csv(path) as reader:
             return list(reader.schema.names)
     return list(pq.read_schema(path).names)
+
+
+_MISSING = {"", "nan", "NaN", "NAN", "na", "NA", "n/a", "N/A", "null", "NULL", "-"}
+
+
+def _as_float(table: pa.Table, col: str) -> np.ndarray:
+    """A column as float64; empty / missing cells are NaN, other text is an error with its row."""
+    c = table.column(col)
+    if pa.types.is_string(c.type) or pa.types.is_large_string(c.type):
+        vals = c.to_pylist()
+        out = np.empty(len(vals))
+        for i, v in enumerate(vals):
+            s = "" if v is None else v.strip()
+            if s in _MISSING:
+                out[i] = np.nan
+                continue
+            try:
+                out[i] = float(s)
+            except ValueError:
+                raise DataError(f"row {i + 1}: column {col!r}: {s!r} is not a number") from None
+        return out
+    if not (pa.types.is_integer(c.type) or pa.types.is_floating(c.type)):
+        raise DataError(f"column {col!r} has type {c.type}, not a number")
+    return np.asarray(c.to_numpy(zero_copy_only=False), dtype=np.float64)
+
+
+@dataclass
+class Repairs:
+    """What `repair=True` changed, counted (recorded in the metadata)."""
+
+    dropped_nonfinite_time: int = 0
+    dropped_non_increasing_time: int = 0
+    interpolated_position: int = 0
+    interpolated_force: int = 0
+    dropped_edge_holes: int = 0
+    filled_gap_rows: int = 0
+    rows: list[str] = field(default_factory=list)  # the first few, for the message
+
+    def total(self) -> int:
+        return (self.dropped_nonfinite_time + self.dropped_non_increasing_time
+                + self.interpolated_position + self.interpolated_force
+                + self.dropped_edge_holes + self.filled_gap_rows)  # fmt: skip
+
+
+def _median_dt(t: np.ndarray) -> float:
+    return float(np.median(np.diff(t)))
+
+
+def check_or_repair(
+    t: np.ndarray,
+    x: np.ndarray,
+    f: np.ndarray,
+    repair: bool = False,
+    max_gap_factor: float = DEFAULT_MAX_GAP_FACTOR,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, Repairs]:
+    """Refuses (DataError naming the row, data rows from 1) or repairs and counts:
+    non-finite time (dropped), time that does not increase (the row dropped), non-finite
+    position/force (linear interpolation in time; holes at either end dropped), gaps longer
+    than `max_gap_factor` median periods (filled with rows interpolated at the median period).
+    """
+    rep = Repairs()
+    row = np.arange(1, len(t) + 1)
+    bad_t = ~np.isfinite(t)
+    if bad_t.any():
+        i = int(np.argmax(bad_t))
+        if not repair:
+            raise DataError(f"row {row[i]}: time is missing or not finite")
+        rep.dropped_nonfinite_time = int(bad_t.sum())
+        t, x, f, row = t[~bad_t], x[~bad_t], f[~bad_t], row[~bad_t]
+    # time must increase: find the first row that does not
+    dt = np.diff(t)
+    if (dt <= 0).any():
+        i = int(np.argmax(dt <= 0)) + 1
+        if not repair:
+            raise DataError(
+                f"row {row[i]}: time does not increase ({t[i]:g} s after {t[i - 1]:g} s)"
+            )
+        # a row is kept when its time is above every earlier kept time (rows after a jump
+        # back are dropped until time passes the last good one)
+        run_max = -np.inf
+        keep = np.zeros(len(t), dtype=bool)
+        for k, tv in enumerate(t):
+            if tv > run_max:
+                keep[k] = True
+                run_max = tv
+        rep.dropped_non_increasing_time = int((~keep).sum())
+        t, x, f, row = t[keep], x[keep], f[keep], row[keep]
+    for what, v in (("position", x), ("force", f)):
+        bad = ~np.isfinite(v)
+        if not bad.any():
+            continue
+        i = int(np.argmax(bad))
+        if not repair:
+            raise DataError(
+                f"row {row[i]}: {what} is missing or not finite ({int(bad.sum())} such rows); "
+                "pass --repair to interpolate them"
+            )
+        good = np.flatnonzero(~bad)
+        if len(good) < 2:
+            raise DataError(f"{what}: fewer than two finite values")
+        inner = bad.copy()
+        inner[: good[0]] = False
+        inner[good[-1] + 1 :] = False
+        v[inner] = np.interp(t[inner], t[good], v[good])
+        setattr(rep, f"interpolated_{what}", int(inner.sum()))
+        rep.rows.extend(f"{what}@{r}" for r in row[inner][:5])
+    edge = ~(np.isfinite(x) & np.isfinite(f))
+    if edge.any():
+        rep.dropped_edge_holes = int(edge.sum())
+        t, x, f, row = t[~edge], x[~edge], f[~edge], row[~edge]
+    if len(t) < 3:
+        raise DataError(f"only {len(t)} usable rows")
+    med = _median_dt(t)
+    dt = np.diff(t)
+    gap = dt > max_gap_factor * med
+    if gap.any():
+        i = int(np.argmax(gap))
+        if not repair:
+            raise DataError(
+                f"row {row[i + 1]}: a gap of {dt[i]:g} s after t = {t[i]:g} s (the median "
+                f"period is {med:g} s, the limit {max_gap_factor}x); pass --repair to fill it "
+                "by interpolation, --resample-hz, or raise --max-gap-factor"
+            )
+        new_t = [t[:1]]
+        for k in range(len(dt)):
+            if gap[k]:
+                n = int(np.ceil(dt[k] / med))
+                new_t.append(t[k] + dt[k] * np.arange(1, n) / n)
+            new_t.append(t[k + 1 : k + 2])
+        tt = np.concatenate(new_t)
+        rep.filled_gap_rows = len(tt) - len(t)
+        x, f, t = np.interp(tt, t, x), np.interp(tt, t, f), tt
+    return t, x, f, rep
+
+
+def resample(t: np.ndarray, v: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """`v` on the uniform grid t0, t0 + 1/rate, ... <= t_end. Lowering the rate averages over
+    each new period (the exact mean of the piecewise-linear signal over the window, from its
+    cumulative integral), so nothing aliases; raising it interpolates linearly."""
+    period = 1.0 / rate_hz
+    grid = t[0] + period * np.arange(int(np.floor((t[-1] - t[0]) / period + 1e-9)) + 1)
+    if period <= _median_dt(t):
+        return grid, np.interp(grid, t, v)
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+
+    def integral(a: np.ndarray) -> np.ndarray:
+        k = np.clip(np.searchsorted(t, a, side="right") - 1, 0, len(t) - 2)
+        va = np.interp(a, t, v)
+        return cum[k] + 0.5 * (v[k] + va) * (a - t[k])
+
+    lo = np.clip(grid - period / 2, t[0], t[-1])
+    hi = np.clip(grid + period / 2, t[0], t[-1])
+    return grid, (integral(hi) - integral(lo)) / (hi - lo)
 
 
 def import_series(
@@ -77,12 +318,22 @@ def import_series(
     time_col: str,
     position_col: str,
     force_col: str,
-    time_unit: str = "s",
-    position_unit: str = "m",
+    *,
+    time_unit: str | None = None,
+    position_unit: str | None = None,
+    force_unit: str | None = None,
     rt_loop: str | None = None,
-    force_unit: str = "N",
+    g_v: float | None = None,
+    g_a: float | None = None,
+    contact_on_n: float | None = None,
+    contact_off_n: float | None = None,
+    resample_hz: float | None = None,
+    repair: bool = False,
+    max_gap_factor: float = DEFAULT_MAX_GAP_FACTOR,
     timeout_s: float = 600.0,
 ) -> Recording:
+    """Every option is keyword-only: a positional call cannot shift a unit into another slot.
+    A unit left None is taken from the column header, else SI (s, m, N)."""
     src = Path(input_path)
     dst = Path(out)
     if not src.is_file():
@@ -91,32 +342,100 @@ def import_series(
         raise DataError(f"{src}: only .csv and .parquet inputs are supported")
     if dst.suffix.lower() != ".parquet":
         raise DataError(f"output {dst} must end in .parquet")
-    if time_unit not in TIME_UNITS:
-        raise DataError(f"--time-unit must be one of {TIME_UNITS}, not {time_unit!r}")
-    if position_unit not in POSITION_UNITS:
-        raise DataError(f"--position-unit must be one of {POSITION_UNITS}, not {position_unit!r}")
-    if force_unit not in FORCE_UNITS:
-        raise DataError(f"--force-unit must be one of {FORCE_UNITS}, not {force_unit!r}")
-    cols = input_columns(src)
-    missing = [c for c in (time_col, position_col, force_col) if c not in cols]
-    if missing:
-        raise DataError(f"{src}: no column(s) {missing}; it has {cols}")
     if dst.exists() and dst.resolve() == src.resolve():
         raise DataError("refusing to overwrite the input with the output")
-    binary = find_rt_loop(rt_loop)
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    cmd = [
-        str(binary), "features", "--input", str(src),
-        "--time-col", time_col, "--position-col", position_col, "--force-col", force_col,
-        "--time-unit", time_unit, "--position-unit", position_unit, "--force-unit", force_unit,
-        "--out", str(dst),
-    ]  # fmt: skip
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
-    except subprocess.TimeoutExpired as e:
-        raise RuntimeError(f"`{' '.join(cmd)}` did not finish within {timeout_s} s") from e
-    if proc.returncode != 0:
-        raise RuntimeError(
-            f"rt-loop features failed (exit {proc.returncode}):\n{proc.stderr.strip()}"
+    if resample_hz is not None and not (np.isfinite(resample_hz) and resample_hz > 0):
+        raise DataError(f"--resample-hz must be a positive rate, not {resample_hz}")
+    if not max_gap_factor > 1:
+        raise DataError(f"--max-gap-factor must be above 1, not {max_gap_factor}")
+    headers = input_columns(src)
+    cols = {k: find_column(headers, n) for k, n in
+            (("time", time_col), ("position", position_col), ("force", force_col))}  # fmt: skip
+    units = {
+        k: resolve_unit(k, cols[k], opt, table)
+        for k, opt, table in (
+            ("time", time_unit, TIME_UNITS),
+            ("position", position_unit, POSITION_UNITS),
+            ("force", force_unit, FORCE_UNITS),
         )
-    return load_recording(dst)
+    }
+    binary = find_rt_loop(rt_loop)
+    table = _read_table(src)
+    try:
+        t = _as_float(table, cols["time"]) * TIME_UNITS[units["time"][0]]
+        x = _as_float(table, cols["position"]) * POSITION_UNITS[units["position"][0]]
+        f = _as_float(table, cols["force"]) * FORCE_UNITS[units["force"][0]]
+        rows_in = len(t)
+        t, x, f, rep = check_or_repair(t, x, f, repair, max_gap_factor)
+    except DataError as e:
+        raise DataError(f"{src}: {e}") from None
+    rate_in = 1.0 / _median_dt(t)
+    if resample_hz is not None:
+        grid, x = resample(t, x, resample_hz)
+        _, f = resample(t, f, resample_hz)
+        t = grid
+    pre = {
+        "source": str(src.resolve()),
+        "source_sha256": sha256_file(src),
+        "units": {k: {"unit": u, "from": how, "column": cols[k]} for k, (u, how) in units.items()},
+        "rows_in": rows_in,
+        "rows_out": len(t),
+        "sample_rate_in_hz": rate_in,
+        "resample_hz": resample_hz,
+        "repair": repair,
+        "repairs": {k: v for k, v in asdict(rep).items() if k != "rows"},
+        "max_gap_factor": max_gap_factor,
+        "tool": "haptics-train import",
+    }
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="haptics-import-") as tmp:
+        mid = Path(tmp) / "series.parquet"
+        # SI units in the headers: rt-loop reads them from there
+        pq.write_table(pa.table({"time [s]": t, "position [m]": x, "force [N]": f}), mid)
+        cmd = [
+            str(binary), "features", "--input", str(mid), "--out", str(dst),
+            "--time-col", "time [s]", "--position-col", "position [m]", "--force-col", "force [N]",
+            "--max-gap-factor", repr(max_gap_factor), "--meta-json", json.dumps(pre),
+        ]  # fmt: skip
+        for flag, v in (("--g-v", g_v), ("--g-a", g_a), ("--contact-on-n", contact_on_n),
+                        ("--contact-off-n", contact_off_n)):  # fmt: skip
+            if v is not None:
+                cmd += [flag, repr(float(v))]
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+        except subprocess.TimeoutExpired as e:
+            raise RuntimeError(f"rt-loop features did not finish within {timeout_s} s") from e
+    if proc.returncode != 0:
+        err = proc.stderr.strip().replace(str(mid), str(src))
+        raise RuntimeError(f"rt-loop features failed (exit {proc.returncode}):\n{err}")
+    rec = load_recording(dst)
+    rec.meta.setdefault("haptics.import.summary", proc.stderr.strip())
+    return rec
+
+
+def describe_import(rec: Recording) -> str:
+    """One line saying what the import did, from the recording's own metadata."""
+    run = rec.meta.get("haptics.run") or {}
+    pre = run.get("preprocessing") or {}
+    units = run.get("units") or {}
+    filt = run.get("filters") or {}
+    feat = run.get("features") or {}
+    contact = run.get("contact") or {}
+    timing = run.get("timing") or {}
+    u = ", ".join(f"{k} {v.get('unit')} ({v.get('from')})" for k, v in units.items())
+    nan = float("nan")
+    on, off = feat.get("contact_on_n", nan), feat.get("contact_off_n", nan)
+    fixes = {k: v for k, v in (pre.get("repairs") or {}).items() if v}
+    rs = pre.get("resample_hz")
+    return (
+        f"{len(rec)} rows at {timing.get('sample_rate_hz', float('nan')):.4g} Hz"
+        + (f" (resampled from {pre.get('sample_rate_in_hz', float('nan')):.4g} Hz)" if rs else "")
+        + f"; units {u}; g_v {filt.get('g_v', float('nan')):.4g} ({filt.get('g_v_from')}), "
+        f"g_a {filt.get('g_a', float('nan')):.4g} rad/s ({filt.get('g_a_from')}); contact "
+        f"{on:.4g}/{off:.4g} N ({contact.get('from')}, noise floor "
+        f"{contact.get('force_noise_floor_n', 0):.2g} N), "
+        f"{contact.get('cycles')} cycle(s) ({contact.get('loading')}"
+        + ("; contact counts compression only" if contact.get("loading") == "tension" else "")
+        + ")"
+        + (f"; repaired {fixes}" if fixes else "")
+    )

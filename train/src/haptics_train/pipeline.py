@@ -20,7 +20,7 @@ import onnx
 
 from .contract import ContractError
 from .data import Dataset
-from .evaluate import evaluate
+from .evaluate import BASELINES, evaluate, pooled_metrics, score_baselines
 from .export import parity, provenance, save_onnx, to_contract_onnx
 from .models import ForceModel, TrainConfig, parse_spec
 
@@ -50,6 +50,31 @@ DEFAULT_SPECS: tuple[str, ...] = (
 )
 
 
+def _fit_one(
+    spec: str, preset: str, hyper: dict[str, dict] | None, extra: dict, dataset: Dataset,
+    cfg: TrainConfig,
+) -> ForceModel:
+    m = parse_spec(spec, preset)
+    algo = spec.partition(":")[0].strip()
+    for key in (algo.removesuffix("_fb"), algo) if algo.endswith("_fb") else (algo,):
+        if hyper and key in hyper:
+            m.hyper.update(hyper[key])
+            if hasattr(m, "max_rows") and "max_rows" in hyper[key]:
+                m.max_rows = hyper[key]["max_rows"]  # type: ignore[attr-defined]
+    m.hyper.update(extra)
+    t0 = time.perf_counter()
+    m.fit(dataset.train, cfg)
+    m.train_info.setdefault("fit_seconds", round(time.perf_counter() - t0, 2))
+    return m
+
+
+def validation_free_run_rmse(model: ForceModel, cfg: TrainConfig, dataset: Dataset) -> float:
+    """The model's free-run (closed-loop) RMSE pooled over the validation recordings."""
+    draft = to_contract_onnx(model, provenance(model, cfg, dataset, None))
+    preds = [evaluate(model, draft, r, cfg)[1] for r in dataset.validation]
+    return float(pooled_metrics(dataset.validation, preds, cfg.target)["closed_loop"]["rmse"])
+
+
 def train_models(
     dataset: Dataset,
     specs: list[str],
@@ -57,26 +82,50 @@ def train_models(
     out: Path,
     preset: str = "default",
     hyper: dict[str, dict] | None = None,
+    feedback_noise_candidates: list[float] | None = None,
 ) -> list[ForceModel]:
+    """Fits every spec and saves it. For the feedback-noise networks (`*_fb`), when the dataset
+    has validation recordings and candidates are given, each candidate fraction of the force
+    range is trained and the one with the lowest free-run RMSE on the validation recordings is
+    kept (the test recordings play no part in the choice; `train_info["selection"]`)."""
+    for spec in specs:
+        parse_spec(spec, preset)  # an unknown algorithm or feature set stops before any training
     out.mkdir(parents=True, exist_ok=True)
     models = []
     for spec in specs:
-        m = parse_spec(spec, preset)
         algo = spec.partition(":")[0].strip()
-        for key in (algo.removesuffix("_fb"), algo) if algo.endswith("_fb") else (algo,):
-            if hyper and key in hyper:
-                m.hyper.update(hyper[key])
-                if hasattr(m, "max_rows") and "max_rows" in hyper[key]:
-                    m.max_rows = hyper[key]["max_rows"]  # type: ignore[attr-defined]
-        t0 = time.perf_counter()
-        print(f"[train] {m.name} on {len(dataset.train)} recordings ...", flush=True)
+        search = bool(algo.endswith("_fb") and feedback_noise_candidates and dataset.validation)
+        print(f"[train] {spec} on {len(dataset.train)} recordings ...", flush=True)
         try:
-            m.fit(dataset.train, cfg)
+            if not search:
+                m = _fit_one(spec, preset, hyper, {}, dataset, cfg)
+            else:
+                scored: dict[str, float] = {}
+                best: tuple[float, ForceModel] | None = None
+                for c in feedback_noise_candidates or []:
+                    cand = _fit_one(spec, preset, hyper,
+                                    {"feedback_noise": None, "feedback_noise_frac": c},
+                                    dataset, cfg)  # fmt: skip
+                    v = validation_free_run_rmse(cand, cfg, dataset)
+                    scored[str(c)] = v
+                    print(f"[train] {cand.name} feedback noise {c} x range: validation "
+                          f"free-run RMSE {_fmt(v)} N", flush=True)  # fmt: skip
+                    key = v if np.isfinite(v) else float("inf")
+                    if best is None or key < best[0]:
+                        best = (key, cand)
+                assert best is not None
+                m = best[1]
+                m.train_info["selection"] = {
+                    "parameter": "feedback_noise_frac",
+                    "metric": "free-run RMSE, pooled over the validation recordings",
+                    "validation": [r.name for r in dataset.validation],
+                    "candidates": scored,
+                    "chosen": m.hyper["feedback_noise_frac"],
+                }
         except (ValueError, RuntimeError, FloatingPointError) as e:
             # one model failing (e.g. a diverging network) must not lose the others
-            print(f"[train] {m.name} FAILED: {e}", flush=True)
+            print(f"[train] {spec} FAILED: {e}", flush=True)
             continue
-        m.train_info.setdefault("fit_seconds", round(time.perf_counter() - t0, 2))
         joblib.dump({"model": m, "config": cfg}, out / f"{m.name}.joblib")
         print(f"[train] {m.name}: {m.train_info}", flush=True)
         models.append(m)
@@ -111,14 +160,22 @@ def _save_results(folder: Path, results: dict) -> None:
     _results_path(folder).write_text(json.dumps(results, indent=1, default=float))
 
 
+def _fmt(v: float | None) -> str:
+    if v is None:
+        return "-"
+    return f"{v:.4g}" if np.isfinite(v) else "diverged"
+
+
 def evaluate_models(
     models: list[tuple[ForceModel, TrainConfig]],
     dataset: Dataset,
     folder: Path,
     closed_loop: bool = True,
 ) -> dict:
-    """One-step and closed-loop metrics on every test recording -> results.json (merged with
-    earlier results) and predictions/<name>.npz. Closed loop steps an in-memory export."""
+    """Free-run (closed-loop) and one-step metrics on every validation and test recording, per
+    recording and pooled -> results.json (merged with earlier results) and
+    predictions/<name>.npz; the baselines (persistence, mean, sd_poly2) -> baselines.json.
+    Closed loop steps an in-memory export. Prints free run first, each beside the baselines."""
     results = load_results(folder)
     (folder / "predictions").mkdir(parents=True, exist_ok=True)
     for model, cfg in models:
@@ -131,14 +188,6 @@ def evaluate_models(
                                    "error": f"export breaks the contract: {e}"}  # fmt: skip
             _save_results(folder, results)
             continue
-        evals = []
-        preds = {}
-        for rec in dataset.test:
-            r, p = evaluate(model, draft, rec, cfg, closed_loop=closed_loop)
-            evals.append(r)
-            for k, v in p.items():
-                preds[f"{rec.name}:{k}"] = v.astype(np.float32)
-        np.savez_compressed(folder / "predictions" / f"{model.name}.npz", **preds)
         entry = results.get(model.name, {})
         entry.pop("error", None)
         entry.update({
@@ -148,17 +197,58 @@ def evaluate_models(
             "kind": model.kind,
             "hyperparameters": model.hyper,
             "training": {**cfg.to_dict(), **model.train_info},
-            "test": evals,
         })  # fmt: skip
+        preds: dict[str, np.ndarray] = {}
+        for split in ("validation", "test"):
+            recs = dataset.split(split)
+            evals, plist = [], []
+            for rec in recs:
+                r, p = evaluate(model, draft, rec, cfg, closed_loop=closed_loop)
+                evals.append(r)
+                plist.append(p)
+                for k, v in p.items():
+                    preds[f"{rec.name}:{k}"] = v.astype(np.float32)
+            entry[split] = evals
+            if recs:
+                entry[f"{split}_pooled"] = pooled_metrics(recs, plist, cfg.target)
+            else:
+                entry.pop(f"{split}_pooled", None)
+        np.savez_compressed(folder / "predictions" / f"{model.name}.npz", **preds)
         results[model.name] = entry
-        e0 = evals[0]
+        tp = entry["test_pooled"]
         print(
-            f"[evaluate] {model.name}: one-step RMSE {e0['one_step']['rmse']:.3f} N, "
-            f"closed-loop RMSE {e0.get('closed_loop', {}).get('rmse', float('nan')):.3f} N",
+            f"[evaluate] {model.name}: test (pooled over {len(dataset.test)}) free-run RMSE "
+            f"{_fmt(tp.get('closed_loop', {}).get('rmse'))} N, one-step RMSE "
+            f"{_fmt(tp['one_step']['rmse'])} N",
             flush=True,
         )
         _save_results(folder, results)
+    if models:
+        cfg = models[0][1]
+        trained_sd = next((m for m, _ in models if m.name == "sd_poly2"), None)
+        base = score_baselines(dataset, cfg, trained_sd)
+        (folder / "baselines.json").write_text(json.dumps(base, indent=1, default=float))
+        print(comparison_table(results, base, [m.name for m, _ in models]), flush=True)
     return results
+
+
+def comparison_table(results: dict, base: dict, names: list[str], split: str = "test") -> str:
+    """Plain-text table: free-run RMSE first, then one-step RMSE, for the baselines and the
+    models, pooled over the split's recordings (what `evaluate` prints)."""
+    rows = [("model", "free-run RMSE", "contact", "max", "% range", "loop work %", "one-step")]
+    learned = [n for n in names if n not in BASELINES]  # a trained sd_poly2 is the baseline
+    for n, e in [*((b, base[b]) for b in BASELINES), *((n, results.get(n, {})) for n in learned)]:
+        pool = e.get(f"{split}_pooled")
+        if not pool:
+            continue
+        c, o = pool.get("closed_loop", {}), pool["one_step"]
+        rows.append((n, _fmt(c.get("rmse")), _fmt(c.get("contact_rmse")), _fmt(c.get("max_abs")),
+                     _fmt(c.get("rmse_pct_range")), _fmt(c.get("loop_work_error_pct")),
+                     _fmt(o["rmse"])))  # fmt: skip
+    w = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = [f"[evaluate] {split}, pooled (N; baselines first):"]
+    lines += ["  " + "  ".join(c.ljust(w[i]) for i, c in enumerate(r)) for r in rows]
+    return "\n".join(lines)
 
 
 def export_models(

@@ -139,10 +139,15 @@ def write_dataset(
     root: str | Path,
     train_rates: tuple[float, ...] = (0.8, 1.8, 3.9, 6.2),
     test_rate: float = 2.1,
+    validation_rate: float | None = None,
     **kw: object,
 ) -> Path:
+    """`train_<rate>`, `test_<rate>` and, when `validation_rate` is given, `validation_<rate>`."""
     root = Path(root)
     for i, r in enumerate(train_rates):
         write_recording(root / f"train_{r}.parquet", ramp_rate=r, seed=i, **kw)
+    if validation_rate is not None:
+        write_recording(root / f"validation_{validation_rate}.parquet", ramp_rate=validation_rate,
+                        seed=98, **kw)  # fmt: skip
     write_recording(root / f"test_{test_rate}.parquet", ramp_rate=test_rate, seed=99, **kw)
     return root

@@ -11,8 +11,10 @@ from .spring_damper import SpringDamper
 ALGOS = ("sd_const", "sd_poly1", "sd_poly2", "lr", "svr", "rf", "dnn", "lstm", "dnn_fb", "lstm_fb")
 
 #: `dnn_fb` / `lstm_fb`: the same networks trained with feedback noise on the previous force
-#: (see networks.perturb_previous_force), for a closed loop that does not drift.
-FEEDBACK_NOISE_N = 2.5
+#: (see networks.perturb_previous_force), for a closed loop that does not drift. Its scale is a
+#: fraction of the training force's range (0.2: ~2.6 N on the bench's 0-14 N ramps, where a
+#: fixed 2.5 N was tuned; 0.24 N on a 1.2 N elastomer test); `feedback_noise` (N) overrides it.
+FEEDBACK_NOISE_FRAC = 0.2
 
 __all__ = ["ALGOS", "ForceModel", "TrainConfig", "make_model", "parse_spec"]
 
@@ -38,12 +40,12 @@ def make_model(
     if algo == "rf":
         return ForestModel(fs.features, fs.name, {**(RF_THESIS if thesis else {}), **h})
     if algo in ("dnn", "dnn_fb"):
-        fb = {"feedback_noise": FEEDBACK_NOISE_N} if algo == "dnn_fb" else {}
+        fb = {"feedback_noise_frac": FEEDBACK_NOISE_FRAC} if algo == "dnn_fb" else {}
         m = DenseModel(fs.features, fs.name, {**(DNN_THESIS if thesis else {}), **fb, **h})
         m.algo = algo
         return m
     if algo in ("lstm", "lstm_fb"):
-        fb = {"feedback_noise": FEEDBACK_NOISE_N} if algo == "lstm_fb" else {}
+        fb = {"feedback_noise_frac": FEEDBACK_NOISE_FRAC} if algo == "lstm_fb" else {}
         m = LSTMModel(fs.features, fs.name, {**(LSTM_THESIS if thesis else {}), **fb, **h})
         m.algo = algo
         return m

@@ -50,6 +50,19 @@ def perturb_previous_force(
     return x
 
 
+def resolve_feedback_noise(h: dict, y: np.ndarray) -> float:
+    """The feedback-noise scale in N: `feedback_noise` when given, else `feedback_noise_frac`
+    times the training force's range (1st to 99th percentile), else 0. A fixed newton figure
+    would be twice the whole range of a 1 N elastomer test and a tenth of a 20 N one."""
+    if h.get("feedback_noise") is not None and float(h["feedback_noise"]) > 0:
+        return float(h["feedback_noise"])
+    frac = h.get("feedback_noise_frac")
+    if not frac:
+        return 0.0
+    yf = np.asarray(y)[np.isfinite(y)]
+    return float(frac) * float(np.percentile(yf, 99) - np.percentile(yf, 1)) if len(yf) else 0.0
+
+
 def feedback_noise(shape: tuple[int, ...], sigma: float, gen: torch.Generator) -> torch.Tensor:
     """Errors of mixed size: sigma * N(0, 1) * U(0, 1), a quarter of them exactly zero (so the
     measured-force case stays in the training set)."""
@@ -192,7 +205,7 @@ class DenseModel(ForceModel):
         xt = torch.tensor(x, dtype=torch.float32)
         auxt = torch.tensor(aux, dtype=torch.float32)
         yt = torch.tensor(net.out.encode(y), dtype=torch.float32).unsqueeze(1)
-        sigma = float(h.get("feedback_noise", 0.0))
+        sigma = resolve_feedback_noise(h, y)
         noisy = sigma > 0 and any(f in PREVIOUS_FORCE_FEATURES for f in self.features)
         # Pre-scale once: the scaler is fixed, only the body learns.
         with torch.no_grad():
@@ -241,6 +254,7 @@ class DenseModel(ForceModel):
         self.net = net
         self.train_info = {
             "rows": int(len(y)),
+            "feedback_noise_n": sigma,
             "fit_seconds": round(time.perf_counter() - t0, 2),
             "final_train_loss_scaled": losses[-1],
         }
@@ -298,7 +312,12 @@ LSTM_DEFAULT = {
     # chunk length (sequential) far more than with the batch, and the state is carried across
     # chunks anyway.
     "streams": 256,
-    "chunk": 50,
+    # The truncated-BPTT window in seconds (the object's time constants are seconds), turned
+    # into steps at the recordings' row rate and capped at `max_chunk` steps to bound the
+    # sequential cost: 50 steps are 1 s of a 50 Hz import but 5 ms of the 10 kHz bench (the
+    # effective horizon is in the training info).
+    "horizon_s": 1.0,
+    "max_chunk": 50,
     "iterations": 600,
     "optimizer": "adam",
     "feedback_noise": 0.0,
@@ -334,7 +353,7 @@ class LSTMModel(ForceModel):
         h = self.hyper
         nf = len(self.features)
         xs, ys = stacked(recs, self.features, cfg)
-        sigma = float(h.get("feedback_noise", 0.0))
+        sigma = resolve_feedback_noise(h, ys)
         noisy = sigma > 0 and any(f in PREVIOUS_FORCE_FEATURES for f in self.features)
         gen = torch.Generator().manual_seed(cfg.seed)
         net = LSTMNet(
@@ -360,7 +379,12 @@ class LSTMModel(ForceModel):
                 else:
                     series.append((torch.nan_to_num(net.inp(x[:, :nf])), y))
         lengths = np.array([len(s[1]) for s in series])
-        chunk, n_streams = int(h["chunk"]), int(h["streams"])
+        rate = float(np.median([r.sample_rate_hz for r in recs]))
+        if "chunk" in h:  # an explicit step count (older models, or given)
+            chunk = int(h["chunk"])
+        else:
+            chunk = max(2, min(int(h["max_chunk"]), round(float(h["horizon_s"]) * rate)))
+        n_streams = int(h["streams"])
         if lengths.min() <= chunk + 1:
             raise ValueError(f"recordings shorter than one LSTM chunk ({chunk} steps)")
 
@@ -413,6 +437,9 @@ class LSTMModel(ForceModel):
         self.train_info = {
             "row_step": sorted(steps),
             "steps_seen": iters * n_streams * chunk,
+            "chunk_steps": chunk,
+            "horizon_s_effective": chunk / rate,
+            "feedback_noise_n": sigma,
             "fit_seconds": round(time.perf_counter() - t0, 2),
             "final_train_loss_scaled": float(np.mean(losses[-50:])),
         }

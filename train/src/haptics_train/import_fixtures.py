@@ -1,0 +1,197 @@
+"""External-looking input files for the import, generated (not committed): what a testing
+machine or another rig exports, with the problems such files have. The tests run every case,
+and `python -m haptics_train.import_fixtures` prints the table in docs/train.md (input, what
+the import did), computed by running the import on each.
+
+Every series is one SYNTHETIC loading-unloading cycle of `viscoelastic.Elastomer` at 50 Hz
+unless the case says otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+
+from .data import DataError
+from .viscoelastic import loading_unloading
+
+
+def cycle(rate_mm_s: float = 2.0, sample_hz: float = 50.0) -> dict[str, np.ndarray]:
+    return loading_unloading(rate_mm_s, sample_hz=sample_hz, seed=7)
+
+
+def _write(path: Path, cols: dict[str, np.ndarray | list]) -> Path:
+    pacsv.write_csv(pa.table(cols), path)
+    return path
+
+
+def _write_text(path: Path, header: list[str], rows: list[list[str]]) -> Path:
+    path.write_text(",".join(header) + "\n" + "\n".join(",".join(r) for r in rows) + "\n")
+    return path
+
+
+def _rows(*cols: np.ndarray) -> list[list[str]]:
+    return [[repr(float(v)) for v in r] for r in zip(*cols, strict=True)]
+
+
+@dataclass
+class Case:
+    name: str
+    what: str
+    make: Callable[[Path], Path]
+    kwargs: dict = field(default_factory=dict)
+    #: None: the import must succeed; else a substring of the refusal
+    refused: str | None = None
+
+
+#: the columns of the `time [s]`, `displacement [mm]`, `force [N]` files, named without units
+STD = {"time_col": "time", "position_col": "displacement", "force_col": "force"}
+
+
+def _headers_mm_n(p: Path) -> Path:
+    c = cycle()
+    return _write(p, {"time [s]": c["time"], "displacement [mm]": c["displacement"],
+                      "force [N]": c["force"]})  # fmt: skip
+
+
+def _plain_mn(p: Path) -> Path:
+    c = cycle()
+    return _write(p, {"t": c["time"], "x": c["displacement"], "F": 1e3 * c["force"]})
+
+
+def _header_mn(p: Path) -> Path:
+    c = cycle()
+    return _write(p, {"time (s)": c["time"], "displacement (mm)": c["displacement"],
+                      "force [mN]": 1e3 * c["force"]})  # fmt: skip
+
+
+def _nan_holes(p: Path) -> Path:
+    c = cycle()
+    rows = _rows(c["time"], c["displacement"], c["force"])
+    for i in (100, 101, 102):
+        rows[i][2] = ""  # empty cells, as a logger writes a dropped sample
+    rows[200][2] = "NaN"
+    return _write_text(p, ["time [s]", "displacement [mm]", "force [N]"], rows)
+
+
+def _backwards(p: Path) -> Path:
+    c = cycle()
+    t = c["time"].copy()
+    t[300] = t[298]  # a clock that steps back once
+    return _write(p, {"time [s]": t, "displacement [mm]": c["displacement"],
+                      "force [N]": c["force"]})  # fmt: skip
+
+
+def _gap(p: Path) -> Path:
+    c = cycle()
+    keep = np.ones(len(c["time"]), dtype=bool)
+    keep[150:200] = False  # one second lost
+    return _write(p, {"time [s]": c["time"][keep], "displacement [mm]": c["displacement"][keep],
+                      "force [N]": c["force"][keep]})  # fmt: skip
+
+
+def _tension(p: Path) -> Path:
+    c = cycle()
+    return _write(p, {"time [s]": c["time"], "displacement [mm]": -c["displacement"],
+                      "force [N]": -c["force"]})  # fmt: skip
+
+
+def _ms_um(p: Path) -> Path:
+    c = cycle(sample_hz=1000.0)
+    return _write(p, {"t (ms)": 1e3 * c["time"], "depth (µm)": 1e3 * c["displacement"],
+                      "load [N]": c["force"]})  # fmt: skip
+
+
+def _text_cell(p: Path) -> Path:
+    c = cycle()
+    rows = _rows(c["time"], c["displacement"], c["force"])
+    rows[42][1] = "overload"
+    return _write_text(p, ["time [s]", "displacement [mm]", "force [N]"], rows)
+
+
+CASES: list[Case] = [
+    Case("elastomer_50hz.csv", "50 Hz, one cycle, `time [s]`, `displacement [mm]`, `force [N]`",
+         _headers_mm_n, STD),
+    Case("plain_mN.csv", "plain headers t, x, F; force in mN, displacement in mm (options)",
+         _plain_mn, {"time_col": "t", "position_col": "x", "force_col": "F",
+                     "position_unit": "mm", "force_unit": "mN"}),
+    Case("header_mN.csv", "`force [mN]`, `displacement (mm)` headers, no unit options",
+         _header_mn, STD),
+    Case("header_mN.csv + --force-unit N", "an option contradicting the header",
+         _header_mn, {**STD, "force_unit": "N"}, refused="says its unit is mN"),
+    Case("nan_holes.csv", "empty force cells at rows 101-103, `NaN` at row 201",
+         _nan_holes, STD,
+         refused="row 101: force is missing"),
+    Case("nan_holes.csv --repair", "the same, asked to repair",
+         _nan_holes, {**STD, "repair": True}),
+    Case("backwards.csv", "time steps back at row 301",
+         _backwards, STD,
+         refused="row 301: time does not increase"),
+    Case("backwards.csv --repair", "the same, asked to repair",
+         _backwards, {**STD, "repair": True}),
+    Case("gap.csv", "1 s of samples missing after row 150",
+         _gap, STD,
+         refused="row 151: a gap of"),
+    Case("gap.csv --repair", "the same, asked to repair",
+         _gap, {**STD, "repair": True}),
+    Case("tension.csv", "tension: negative displacement and force",
+         _tension, STD),
+    Case("ms_um_1khz.csv", "1 kHz, `t (ms)`, `depth (µm)`, `load [N]`",
+         _ms_um, {"time_col": "t", "position_col": "depth", "force_col": "load"}),
+    Case("ms_um_1khz.csv --resample-hz 50", "the same, resampled to 50 Hz (window average)",
+         _ms_um, {"time_col": "t", "position_col": "depth", "force_col": "load",
+                  "resample_hz": 50.0}),
+    Case("elastomer_50hz.csv --g-a 100", "the loop's 10 kHz acceleration gain at 50 Hz",
+         _headers_mm_n, {**STD, "g_a": 100.0}, refused="g dt = 2.000"),
+    Case("text_cell.csv", "a text cell (`overload`) in the displacement column",
+         _text_cell, STD,
+         refused="row 43"),
+]  # fmt: skip
+
+
+def run_case(case: Case, folder: Path, rt_loop: str | None = None) -> tuple[str, object]:
+    """("ok", Recording) or ("refused", message); anything else raises."""
+    from .importer import import_series
+
+    src = case.make(folder / case.name.split(" ")[0])
+    kw = dict(case.kwargs)
+    try:
+        rec = import_series(src, folder / "out.parquet", kw.pop("time_col"),
+                            kw.pop("position_col"), kw.pop("force_col"), rt_loop=rt_loop, **kw)
+    except (DataError, RuntimeError) as e:  # fmt: skip
+        return "refused", str(e)
+    return "ok", rec
+
+
+def table(rt_loop: str | None = None) -> str:
+    """The Markdown fixture table of docs/train.md."""
+    from .importer import describe_import
+
+    lines = ["| input | what the import did |", "| --- | --- |"]
+    with tempfile.TemporaryDirectory() as tmp:
+        for case in CASES:
+            status, res = run_case(case, Path(tmp), rt_loop)
+            if status == "ok":
+                did = "imported: " + describe_import(res)  # type: ignore[arg-type]
+            else:
+                msg = str(res).splitlines()[-1].split(": ", 1)[-1]
+                did = "**refused**: " + msg.replace(tmp, "...")
+            lines.append(f"| `{case.name}`: {case.what} | {did.replace('|', '/')} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description="prints the import fixture table")
+    p.add_argument("--rt-loop")
+    print(table(p.parse_args().rt_loop))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,108 @@
+"""SYNTHETIC stand-in for a materials-testing machine: loading-unloading tests of a viscoelastic
+elastomer, written as the CSV files such a machine exports (time, displacement, force, with
+units in the headers), at several displacement rates.
+
+There is no internet here but package registries, and no package on them was found shipping
+real force-displacement loading-unloading data with a licence that allows a sample (see
+docs/train.md), so the import, the manifest and the leave-one-rate-out evaluation are shown on
+this model instead. It is labelled synthetic wherever it is used.
+
+The material: a nonlinear equilibrium spring plus a two-term Prony series (a generalised
+standard linear solid), driven by a triangular displacement (load to `depth`, unload to 0):
+
+    F = k1 x + k3 x^3 + q1 + q2,   dq_i/dt = -q_i / tau_i + g_i k1 dx/dt
+
+integrated exactly per sample for piecewise-constant velocity; contact is unilateral (the
+force is clamped at 0: the probe leaves the surface when the relaxed material lags behind).
+Measurement noise is Gaussian on the force.
+
+    python -m haptics_train.viscoelastic --out data/elastomer
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+
+
+@dataclass(frozen=True)
+class Elastomer:
+    k1: float = 0.08  # N/mm
+    k3: float = 0.0004  # N/mm^3
+    g: tuple[float, ...] = (0.6, 0.4)  # Prony weights (relative to k1)
+    tau: tuple[float, ...] = (0.4, 4.0)  # s
+    noise_n: float = 0.002  # force noise, N (sd)
+
+
+#: displacement rates (mm/s) of the three tests, and the validation test's
+RATES_MM_S: tuple[float, ...] = (0.5, 2.0, 8.0)
+VALIDATION_RATE_MM_S = 4.0
+
+
+def loading_unloading(
+    rate_mm_s: float,
+    depth_mm: float = 10.0,
+    sample_hz: float = 50.0,
+    hold_s: float = 1.0,
+    mat: Elastomer = Elastomer(),
+    seed: int = 0,
+) -> dict[str, np.ndarray]:
+    """One cycle: `hold_s` at rest, load at `rate_mm_s` to `depth_mm`, unload at the same
+    rate, `hold_s` at rest. Returns time (s), displacement (mm), force (N)."""
+    ramp = depth_mm / rate_mm_s
+    total = 2 * hold_s + 2 * ramp
+    t = np.arange(int(np.floor(total * sample_hz)) + 1) / sample_hz
+    x = np.interp(t, [0, hold_s, hold_s + ramp, hold_s + 2 * ramp, total],
+                  [0, 0, depth_mm, 0, 0])  # fmt: skip
+    q = np.zeros(len(mat.g))
+    f = np.zeros(len(t))
+    for i in range(1, len(t)):
+        dt = t[i] - t[i - 1]
+        v = (x[i] - x[i - 1]) / dt
+        for k, (g, tau) in enumerate(zip(mat.g, mat.tau, strict=True)):
+            e = np.exp(-dt / tau)
+            q[k] = q[k] * e + g * mat.k1 * v * tau * (1 - e)
+        f[i] = mat.k1 * x[i] + mat.k3 * x[i] ** 3 + q.sum()
+    f = np.maximum(f, 0.0)
+    rng = np.random.default_rng(seed)
+    f = f + mat.noise_n * rng.standard_normal(len(f))
+    return {"time": t, "displacement": x, "force": f}
+
+
+def write_csv(path: str | Path, series: dict[str, np.ndarray]) -> Path:
+    """As a testing machine exports it: `time [s]`, `displacement [mm]`, `force [N]`."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    pacsv.write_csv(pa.table({
+        "time [s]": series["time"], "displacement [mm]": series["displacement"],
+        "force [N]": series["force"],
+    }), path)  # fmt: skip
+    return path
+
+
+def write_tests(out: str | Path, sample_hz: float = 50.0) -> list[Path]:
+    """The three rates plus the validation rate, one CSV each (seeds differ per file)."""
+    out = Path(out)
+    paths = []
+    for i, r in enumerate((*RATES_MM_S, VALIDATION_RATE_MM_S)):
+        paths.append(write_csv(out / f"rate_{r:g}.csv",
+                               loading_unloading(r, sample_hz=sample_hz, seed=i + 1)))  # fmt: skip
+    return paths
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    p.add_argument("--out", default="data/elastomer")
+    p.add_argument("--sample-hz", type=float, default=50.0)
+    a = p.parse_args()
+    for path in write_tests(a.out, a.sample_hz):
+        print(path)
+
+
+if __name__ == "__main__":
+    main()
