@@ -13,7 +13,8 @@ use crate::ring_mem::{slot_words, Padded, RingControl};
 pub const MAGIC: u64 = u64::from_le_bytes(*b"HAPTSHM1");
 /// Bumped whenever the header or ring protocol changes incompatibly.
 /// 2: the loop-status block (`loop_status`) was added after the heartbeats.
-pub const LAYOUT_VERSION: u64 = 2;
+/// 3: the loop-status block gained the degradation ladder's counters and the experiment name.
+pub const LAYOUT_VERSION: u64 = 3;
 
 /// The four channels, in header order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -88,9 +89,13 @@ pub(crate) struct Header {
     pub(crate) loop_status: Padded<StatusBlock>,
 }
 
-/// Where everything sits in a segment of given capacities.
+/// Where everything sits in a segment of given capacities. Each process keeps its own copy
+/// (computed by the creator, recomputed and compared by an attacher): rings are placed from
+/// it, never from the header, which any process with the segment mapped can rewrite.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub(crate) struct Layout {
+    /// Slots per ring (validated: powers of two in 2..=MAX_CAPACITY).
+    pub(crate) capacities: [usize; 4],
     pub(crate) control_offsets: [usize; 4],
     pub(crate) slots_offsets: [usize; 4],
     pub(crate) total: usize,
@@ -118,6 +123,7 @@ impl Layout {
             at += capacities[i] * slot_words(channel.message_shape().0) * 8;
         }
         Layout {
+            capacities,
             control_offsets,
             slots_offsets,
             total: align_up(at, 4096),

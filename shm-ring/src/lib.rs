@@ -101,6 +101,6 @@ pub use loop_status::{
 };
 #[cfg(not(loom))]
 pub use segment::{
-    Config, Link, Role, Segment, SegmentInfo, SegmentName, StaleSegment, MAX_CAPACITY,
+    Config, Corruption, Link, Role, Segment, SegmentInfo, SegmentName, StaleSegment, MAX_CAPACITY,
     THESIS_FEATURES,
 };

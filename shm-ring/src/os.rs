@@ -143,6 +143,14 @@ pub(crate) fn try_lock_byte(fd: &impl AsRawFd, byte: u64) -> io::Result<bool> {
     }
 }
 
+/// Releases our OFD lock on one byte (a loop that supersedes its segment: the server's next
+/// liveness probe of the old one says "gone", so it re-attaches to the new one).
+pub(crate) fn unlock_byte(fd: &impl AsRawFd, byte: u64) -> io::Result<()> {
+    let fl = flock_struct(libc::F_UNLCK as libc::c_short, byte);
+    // SAFETY: valid fd and flock struct.
+    cvt(unsafe { libc::fcntl(fd.as_raw_fd(), libc::F_OFD_SETLK, &fl) }).map(|_| ())
+}
+
 /// Whether another open file description holds a lock on `byte` (asks without taking it,
 /// so probing never disturbs the holder or a newcomer racing for it).
 pub(crate) fn byte_is_locked(fd: &impl AsRawFd, byte: u64) -> io::Result<bool> {

@@ -12,11 +12,15 @@
 //! consumer during the read, the fences guarantee the second load sees the newer odd/even
 //! value, so a torn read is always detected and counted as a drop, never returned.
 //! The payload is atomics throughout, so the racing reads are not data races (no UB).
+//!
+//! Against a corrupt peer: the sequence arithmetic wraps instead of overflowing, the slot index
+//! uses the private mask, and a shared tail behind the consumer (impossible: the producer
+//! never moves back) is counted as corrupt and the consumer re-synchronises on it.
 
 use std::marker::PhantomData;
 
 use crate::message::{Message, MAX_WORDS};
-use crate::ring_mem::RingMem;
+use crate::ring_mem::{CorruptCount, RingMem};
 use crate::spsc::RecvError;
 use crate::sync::{fence, Ordering};
 use crate::wait::notify;
@@ -41,6 +45,7 @@ pub struct OverwriteConsumer<M: Message> {
     mem: RingMem,
     head: u64,
     dropped: u64,
+    corrupt: CorruptCount,
     #[cfg(not(loom))]
     wait: WaitStrategy,
     #[cfg(not(loom))]
@@ -59,6 +64,19 @@ pub fn heap_overwrite_channel<M: Message>(
     #[cfg(loom)]
     let consumer = OverwriteConsumer::new(twin);
     (OverwriteProducer::new(mem), consumer)
+}
+
+/// Sequence word of a slot being written at position `pos` (odd). Wrapping: only a corrupt
+/// position is that large, and the reader's comparison catches it.
+#[inline]
+fn seq_writing(pos: u64) -> u64 {
+    pos.wrapping_mul(2).wrapping_add(1)
+}
+
+/// Sequence word of a slot whose write at `pos` is complete (even).
+#[inline]
+fn seq_written(pos: u64) -> u64 {
+    pos.wrapping_mul(2).wrapping_add(2)
 }
 
 impl<M: Message> OverwriteProducer<M> {
@@ -80,13 +98,13 @@ impl<M: Message> OverwriteProducer<M> {
         msg.encode(&mut words[..M::WORDS]);
         let pos = self.tail;
         let slot = self.mem.slot(pos);
-        slot[0].store(2 * pos + 1, Ordering::Relaxed);
+        slot[0].store(seq_writing(pos), Ordering::Relaxed);
         fence(Ordering::Release);
         for (cell, word) in slot[1..=M::WORDS].iter().zip(&words[..M::WORDS]) {
             cell.store(*word, Ordering::Relaxed);
         }
-        slot[0].store(2 * pos + 2, Ordering::Release);
-        self.tail = pos + 1;
+        slot[0].store(seq_written(pos), Ordering::Release);
+        self.tail = pos.wrapping_add(1);
         self.mem.ctrl().tail.0.store(self.tail, Ordering::Release);
         notify(&self.mem.ctrl().data.0);
     }
@@ -111,6 +129,7 @@ impl<M: Message> OverwriteConsumer<M> {
             mem,
             head,
             dropped,
+            corrupt: CorruptCount::default(),
             #[cfg(not(loom))]
             wait: WaitStrategy::default(),
             #[cfg(not(loom))]
@@ -125,8 +144,14 @@ impl<M: Message> OverwriteConsumer<M> {
         loop {
             let tail = self.mem.ctrl().tail.0.load(Ordering::Acquire);
             if tail < self.head {
+                // The producer never moves back: someone else wrote the tail. Count it and
+                // follow the tail (the rows in between are not ours to trust).
+                let head = self.head;
+                self.corrupt.note(&self.mem);
+                self.head = tail;
+                self.mem.ctrl().head.0.store(tail, Ordering::Release);
                 return Err(crate::spsc::CorruptRing::Indices {
-                    head: self.head,
+                    head,
                     tail,
                     capacity,
                 }
@@ -140,7 +165,7 @@ impl<M: Message> OverwriteConsumer<M> {
                 self.lose(tail - capacity - self.head);
             }
             let pos = self.head;
-            let expected = 2 * pos + 2;
+            let expected = seq_written(pos);
             let slot = self.mem.slot(pos);
             let first = slot[0].load(Ordering::Acquire);
             let mut words = [0u64; MAX_WORDS];
@@ -160,9 +185,14 @@ impl<M: Message> OverwriteConsumer<M> {
         }
     }
 
+    /// Impossible tails seen by this consumer, over its life.
+    pub fn corrupt(&self) -> u64 {
+        self.corrupt.get()
+    }
+
     fn lose(&mut self, count: u64) {
         self.head += count;
-        self.dropped += count;
+        self.dropped = self.dropped.wrapping_add(count);
         self.mem
             .ctrl()
             .dropped

@@ -6,7 +6,29 @@ use std::any::Any;
 use std::ptr::NonNull;
 use std::sync::Arc;
 
+/// Process-private corruption counter shared by every ring of one mapping (and by the
+/// segment's audit): a hostile peer cannot touch it, so the owner can trust it to decide
+/// that the segment must be re-created. Plain std atomic: not part of the loom models.
+pub(crate) type CorruptSink = Arc<std::sync::atomic::AtomicU64>;
+
 use crate::sync::{AtomicU32, AtomicU64};
+
+/// One endpoint's count of corruption it found (private to the endpoint); every count is
+/// also added to the segment's process-private total ([`RingMem::note_corrupt`]).
+#[derive(Debug, Default, Clone, Copy)]
+pub(crate) struct CorruptCount(u64);
+
+impl CorruptCount {
+    #[cold]
+    pub(crate) fn note(&mut self, mem: &RingMem) {
+        self.0 += 1;
+        mem.note_corrupt();
+    }
+
+    pub(crate) fn get(self) -> u64 {
+        self.0
+    }
+}
 
 /// Cache-line padding: 128 bytes, because Intel's adjacent-line prefetcher pulls lines in
 /// pairs, so two hot words 64 bytes apart still ping-pong between cores.
@@ -73,12 +95,16 @@ pub const fn slot_words(payload_words: usize) -> usize {
 ///
 /// Invariant: `ctrl` points to a valid `RingControl` and `slots` to `capacity * stride` valid
 /// `AtomicU64`s for as long as `_owner` is alive; both are only accessed through `&` (atomics).
+/// `capacity` (a power of two >= 2), `mask` and `stride` are private copies fixed when the
+/// view is made (from a validated layout): nothing in shared memory is ever re-read to find a
+/// slot, so a peer rewriting the header cannot move an access outside the slot array.
 pub(crate) struct RingMem {
     ctrl: NonNull<RingControl>,
     slots: NonNull<AtomicU64>,
     capacity: u64,
     mask: u64,
     stride: usize,
+    corrupt: CorruptSink,
     _owner: Arc<dyn Any + Send + Sync>,
 }
 
@@ -115,11 +141,14 @@ impl RingMem {
             capacity: capacity as u64,
             mask: capacity as u64 - 1,
             stride,
+            corrupt: CorruptSink::default(),
             _owner: storage,
         }
     }
 
-    /// A view of a ring placed in foreign memory (the shared segment).
+    /// A view of a ring placed in foreign memory (the shared segment). `capacity` must be a
+    /// power of two >= 2 (checked here, always: a wrong one would make `slot` index outside
+    /// the array; the segment passes its validated private copy, never a shared-memory value).
     ///
     /// # Safety
     /// `ctrl` must point to a `RingControl` and `slots` to `capacity * slot_words(payload)`
@@ -131,15 +160,20 @@ impl RingMem {
         slots: NonNull<AtomicU64>,
         capacity: usize,
         payload_words: usize,
+        corrupt: CorruptSink,
         owner: Arc<dyn Any + Send + Sync>,
     ) -> RingMem {
-        debug_assert!(capacity.is_power_of_two());
+        assert!(
+            capacity.is_power_of_two() && capacity >= 2,
+            "ring capacity {capacity} must be a power of two >= 2"
+        );
         RingMem {
             ctrl,
             slots,
             capacity: capacity as u64,
             mask: capacity as u64 - 1,
             stride: slot_words(payload_words),
+            corrupt,
             _owner: owner,
         }
     }
@@ -147,6 +181,7 @@ impl RingMem {
     /// A second view of the same ring (for the other end), sharing the owner.
     pub(crate) fn twin(&self) -> RingMem {
         RingMem {
+            corrupt: Arc::clone(&self.corrupt),
             _owner: Arc::clone(&self._owner),
             ..*self
         }
@@ -171,5 +206,18 @@ impl RingMem {
     #[inline]
     pub(crate) fn capacity(&self) -> u64 {
         self.capacity
+    }
+
+    /// Records one corruption found in this ring (off the normal path: only when found).
+    #[cold]
+    pub(crate) fn note_corrupt(&self) {
+        self.corrupt
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// Whether `(head, tail)` can be a lossless ring's indices: `head <= tail <= head + capacity`.
+    #[inline]
+    pub(crate) fn plausible(&self, head: u64, tail: u64) -> bool {
+        tail >= head && tail - head <= self.capacity
     }
 }

@@ -13,7 +13,7 @@
 use std::os::fd::OwnedFd;
 use std::path::PathBuf;
 use std::ptr::NonNull;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -22,7 +22,7 @@ use crate::fixed_str::FixedStr;
 use crate::header::{Channel, Header, Layout, LAYOUT_VERSION, MAGIC, SLOT_ALIGN};
 use crate::messages::MAX_FEATURES;
 use crate::os::{self, Mapping};
-use crate::ring_mem::{slot_words, RingControl, RingMem};
+use crate::ring_mem::{slot_words, CorruptSink, RingControl, RingMem};
 
 const LOOP_LOCK_BYTE: u64 = 0;
 const SERVER_LOCK_BYTE: u64 = 1;
@@ -201,6 +201,10 @@ pub struct SegmentInfo {
     pub feature_names: Vec<String>,
     /// Capacities of features, forces, telemetry, commands.
     pub capacities: [usize; 4],
+    /// Byte offsets of each channel's control block (head, tail, signals) and slot array,
+    /// in the same order (for diagnostics and the corruption tests).
+    pub control_offsets: [u64; 4],
+    pub slots_offsets: [u64; 4],
     /// Whether the loop holds its liveness lock (filled by [`Segment::inspect`]; `info()` on a
     /// handle reports its own side as alive and asks for the peer).
     pub loop_alive: bool,
@@ -222,14 +226,45 @@ pub struct StaleSegment {
     pub creator_pid: u32,
 }
 
+/// What a segment's memory was found to hold that the protocol forbids (see [`Link::audit`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum Corruption {
+    #[error("header field `{field}` holds {found}, the segment was made with {expected}")]
+    Header {
+        field: &'static str,
+        found: u64,
+        expected: u64,
+    },
+    #[error("the header's feature schema no longer matches the segment's")]
+    Schema,
+    #[error("{channel} ring indices impossible: head {head}, tail {tail}, capacity {capacity}")]
+    Indices {
+        channel: &'static str,
+        head: u64,
+        tail: u64,
+        capacity: u64,
+    },
+}
+
 /// The mapping plus the descriptor whose OFD locks carry liveness. Shared (via `Arc`) by every
 /// endpoint of one handle, so the memory stays mapped until the last endpoint is dropped.
+///
+/// Everything this process needs to know about the segment's shape (capacities, offsets,
+/// schema, creator) is a private copy made when the segment was created or validated; the
+/// header is only read again by [`Link::audit`], to compare.
 pub(crate) struct Shared {
     mapping: Mapping,
     fd: OwnedFd,
     name: SegmentName,
     role: Role,
     layout: Layout,
+    schema: Vec<String>,
+    creator_pid: u64,
+    /// Corruption found by this process's endpoints and audits (process-private).
+    corrupt: CorruptSink,
+    /// Set by [`Link::recreate`]: a newer segment owns the name, so dropping this one must
+    /// neither unlink the name nor remove the lock file.
+    superseded: AtomicBool,
     /// The creator's instance lock; kept open (locked) for the loop's lifetime.
     _instance_lock: Option<std::fs::File>,
 }
@@ -244,18 +279,28 @@ impl Shared {
     fn ring(self: &Arc<Self>, channel: Channel) -> RingMem {
         let i = channel as usize;
         let base = self.mapping.base().as_ptr();
-        let capacity = self.header().channels[i].capacity.load(Ordering::Relaxed) as usize;
+        // The private, validated copy: never the header's word, which another process can
+        // rewrite at any time (a capacity of 0 there would make the mask u64::MAX).
+        let capacity = self.layout.capacities[i];
         let (payload, _) = channel.message_shape();
-        // SAFETY: offsets come from `Layout::compute` for these capacities and were checked to
-        // lie inside the mapping (total size); control blocks are aligned to RingControl::ALIGN
-        // and slots to SLOT_ALIGN; the memory is only used through atomics and stays mapped
-        // while the `Arc<Shared>` owner passed along lives.
+        // SAFETY: capacities and offsets are this process's `Layout::compute` result (checked
+        // against the header and the file size when attaching; the mapping is `layout.total`
+        // bytes, so every ring lies inside it); control blocks are aligned to
+        // RingControl::ALIGN and slots to SLOT_ALIGN; the memory is only used through atomics
+        // and stays mapped while the `Arc<Shared>` owner passed along lives.
         unsafe {
             let ctrl = NonNull::new_unchecked(base.add(self.layout.control_offsets[i]))
                 .cast::<RingControl>();
             let slots =
                 NonNull::new_unchecked(base.add(self.layout.slots_offsets[i])).cast::<AtomicU64>();
-            RingMem::foreign(ctrl, slots, capacity, payload, self.clone())
+            RingMem::foreign(
+                ctrl,
+                slots,
+                capacity,
+                payload,
+                Arc::clone(&self.corrupt),
+                self.clone(),
+            )
         }
     }
 
@@ -293,7 +338,7 @@ impl Drop for Shared {
         // A clean loop exit removes its segment; it still holds the instance lock here, so the
         // name cannot belong to anyone else. A server that stays mapped keeps its memory and
         // sees the loop's lock released.
-        if self.role == Role::Loop {
+        if self.role == Role::Loop && !self.superseded.load(Ordering::Acquire) {
             let _ = os::shm_unlink(self.name.as_str());
             // Removing the lock file while still holding its lock is safe because
             // `lock_instance` re-checks, after locking, that the path still names its file.
@@ -324,11 +369,20 @@ impl Segment {
     /// with [`Error::InstanceInUse`] if a live loop owns the name.
     pub fn create(name: &SegmentName, config: &Config) -> Result<Segment, Error> {
         let schema = config.validate()?;
-        let capacities = config.capacities();
 
         // 1. The instance lock: one creator per name at a time, for the creator's lifetime.
         let lock = lock_instance(name)?;
+        Segment::create_locked(name, config, schema, lock)
+    }
 
+    /// [`Segment::create`] once the instance lock is held (also [`Link::recreate`]'s path).
+    fn create_locked(
+        name: &SegmentName,
+        config: &Config,
+        schema: Vec<FixedStr>,
+        lock: std::fs::File,
+    ) -> Result<Segment, Error> {
+        let capacities = config.capacities();
         // 2. Create exclusively; a leftover is stale by construction (its creator released the
         //    instance lock, i.e. died) unless its loop byte is still locked (defensive check).
         let mut replaced = None;
@@ -371,6 +425,10 @@ impl Segment {
             name: name.clone(),
             role: Role::Loop,
             layout: layout.clone(),
+            schema: config.feature_names.clone(),
+            creator_pid: u64::from(os::pid()),
+            corrupt: CorruptSink::default(),
+            superseded: AtomicBool::new(false),
             _instance_lock: Some(lock),
         });
         let now_ns = SystemTime::now()
@@ -437,7 +495,7 @@ impl Segment {
                 }
             });
         }
-        let layout = validate(header, name, stat.size)?;
+        let (layout, schema) = validate(header, name, stat.size)?;
         let creator_pid = header.creator_pid.load(Ordering::Relaxed) as u32;
         if !loop_alive() {
             return Err(Error::CreatorDead {
@@ -460,6 +518,10 @@ impl Segment {
             name: name.clone(),
             role: Role::Server,
             layout,
+            schema,
+            creator_pid: u64::from(creator_pid),
+            corrupt: CorruptSink::default(),
+            superseded: AtomicBool::new(false),
             _instance_lock: None,
         });
         Ok(Segment {
@@ -583,8 +645,13 @@ fn lock_instance(name: &SegmentName) -> Result<std::fs::File, Error> {
     }
 }
 
-/// Checks everything in the header against this build; returns the layout to use.
-fn validate(header: &Header, name: &SegmentName, file_size: u64) -> Result<Layout, Error> {
+/// Checks everything in the header against this build; returns the layout and schema to use
+/// (private copies: nothing is read from the header again to place or size a ring).
+fn validate(
+    header: &Header,
+    name: &SegmentName,
+    file_size: u64,
+) -> Result<(Layout, Vec<String>), Error> {
     let r = Ordering::Relaxed;
     let name_s = || name.to_string();
     let magic = header.magic.load(r);
@@ -655,10 +722,10 @@ fn validate(header: &Header, name: &SegmentName, file_size: u64) -> Result<Layou
             SLOT_ALIGN as u64,
         )?;
         let cap = capacities[i];
-        if !cap.is_power_of_two() || cap > MAX_CAPACITY {
+        if !cap.is_power_of_two() || !(2..=MAX_CAPACITY).contains(&cap) {
             return Err(Error::LayoutMismatch {
                 name: name_s(),
-                what: format!("{ch} capacity (not a power of two <= {MAX_CAPACITY})"),
+                what: format!("{ch} capacity (not a power of two in 2..={MAX_CAPACITY})"),
                 found: cap as u64,
                 expected: 0,
             });
@@ -685,15 +752,103 @@ fn validate(header: &Header, name: &SegmentName, file_size: u64) -> Result<Layou
         layout.total as u64,
     )?;
     mismatch("file size".into(), file_size, layout.total as u64)?;
-    if header.schema().is_none() {
+    let Some(schema) = header.schema() else {
         return Err(Error::LayoutMismatch {
             name: name_s(),
             what: "feature schema (bad length or names)".into(),
             found: header.schema_len.load(r),
             expected: MAX_FEATURES as u64,
         });
+    };
+    Ok((layout, schema))
+}
+
+/// Compares the header's fixed fields with this process's private copies and checks each
+/// ring's shared indices (see [`Link::audit`]).
+fn audit(shared: &Shared) -> Result<(), Corruption> {
+    let r = Ordering::Relaxed;
+    let h = shared.header();
+    let layout = &shared.layout;
+    let field = |field: &'static str, cell: &AtomicU64, expected: u64| {
+        let found = cell.load(r);
+        if found == expected {
+            Ok(())
+        } else {
+            Err(Corruption::Header {
+                field,
+                found,
+                expected,
+            })
+        }
+    };
+    field("magic", &h.magic, MAGIC)?;
+    field("layout_version", &h.layout_version, LAYOUT_VERSION)?;
+    field(
+        "header_size",
+        &h.header_size,
+        std::mem::size_of::<Header>() as u64,
+    )?;
+    field("control_size", &h.control_size, RingControl::SIZE as u64)?;
+    field("control_align", &h.control_align, RingControl::ALIGN as u64)?;
+    field("total_size", &h.total_size, layout.total as u64)?;
+    field("creator_pid", &h.creator_pid, shared.creator_pid)?;
+    for (i, channel) in Channel::ALL.iter().enumerate() {
+        let d = &h.channels[i];
+        let (words, id) = channel.message_shape();
+        field("capacity", &d.capacity, layout.capacities[i] as u64)?;
+        field("payload_words", &d.payload_words, words as u64)?;
+        field("slot_bytes", &d.slot_bytes, slot_words(words) as u64 * 8)?;
+        field("slot_align", &d.slot_align, SLOT_ALIGN as u64)?;
+        field("layout_id", &d.layout_id, id)?;
+        field(
+            "control_offset",
+            &d.control_offset,
+            layout.control_offsets[i] as u64,
+        )?;
+        field(
+            "slots_offset",
+            &d.slots_offset,
+            layout.slots_offsets[i] as u64,
+        )?;
     }
-    Ok(layout)
+    if h.schema().as_ref() != Some(&shared.schema) {
+        return Err(Corruption::Schema);
+    }
+    for channel in Channel::ALL {
+        let i = channel as usize;
+        let capacity = layout.capacities[i] as u64;
+        // SAFETY: as in `Shared::ring`: the private layout places the control block inside
+        // the mapping, aligned, and it is only accessed through atomics.
+        let ctrl = unsafe {
+            shared
+                .mapping
+                .base()
+                .add(layout.control_offsets[i])
+                .cast::<RingControl>()
+                .as_ref()
+        };
+        // Both indices only grow, so reading tail, head, tail again bounds what they were
+        // at the moment head was read, with no false alarm from a racing push or pop:
+        // head <= tail then <= t2, and head >= tail then - capacity >= t1 - capacity.
+        let t1 = ctrl.tail.0.load(Ordering::Acquire);
+        let head = ctrl.head.0.load(Ordering::Acquire);
+        let t2 = ctrl.tail.0.load(Ordering::Acquire);
+        let ok = if channel == Channel::Telemetry {
+            // The overwrite ring's consumer may be any number of laps behind, never ahead.
+            head <= t2
+        } else {
+            head <= t2 && head.checked_add(capacity).is_some_and(|max| t1 <= max)
+        };
+        if !ok {
+            return Err(Corruption::Indices {
+                channel: channel.name(),
+                head,
+                tail: t2,
+                capacity,
+            });
+        }
+    }
+    Ok(())
 }
 
 fn info_of(header: &Header, name: &SegmentName) -> SegmentInfo {
@@ -709,14 +864,21 @@ fn info_of(header: &Header, name: &SegmentName) -> SegmentInfo {
         server_attachments: header.server_attachments.load(Ordering::Acquire),
         feature_names: header.schema().unwrap_or_default(),
         capacities: header.capacities(),
+        control_offsets: header.channels.each_ref().map(|d| d.control_offset.load(r)),
+        slots_offsets: header.channels.each_ref().map(|d| d.slots_offset.load(r)),
         loop_alive: false,
         server_alive: false,
     }
 }
 
-/// `info_of` plus liveness as seen from a handle of `role`.
+/// `info_of` plus liveness as seen from a handle of `role`; the shape (capacities, schema)
+/// is this process's validated copy, not what the header says now.
 fn info_with_liveness(shared: &Shared) -> SegmentInfo {
     let mut info = info_of(shared.header(), &shared.name);
+    info.capacities = shared.layout.capacities;
+    info.control_offsets = shared.layout.control_offsets.map(|o| o as u64);
+    info.slots_offsets = shared.layout.slots_offsets.map(|o| o as u64);
+    info.feature_names = shared.schema.clone();
     let peer = shared.peer_alive();
     match shared.role {
         Role::Loop => (info.loop_alive, info.server_alive) = (true, peer),
@@ -796,9 +958,68 @@ impl Link {
         self.shared.header().loop_status.0.read()
     }
 
-    /// The feature schema (names in `FeatureMsg::values` order).
+    /// The feature schema (names in `FeatureMsg::values` order): the copy validated when the
+    /// segment was created or attached.
     pub fn feature_names(&self) -> Vec<String> {
-        self.shared.header().schema().unwrap_or_default()
+        self.shared.schema.clone()
+    }
+
+    /// Corruption this process found in the segment so far: corrupt slots and impossible
+    /// indices seen by any of its endpoints, plus failed [`Link::audit`]s. Process-private
+    /// (another process cannot change it), so the owner can act on it.
+    pub fn corrupt(&self) -> u64 {
+        self.shared.corrupt.load(Ordering::Relaxed)
+    }
+
+    /// Checks the segment for damage another process may have done: the header's fixed
+    /// fields (magic, version, sizes, capacities, offsets, layout ids, creator, schema) against
+    /// this process's private copies, and each ring's shared indices against what the
+    /// protocol allows (`head <= tail <= head + capacity`; checked without false alarms while
+    /// both sides run). A failure is counted in [`Link::corrupt`]. A few hundred atomic loads
+    /// and one schema decode (allocates): for a supervisor thread, not the real-time step.
+    pub fn audit(&self) -> Result<(), Corruption> {
+        let found = audit(&self.shared);
+        if found.is_err() {
+            self.shared.corrupt.fetch_add(1, Ordering::Relaxed);
+        }
+        found
+    }
+
+    /// Replaces a corrupt segment with a fresh one under the same name (loop side only: the
+    /// owner). This segment is marked superseded (dropping it no longer unlinks the name), its
+    /// loop liveness lock is released at once (so the server's next probe says "loop gone"
+    /// and it re-attaches, finding the new segment), and its name is unlinked; the new one has
+    /// the same capacities and schema. The instance lock is kept throughout (a duplicate of
+    /// its descriptor moves to the new segment), so no other loop can take the name meanwhile.
+    /// Endpoints of this segment keep working on the old memory until dropped, but nobody
+    /// serves them any more. Off the real-time path: several syscalls and a 2 MB mapping.
+    pub fn recreate(&self) -> Result<Segment, Error> {
+        let s = &self.shared;
+        let Some(lock) = s._instance_lock.as_ref().filter(|_| s.role == Role::Loop) else {
+            return Err(Error::WrongRole {
+                actual: s.role.name(),
+                wanted: "loop",
+            });
+        };
+        let lock = lock
+            .try_clone()
+            .map_err(os_err("duplicate instance lock", &s.name))?;
+        let config = Config {
+            feature_names: s.schema.clone(),
+            features_capacity: s.layout.capacities[0],
+            forces_capacity: s.layout.capacities[1],
+            telemetry_capacity: s.layout.capacities[2],
+            commands_capacity: s.layout.capacities[3],
+        };
+        let schema = config.validate()?;
+        s.superseded.store(true, Ordering::Release);
+        let _ = os::unlock_byte(&s.fd, LOOP_LOCK_BYTE);
+        match os::shm_unlink(s.name.as_str()) {
+            Ok(()) => {}
+            Err(e) if e.raw_os_error() == Some(libc::ENOENT) => {}
+            Err(e) => return Err(os_err("unlink corrupt segment", &s.name)(e)),
+        }
+        Segment::create_locked(&s.name, &config, schema, lock)
     }
 
     /// What the header says.

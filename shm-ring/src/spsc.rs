@@ -13,12 +13,23 @@
 //!
 //! Each side keeps a private copy of the other side's index and only re-reads the shared one
 //! when the copy says full/empty, so the hot path touches the peer's cache line rarely.
+//!
+//! Against a corrupt or hostile peer (another process can write any word of the segment):
+//! every index read from shared memory is checked before it is used (`head <= tail <= head +
+//! capacity`; a private copy is only ever replaced by a checked value), position arithmetic
+//! never overflows or underflows (a wrapped position is just a wrong one, caught by the
+//! checks), and a slot's index is `position & mask` with the private, validated mask. What
+//! fails a check is counted ([`Consumer::corrupt`], [`Producer::corrupt`], and the segment's
+//! process-private total that its owner watches) and reported as [`RecvError::Corrupt`]: a
+//! slot with a wrong sequence word is skipped (the ring goes on with the next one), impossible
+//! indices refuse until the segment's owner re-creates it. Never a panic, a hang or an access
+//! outside the ring.
 
 use std::fmt;
 use std::marker::PhantomData;
 
 use crate::message::{DecodeError, Message, MAX_WORDS};
-use crate::ring_mem::RingMem;
+use crate::ring_mem::{CorruptCount, RingMem};
 use crate::sync::Ordering;
 use crate::wait::{notify, notify_if};
 
@@ -32,7 +43,8 @@ use std::time::{Duration, Instant};
 pub(crate) type PeerProbe = Option<std::sync::Arc<dyn Fn() -> bool + Send + Sync>>;
 
 /// The ring's memory does not hold what the protocol says it must: another writer, a
-/// corrupted segment, or a bug. The consumer stops rather than return garbage.
+/// corrupted segment, or a bug. Nothing of it is returned as a message: a bad slot is
+/// skipped, impossible indices are refused until the segment is re-created.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum CorruptRing {
     #[error("slot for position {position} has sequence word {found}, expected {expected}")]
@@ -107,7 +119,9 @@ fn space_wanted(capacity: u64) -> u64 {
 pub struct Producer<M: Message> {
     mem: RingMem,
     tail: u64,
+    /// Last checked value of the shared head: `tail - capacity <= cached_head <= tail`.
     cached_head: u64,
+    corrupt: CorruptCount,
     #[cfg(not(loom))]
     wait: WaitStrategy,
     #[cfg(not(loom))]
@@ -119,7 +133,9 @@ pub struct Producer<M: Message> {
 pub struct Consumer<M: Message> {
     mem: RingMem,
     head: u64,
+    /// Last checked value of the shared tail: `head <= cached_tail <= head + capacity`.
     cached_tail: u64,
+    corrupt: CorruptCount,
     #[cfg(not(loom))]
     wait: WaitStrategy,
     #[cfg(not(loom))]
@@ -161,16 +177,32 @@ fn mem_twin(mem: &RingMem) -> RingMem {
     mem.twin()
 }
 
+/// A producer's starting `(tail, cached_head, corrupt)`, from the shared indices (a server's
+/// producer resumes where the previous one stopped). Impossible indices are counted, and the
+/// cached head starts a full ring behind, so nothing is written until a checked head says
+/// there is room.
+fn producer_start(mem: &RingMem) -> (u64, u64, CorruptCount) {
+    let tail = mem.ctrl().tail.0.load(Ordering::Relaxed);
+    let head = mem.ctrl().head.0.load(Ordering::Acquire);
+    let mut corrupt = CorruptCount::default();
+    if mem.plausible(head, tail) {
+        (tail, head, corrupt)
+    } else {
+        corrupt.note(mem);
+        (tail, tail.wrapping_sub(mem.capacity()), corrupt)
+    }
+}
+
 impl<M: Message> Producer<M> {
     #[cfg(not(loom))]
     pub(crate) fn new(mem: RingMem, peer: PeerProbe) -> Self {
         assert!(M::WORDS <= MAX_WORDS);
-        let tail = mem.ctrl().tail.0.load(Ordering::Relaxed);
-        let cached_head = mem.ctrl().head.0.load(Ordering::Acquire);
+        let (tail, cached_head, corrupt) = producer_start(&mem);
         Producer {
             mem,
             tail,
             cached_head,
+            corrupt,
             wait: WaitStrategy::default(),
             peer,
             _msg: PhantomData,
@@ -179,12 +211,12 @@ impl<M: Message> Producer<M> {
 
     #[cfg(loom)]
     pub(crate) fn new(mem: RingMem) -> Self {
-        let tail = mem.ctrl().tail.0.load(Ordering::Relaxed);
-        let cached_head = mem.ctrl().head.0.load(Ordering::Acquire);
+        let (tail, cached_head, corrupt) = producer_start(&mem);
         Producer {
             mem,
             tail,
             cached_head,
+            corrupt,
             _msg: PhantomData,
         }
     }
@@ -206,11 +238,24 @@ impl<M: Message> Producer<M> {
     #[inline]
     fn has_room(&mut self) -> bool {
         let capacity = self.mem.capacity();
-        if self.tail - self.cached_head < capacity {
+        // `tail - cached_head` is in 0..=capacity (the cache only ever holds a checked head).
+        if self.tail.wrapping_sub(self.cached_head) < capacity {
             return true;
         }
-        self.cached_head = self.mem.ctrl().head.0.load(Ordering::Acquire);
-        self.tail - self.cached_head < capacity
+        let head = self.mem.ctrl().head.0.load(Ordering::Acquire);
+        if !self.mem.plausible(head, self.tail) {
+            // The consumer cannot have read past what we wrote, nor be more than a ring
+            // behind: someone else wrote the head. Refuse (as full) and count it.
+            self.corrupt.note(&self.mem);
+            return false;
+        }
+        self.cached_head = head;
+        self.tail - head < capacity
+    }
+
+    /// Impossible heads seen by this producer (another writer in the segment), over its life.
+    pub fn corrupt(&self) -> u64 {
+        self.corrupt.get()
     }
 
     #[inline]
@@ -221,8 +266,10 @@ impl<M: Message> Producer<M> {
         for (cell, word) in slot[1..=M::WORDS].iter().zip(&words[..M::WORDS]) {
             cell.store(*word, Ordering::Relaxed);
         }
-        slot[0].store(self.tail + 1, Ordering::Release);
-        self.tail += 1;
+        // Wrapping: a position near 2^64 can only come from a corrupt segment, and a wrong
+        // position is caught by the consumer's checks; it must not panic here.
+        slot[0].store(self.tail.wrapping_add(1), Ordering::Release);
+        self.tail = self.tail.wrapping_add(1);
         self.mem.ctrl().tail.0.store(self.tail, Ordering::Release);
         notify(&self.mem.ctrl().data.0);
     }
@@ -237,9 +284,14 @@ impl<M: Message> Producer<M> {
         self.mem.ctrl().full.0.load(Ordering::Relaxed)
     }
 
-    /// Free slots as of now.
+    /// Free slots as of now (0 if the shared head is impossible).
     pub fn free(&self) -> u64 {
-        self.mem.capacity() - (self.tail - self.mem.ctrl().head.0.load(Ordering::Acquire))
+        let head = self.mem.ctrl().head.0.load(Ordering::Acquire);
+        if self.mem.plausible(head, self.tail) {
+            self.mem.capacity() - (self.tail - head)
+        } else {
+            0
+        }
     }
 }
 
@@ -274,15 +326,31 @@ impl<M: Message> Producer<M> {
                 deadline,
                 self.peer.as_deref(),
                 || {
-                    cached_head = mem.ctrl().head.0.load(Ordering::Acquire);
-                    (capacity - (tail - cached_head) >= wanted).then_some(())
+                    let head = mem.ctrl().head.0.load(Ordering::Acquire);
+                    // An impossible head never counts as room: wait on (the deadline or the
+                    // peer's death ends the wait; the owner re-creates a corrupt segment).
+                    if !mem.plausible(head, tail) {
+                        return None;
+                    }
+                    cached_head = head;
+                    (capacity - (tail - head) >= wanted).then_some(())
                 },
             );
             self.cached_head = cached_head;
             match waited {
                 Ok(()) => {}
-                Err(WaitEnd::Timeout) => return Err(SendError::Timeout(msg)),
-                Err(WaitEnd::PeerGone) => return Err(SendError::PeerGone(msg)),
+                Err(end) => {
+                    if !self
+                        .mem
+                        .plausible(self.mem.ctrl().head.0.load(Ordering::Acquire), tail)
+                    {
+                        self.corrupt.note(&self.mem);
+                    }
+                    return Err(match end {
+                        WaitEnd::Timeout => SendError::Timeout(msg),
+                        WaitEnd::PeerGone => SendError::PeerGone(msg),
+                    });
+                }
             }
         }
         self.write(&msg);
@@ -300,6 +368,7 @@ impl<M: Message> Consumer<M> {
             mem,
             head,
             cached_tail,
+            corrupt: CorruptCount::default(),
             wait: WaitStrategy::default(),
             peer,
             _msg: PhantomData,
@@ -313,6 +382,7 @@ impl<M: Message> Consumer<M> {
             mem,
             head,
             cached_tail: head,
+            corrupt: CorruptCount::default(),
             _msg: PhantomData,
         }
     }
@@ -332,45 +402,61 @@ impl<M: Message> Consumer<M> {
         if self.head != self.cached_tail {
             return Ok(true);
         }
-        self.cached_tail = self.mem.ctrl().tail.0.load(Ordering::Acquire);
-        let (head, tail, capacity) = (self.head, self.cached_tail, self.mem.capacity());
-        if tail < head || tail - head > capacity {
+        let tail = self.mem.ctrl().tail.0.load(Ordering::Acquire);
+        let (head, capacity) = (self.head, self.mem.capacity());
+        if !self.mem.plausible(head, tail) {
+            // Refused until the segment is re-created (the private copy keeps its checked
+            // value, so nothing downstream ever computes with the impossible one).
+            self.corrupt.note(&self.mem);
             return Err(CorruptRing::Indices {
                 head,
                 tail,
                 capacity,
             });
         }
+        self.cached_tail = tail;
         Ok(head != tail)
     }
 
+    /// Corrupt slots and impossible indices seen by this consumer, over its life.
+    pub fn corrupt(&self) -> u64 {
+        self.corrupt.get()
+    }
+
+    /// Reads the slot at `head` (the caller checked `head < cached_tail`).
     #[inline]
     fn read(&mut self) -> Result<M, RecvError> {
         let slot = self.mem.slot(self.head);
         let found = slot[0].load(Ordering::Acquire);
-        if found != self.head + 1 {
-            return Err(CorruptRing::SlotSequence {
-                position: self.head,
-                expected: self.head + 1,
-                found,
-            }
-            .into());
-        }
+        let expected = self.head.wrapping_add(1);
         let mut words = [0u64; MAX_WORDS];
         for (word, cell) in words[..M::WORDS].iter_mut().zip(&slot[1..=M::WORDS]) {
             *word = cell.load(Ordering::Relaxed);
         }
-        self.head += 1;
+        // Hand the slot back either way: a slot with a wrong sequence word is skipped, so one
+        // corrupt slot costs one message, not the ring (it used to stall it for good).
+        let position = self.head;
+        self.head = expected;
         self.mem.ctrl().head.0.store(self.head, Ordering::Release);
         // A producer parked on a full ring waits for a quarter of the ring to free up
         // (`space_wanted`), so it is not woken (one syscall each side) for every single slot.
         // `cached_tail` may be behind the real tail, which over-estimates the free space:
         // a spurious wake at worst, never a missed one.
+        // No underflow: head <= cached_tail <= head + capacity (both checked).
         let free_at_least = self.mem.capacity() - (self.cached_tail - self.head);
         notify_if(
             &self.mem.ctrl().space.0,
             free_at_least >= space_wanted(self.mem.capacity()),
         );
+        if found != expected {
+            self.corrupt.note(&self.mem);
+            return Err(CorruptRing::SlotSequence {
+                position,
+                expected,
+                found,
+            }
+            .into());
+        }
         Ok(M::decode(&words[..M::WORDS])?)
     }
 
@@ -379,17 +465,29 @@ impl<M: Message> Consumer<M> {
         self.head
     }
 
-    /// Messages waiting as of now.
+    /// Messages waiting as of now (0 if the shared tail is impossible).
     pub fn pending(&self) -> u64 {
-        self.mem.ctrl().tail.0.load(Ordering::Acquire) - self.head
+        let tail = self.mem.ctrl().tail.0.load(Ordering::Acquire);
+        if self.mem.plausible(self.head, tail) {
+            tail - self.head
+        } else {
+            0
+        }
     }
 
     /// Discards everything waiting; returns how many messages were skipped. Used by a server
     /// that re-attaches: requests queued while no server ran are stale (the loop long since
-    /// rendered those steps with its fallback).
+    /// rendered those steps with its fallback). An impossible tail is counted as corrupt and
+    /// the consumer re-synchronises on it anyway (0 skipped): the producer's own checks then
+    /// see whether the ring is whole again.
     pub fn skip_pending(&mut self) -> u64 {
         let tail = self.mem.ctrl().tail.0.load(Ordering::Acquire);
-        let skipped = tail - self.head;
+        let skipped = if self.mem.plausible(self.head, tail) {
+            tail - self.head
+        } else {
+            self.corrupt.note(&self.mem);
+            0
+        };
         self.head = tail;
         self.cached_tail = tail;
         self.mem.ctrl().head.0.store(tail, Ordering::Release);
@@ -423,29 +521,36 @@ impl<M: Message> Consumer<M> {
         self.recv_until(Some(deadline))
     }
 
+    /// Impossible indices do not end the wait early: they are waited out like an empty ring
+    /// (until they make sense again, the deadline, or the producer's death, which is how a
+    /// server notices that the loop re-created a corrupt segment), so a caller that retries
+    /// never spins hot on them; at the deadline they are reported as [`RecvError::Corrupt`].
     fn recv_until(&mut self, deadline: Option<Instant>) -> Result<M, RecvError> {
-        if !self.has_data()? {
-            let mem = &self.mem;
-            let head = self.head;
-            let mut tail = self.cached_tail;
-            let waited = wait_for(
-                &mem.ctrl().data.0,
-                self.wait,
-                deadline,
-                self.peer.as_deref(),
-                || {
-                    tail = mem.ctrl().tail.0.load(Ordering::Acquire);
-                    (tail != head).then_some(())
-                },
-            );
-            self.cached_tail = tail;
-            match waited {
-                Ok(()) => {}
-                Err(WaitEnd::Timeout) => return Err(RecvError::Timeout),
-                Err(WaitEnd::PeerGone) => return Err(RecvError::PeerGone),
-            }
-            self.has_data()?;
+        // `Err` here = impossible indices (counted): wait them out as below.
+        if self.has_data() == Ok(true) {
+            return self.read();
         }
-        self.read()
+        let mem = &self.mem;
+        let head = self.head;
+        let waited = wait_for(
+            &mem.ctrl().data.0,
+            self.wait,
+            deadline,
+            self.peer.as_deref(),
+            || {
+                let tail = mem.ctrl().tail.0.load(Ordering::Acquire);
+                (tail != head && mem.plausible(head, tail)).then_some(())
+            },
+        );
+        if waited == Err(WaitEnd::PeerGone) {
+            return Err(RecvError::PeerGone);
+        }
+        // The tail the wait saw is not trusted: `has_data` loads and checks it again
+        // (`head == cached_tail` here, so it does), and only a checked value is cached.
+        if self.has_data()? {
+            self.read()
+        } else {
+            Err(RecvError::Timeout)
+        }
     }
 }
