@@ -184,8 +184,20 @@ pub struct LoopStatus {
     pub rate_hz: f64,
     /// Steps since the loop started.
     pub step: u64,
+    /// Steps not rendered by the model's on-time answer (late_one + held + fallback).
     pub fallbacks: u64,
     pub deadline_misses: u64,
+    /// Degradation ladder of the current (or last) run (issue 14): steps rendered by the
+    /// model's on-time answer, by the previous step's answer one period late, by the held
+    /// (extrapolated) last served force, and by the cross-faded fallback law.
+    pub on_time: u64,
+    pub late_one: u64,
+    pub held: u64,
+    pub fallback: u64,
+    /// Ring slots or indices the loop found corrupt.
+    pub corrupt: u64,
+    /// Largest change of the rendered force in one step caused by a ladder transition, N.
+    pub max_transition_step_n: f64,
     /// What the loop actually obtained: "SCHED_FIFO 80", "SCHED_OTHER", ...
     pub scheduling: String,
     /// "off", "writing PATH (rows)", "failed: reason".

@@ -419,6 +419,13 @@ impl Backend for SimBackend {
                 step: s.step,
                 fallbacks: s.fallbacks,
                 deadline_misses: 0,
+                // the simulated loop has no ladder: a step is served or falls back
+                on_time: s.predictions,
+                late_one: 0,
+                held: 0,
+                fallback: s.fallbacks,
+                corrupt: 0,
+                max_transition_step_n: 0.0,
                 scheduling: "SCHED_OTHER".into(),
                 recorder: "off".into(),
                 telemetry_drops: 0,

@@ -109,6 +109,12 @@ pub fn status_json(s: &pb::Status) -> Value {
             "step": s.step,
             "fallbacks": s.fallbacks,
             "deadline_misses": s.deadline_misses,
+            "on_time": s.on_time,
+            "late_one": s.late_one,
+            "held": s.held,
+            "fallback": s.fallback,
+            "corrupt": s.corrupt,
+            "max_transition_step_n": s.max_transition_step_n,
             "scheduling": s.scheduling,
             "recorder": s.recorder,
             "telemetry_drops": s.telemetry_drops,
@@ -171,6 +177,10 @@ pub fn status_text(s: &pb::Status) -> String {
     out.push_str(&format!(
         "fallbacks:   {}    deadline misses: {}    telemetry drops: {}\n",
         s.fallbacks, s.deadline_misses, s.telemetry_drops
+    ));
+    out.push_str(&format!(
+        "ladder:      on time {}    late one {}    held {}    fallback {}    max transition step {:.4} N    corrupt {}\n",
+        s.on_time, s.late_one, s.held, s.fallback, s.max_transition_step_n, s.corrupt
     ));
     out.push_str(&format!(
         "round trip:  {}\n",

@@ -100,6 +100,17 @@ pub fn apply_loop_block(status: &mut LoopStatus, b: &shm_ring::LoopStatus) {
     if b.steps > 0 {
         status.fallbacks = b.fallbacks;
         status.deadline_misses = b.deadline_misses;
+        status.on_time = b.on_time;
+        status.late_one = b.late_one;
+        status.held = b.held;
+        status.fallback = b.fallback_steps;
+        status.max_transition_step_n = b.max_transition_step_n;
+    }
+    status.corrupt = b.corrupt;
+    // The loop knows which experiment it runs; the rows' phase cannot tell a shadow run
+    // (an autostarted one included) from a reproduction.
+    if status.experiment.running && b.running && !b.experiment.is_empty() {
+        status.experiment.kind = b.experiment.as_str().into();
     }
     let lat = |q: &shm_ring::Quantiles| Latency {
         p50_us: us(q.p50_ns),

@@ -65,6 +65,8 @@ pub struct RunConfig {
     pub hand: HandConfig,
     pub features: FeatureParams,
     pub reproduction: ReproductionConfig,
+    /// The degradation ladder of reproduction (late answers, held force, fallback fade).
+    pub ladder: crate::ladder::LadderConfig,
     pub realtime: RealtimeConfig,
 }
 
@@ -91,6 +93,7 @@ impl Default for RunConfig {
             hand: HandConfig::default(),
             features: FeatureParams::default(),
             reproduction: ReproductionConfig::default(),
+            ladder: crate::ladder::LadderConfig::default(),
             realtime: RealtimeConfig::default(),
         }
     }
@@ -142,10 +145,61 @@ impl RunConfig {
             return Err("params and sim disagree on the encoder or DAC scale".into());
         }
         self.params.validate()?;
+        self.validate_rates()?;
+        self.validate_reproduction()?;
+        self.ladder.validate()?;
         self.ramp.validate()?;
         self.sim.validate()?;
         self.hand.validate()?;
         self.features.validate()?;
+        Ok(())
+    }
+}
+
+/// Largest `g T` (filter gain x nominal period) accepted: forward Euler, the thesis's
+/// discretisation, alternates in sign beyond 1 and diverges beyond 2.
+pub const MAX_GAIN_PERIOD: f64 = 1.0;
+
+impl RunConfig {
+    /// Refuses filter gains the loop cannot run at its rate (forward Euler: `g T < 1`).
+    fn validate_rates(&self) -> Result<(), String> {
+        let t = 1.0 / self.rate_hz;
+        let p = &self.params;
+        for (name, g) in [
+            ("g_v", p.g_v),
+            ("g_a", p.g_a),
+            ("g_dis", p.g_dis),
+            ("g_rec", p.g_rec),
+        ] {
+            if g * t >= MAX_GAIN_PERIOD {
+                return Err(format!(
+                    "parameter {name} = {g} rad/s is unstable at {} Hz: g x period = {:.3} must stay below {MAX_GAIN_PERIOD} (forward Euler); lower the gain or raise the rate above {:.0} Hz",
+                    self.rate_hz,
+                    g * t,
+                    g / MAX_GAIN_PERIOD
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// `[reproduction]`: the force limit and the fallback law's coefficients.
+    fn validate_reproduction(&self) -> Result<(), String> {
+        let r = &self.reproduction;
+        if !(r.max_force_n.is_finite() && r.max_force_n > 0.0 && r.max_force_n <= 50.0) {
+            return Err(format!(
+                "reproduction.max_force_n must be within (0, 50] N (got {})",
+                r.max_force_n
+            ));
+        }
+        let fb = &r.fallback;
+        for (name, v) in [("k1", fb.k1), ("k2", fb.k2), ("b", fb.b)] {
+            if !(v.is_finite() && v.abs() <= 1e7) {
+                return Err(format!(
+                    "reproduction.fallback.{name} must be a finite number within +-1e7 (got {v})"
+                ));
+            }
+        }
         Ok(())
     }
 }
@@ -167,6 +221,32 @@ mod tests {
         assert_eq!(c, want);
         let docs = include_str!("../../docs/rt-loop.md");
         assert!(docs.contains(text.lines().skip(2).collect::<Vec<_>>().join("\n").trim()));
+    }
+
+    /// Issue 13 item 4 / issue 14 item 4: every numeric setting is checked with a clear error.
+    #[test]
+    fn bad_numbers_are_refused_with_their_name() {
+        for (text, want) in [
+            ("[reproduction]\nmax_force_n = nan\n", "max_force_n"),
+            ("[reproduction]\nmax_force_n = -1.0\n", "max_force_n"),
+            (
+                "[reproduction]\nfallback = { k1 = inf, k2 = 0.0, b = 0.0 }\n",
+                "fallback.k1",
+            ),
+            (
+                "[reproduction]\nfallback = { k1 = 1.0, k2 = nan, b = 0.0 }\n",
+                "fallback.k2",
+            ),
+            ("[ladder]\nslew_n_per_step = 1.0\n", "slew_n_per_step"),
+            ("[ladder]\nhold_max_s = nan\n", "hold_max_s"),
+            ("rate_hz = 1000.0\n[params]\ng_dis = 1500.0\n", "g_dis"),
+            ("rate_hz = 100.0\n", "unstable at 100 Hz"),
+        ] {
+            let c = RunConfig::from_toml(text).unwrap();
+            let e = c.validate().unwrap_err();
+            assert!(e.contains(want), "{text}: {e}");
+        }
+        assert!(RunConfig::default().validate().is_ok());
     }
 
     #[test]

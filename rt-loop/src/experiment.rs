@@ -302,6 +302,8 @@ pub enum Experiment {
         duration: f64,
         shadow: bool,
         stats: ModelStats,
+        /// What is rendered when the model's answer is not there in time (issue 14).
+        ladder: crate::ladder::Ladder,
     },
 }
 
@@ -378,10 +380,11 @@ impl Experiment {
             }
             Experiment::Reproduction {
                 model,
-                cfg,
                 duration,
                 shadow,
                 stats,
+                ladder,
+                ..
             } => {
                 if time >= *duration {
                     return Decision {
@@ -392,11 +395,10 @@ impl Experiment {
                         feature_force: 0.0,
                     };
                 }
-                let served = model.predict(step, feats);
-                let (f_pred, fallback) = match served {
-                    Some(f) if f.is_finite() && f.abs() <= cfg.max_force_n => (f, false),
-                    _ => (cfg.fallback.eval(feats.position_x, feats.velocity), true),
-                };
+                // the ladder asks the model and replaces a missing answer without a jump;
+                // `fallback` marks every step not rendered by the model's on-time answer
+                let r = ladder.render(model.as_mut(), step, time, feats);
+                let (f_pred, fallback) = (r.force, r.level != crate::ladder::Level::OnTime);
                 if fallback {
                     stats.fallbacks += 1;
                 } else {

@@ -1,8 +1,33 @@
 //! The discrete filters of SPEC section 3, exactly as the thesis code runs them (forward Euler
 //! with the measured period `dt`): the pseudo-derivative and the DOB/RFOB low-pass observers.
 //! All are plain structs of f64: updating them allocates nothing and locks nothing.
+//!
+//! A bad step (issue 14): forward Euler multiplies the innovation by `g dt`; after a stall of
+//! several milliseconds `g dt` is far above 1 (300 rad/s x 15 ms = 4.5), the update overshoots
+//! by several times the innovation, the force estimate spikes and the current slams into its
+//! clamp. So every update uses forward Euler only while `g dt <= EULER_MAX_GDT` (every normal
+//! step: the thesis's numbers are unchanged bit for bit), and beyond it the exact
+//! discretisation of the first-order lag, `1 - exp(-g dt)`, which never exceeds 1: after a
+//! long stall the filter settles onto its input (re-initialises from the measured state)
+//! instead of overshooting it.
 
 use crate::params::LoopParams;
+
+/// Largest `g dt` updated with forward Euler (beyond: exact discretisation). At the default
+/// 10 kHz the largest gain (300 rad/s) gives 0.03; a step must last 8 periods to cross this.
+pub const EULER_MAX_GDT: f64 = 0.25;
+
+/// The fraction of the innovation one update of a first-order lag with gain `g` applies over
+/// `dt`: forward Euler `g dt` for normal steps, `1 - exp(-g dt)` (< 1) for long ones.
+#[inline]
+pub fn lag_fraction(g: f64, dt: f64) -> f64 {
+    let gdt = g * dt;
+    if gdt <= EULER_MAX_GDT {
+        gdt
+    } else {
+        -(-gdt).exp_m1()
+    }
+}
 
 /// Pseudo-derivative `y = g s / (s + g) u`: `integ += y * dt; y = g * (u - integ)`.
 #[derive(Clone, Debug)]
@@ -31,7 +56,12 @@ impl PseudoDerivative {
             self.started = true;
             self.integ = input;
         }
-        self.integ += self.out * dt;
+        // integ += out dt == integ += g dt (u_prev - integ): a first-order lag on the input
+        if self.gain * dt <= EULER_MAX_GDT {
+            self.integ += self.out * dt;
+        } else if self.gain > 0.0 {
+            self.integ += self.out / self.gain * lag_fraction(self.gain, dt);
+        }
         self.out = self.gain * (input - self.integ);
         self.out
     }
@@ -94,7 +124,11 @@ impl ForceObserver {
     pub fn update(&mut self, current: f64, v: f64, model_force: f64, dt: f64) -> f64 {
         let mgv = self.m_n * self.gain * v;
         let input = self.k_fn * current + mgv - model_force;
-        self.lp += self.gain * (input - self.lp) * dt;
+        if self.gain * dt <= EULER_MAX_GDT {
+            self.lp += self.gain * (input - self.lp) * dt;
+        } else {
+            self.lp += (input - self.lp) * lag_fraction(self.gain, dt);
+        }
         self.est = self.lp - mgv;
         self.est
     }
@@ -199,6 +233,31 @@ mod tests {
             let analytic = g * (-g * t).exp();
             assert!((y - analytic).abs() < 0.01 * g, "k {k}: {y} vs {analytic}");
         }
+    }
+
+    /// A 20 ms stall (g dt = 6 for the DOB) moves each filter at most onto its input: no
+    /// overshoot, where forward Euler would have overshot by five times the innovation.
+    #[test]
+    fn a_long_step_never_overshoots() {
+        let mut obs = ForceObserver::new(300.0, 0.643, 24.0);
+        for _ in 0..1000 {
+            obs.update(0.1, 0.0, 0.0, 1e-4);
+        }
+        let before = obs.estimate();
+        let after = obs.update(0.3, 0.0, 0.0, 0.02);
+        assert!((before - 2.4).abs() < 1e-6, "{before}");
+        assert!(after > before && after <= 0.3 * 24.0 + 1e-9, "{after}");
+        let mut d = PseudoDerivative::new(100.0);
+        for k in 0..1000 {
+            d.update(1e-3 * k as f64 * 1e-4, 1e-4); // 1 mm/s
+        }
+        let v = d.update(1e-3 * 999e-4 + 1e-5, 0.02);
+        assert!(v.is_finite() && v.abs() < 2.0 * 1e-3 * 100.0, "{v}");
+        assert!(
+            lag_fraction(300.0, 1e-4) == 300.0 * 1e-4,
+            "normal steps are forward Euler"
+        );
+        assert!(lag_fraction(300.0, 1.0) < 1.0);
     }
 
     /// With a constant external force F on a free mass that the DOB knows exactly, the

@@ -18,6 +18,7 @@ pub mod hand;
 pub mod import;
 pub mod material;
 pub mod model;
+pub mod ladder;
 pub mod params;
 pub mod record;
 pub mod rig;

@@ -77,25 +77,53 @@ impl ShmArgs {
         }
     }
 
-    fn answer_wait(&self, clock: ClockKind) -> anyhow::Result<AnswerWait> {
-        if !(self.deadline_us.is_finite() && self.deadline_us > 0.0 && self.deadline_us <= 1e6) {
+    /// The per-answer wait; `--deadline-us` must fit in the period (`rate_hz`).
+    fn answer_wait(&self, clock: ClockKind, rate_hz: f64) -> anyhow::Result<AnswerWait> {
+        let period_us = 1e6 / rate_hz;
+        if !(self.deadline_us.is_finite()
+            && self.deadline_us > 0.0
+            && self.deadline_us <= period_us)
+        {
             anyhow::bail!(
-                "--deadline-us must be in (0, 1e6] (got {})",
+                "--deadline-us must be in (0, {period_us}] (the period at {rate_hz} Hz; got {})",
                 self.deadline_us
             );
         }
-        if !(self.answer_timeout_s.is_finite() && self.answer_timeout_s > 0.0) {
+        let safety = seconds_flag("--answer-timeout-s", self.answer_timeout_s, false)?;
+        if self.give_up_after == 0 || self.give_up_after > 1000 {
             anyhow::bail!(
-                "--answer-timeout-s must be > 0 (got {})",
-                self.answer_timeout_s
+                "--give-up-after must be within 1..1000 (got {})",
+                self.give_up_after
             );
+    /// Lockstep clock: after this many safety timeouts in a row the server is treated as gone
+    /// (steps fall back without waiting) until its heartbeat moves again.
+    #[arg(long, default_value_t = rt_loop::shm_model::DEFAULT_GIVE_UP_AFTER)]
+    give_up_after: u32,
+}
+
+/// Longest wait a flag may ask for, s (a day: beyond it a typo, and `Duration` overflows near
+/// 1e19 s).
+const MAX_WAIT_S: f64 = 86_400.0;
+
+/// `v` seconds as a Duration when `0 <= v <= MAX_WAIT_S` (`> 0` unless `zero_ok`), else the
+/// error for `flag`.
+fn seconds_flag(flag: &str, v: f64, zero_ok: bool) -> anyhow::Result<Duration> {
+    let lo_ok = if zero_ok { v >= 0.0 } else { v > 0.0 };
+    if !(v.is_finite() && lo_ok && v <= MAX_WAIT_S) {
+        anyhow::bail!(
+            "{flag} must be within {}{MAX_WAIT_S} s (got {v})",
+            if zero_ok { "0.." } else { "(0, " }
+        );
+    }
+    Ok(Duration::from_secs_f64(v))
         }
         Ok(match clock {
             ClockKind::Realtime => {
                 AnswerWait::Deadline(Duration::from_nanos((self.deadline_us * 1e3) as u64))
             }
             ClockKind::Lockstep => AnswerWait::Lockstep {
-                safety: Duration::from_secs_f64(self.answer_timeout_s),
+                safety,
+                give_up_after: self.give_up_after,
             },
         })
     }
@@ -375,41 +403,19 @@ fn cmd_run(a: &RunArgs) -> anyhow::Result<ExitCode> {
     let mut home = None;
     let mut model: Option<Box<dyn rt_loop::model::ForceModel>> = None;
     if a.model == ModelArg::Shm || a.telemetry {
-        let answer_wait = a.shm.answer_wait(cfg.clock)?;
+        // every flag checked before anything is created
+        let answer_wait = a.shm.answer_wait(cfg.clock, cfg.rate_hz)?;
+        let server_wait = seconds_flag("--server-wait-s", a.server_wait_s, true)?;
         let seg = rt_loop::shm_io::create_segment(&a.shm.instance, a.shm.wait_strategy(cfg.clock))?;
-        let mut client = seg.client;
+        let client = seg.client;
         if a.model == ModelArg::Shm && uses_model {
-            if !(a.server_wait_s.is_finite() && a.server_wait_s >= 0.0) {
-                anyhow::bail!("--server-wait-s must be >= 0");
-            }
-            eprintln!(
-                "rt-loop: segment {} created; waiting up to {} s for infer-server (infer-server serve --instance {})",
-                seg.name, a.server_wait_s, a.shm.instance
-            );
-            if !client.wait_for_server(Duration::from_secs_f64(a.server_wait_s)) {
-                anyhow::bail!(
-                    "no infer-server attached to {} within {} s: start `infer-server serve --instance {} --model MODEL` (or raise --server-wait-s)",
-                    seg.name,
-                    a.server_wait_s,
-                    a.shm.instance
-                );
-            }
-            {
-                // every step should be answered by the model (in lockstep: must): wait until
-                // the server has one active
-                let left = Duration::from_secs_f64(a.server_wait_s.max(1.0));
-                client.wait_for_model(left).map_err(|e| {
-                    anyhow::anyhow!(
-                        "infer-server attached to {} but serves no model: {e}; activate one (infer-server serve --model M, or hapticctl swap M)",
-                        seg.name
-                    )
-                })?;
-            }
-            eprintln!("rt-loop: infer-server attached");
+            // The wait for the server (and its model) happens in the model's begin_run, after
+            // the loop wrote 0 A and armed the watchdog; the run is refused if none comes.
             counters = Some(client.counters.clone());
             let h = std::sync::Arc::new(std::sync::Mutex::new(Some(client)));
-            model = ShmModel::borrow_from(&h, answer_wait, Duration::ZERO)
-                .map(|m| Box::new(m) as Box<dyn rt_loop::model::ForceModel>);
+            model = ShmModel::borrow_from(&h, answer_wait, server_wait).map(|m| {
+                Box::new(m.require_server(&a.shm.instance)) as Box<dyn rt_loop::model::ForceModel>
+            });
             home = Some(h);
         }
         segment = Some(seg.io);
@@ -569,13 +575,11 @@ fn cmd_serve(a: &ServeArgs) -> anyhow::Result<ExitCode> {
     }
     base.record = None;
     base.validate().map_err(|e| anyhow::anyhow!(e))?;
-    if !(a.server_wait_s.is_finite() && a.server_wait_s >= 0.0) {
-        anyhow::bail!("--server-wait-s must be >= 0");
-    }
-    let answer_wait = a.shm.answer_wait(a.clock)?;
+    let server_wait = seconds_flag("--server-wait-s", a.server_wait_s, true)?;
+    let answer_wait = a.shm.answer_wait(a.clock, base.rate_hz)?;
     let (deadline, answer_timeout) = match answer_wait {
         AnswerWait::Deadline(d) => (d, Duration::from_secs_f64(a.shm.answer_timeout_s)),
-        AnswerWait::Lockstep { safety } => (
+        AnswerWait::Lockstep { safety, .. } => (
             Duration::from_nanos((a.shm.deadline_us * 1e3) as u64),
             safety,
         ),
@@ -587,7 +591,8 @@ fn cmd_serve(a: &ServeArgs) -> anyhow::Result<ExitCode> {
         record_dir: a.record_dir.clone(),
         deadline,
         answer_timeout,
-        server_wait: Duration::from_secs_f64(a.server_wait_s),
+        server_wait,
+        give_up_after: a.shm.give_up_after,
         answer_wait: a.shm.wait_strategy(a.clock),
     };
     rt_loop::serve::serve(&cfg)?;

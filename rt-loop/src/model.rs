@@ -15,6 +15,37 @@
 use crate::features::Features;
 use serde::{Deserialize, Serialize};
 
+/// Why a step has no usable answer of its own (the ladder counts one reason per such step).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Miss {
+    /// The answer did not come before the step's deadline.
+    Late,
+    /// No server attached, or one settling after attaching: nothing was sent.
+    NoServer,
+    /// The features ring was full.
+    RingFull,
+    /// The server answered with a flag (no model, schema mismatch, NaN, bad features...).
+    Flagged,
+    /// The server went away.
+    ServerLost,
+    /// Lockstep: the server missed several answers in a row and its heartbeat stands still.
+    Hung,
+    /// The answer was NaN/Inf or beyond the force limit (decided by the ladder).
+    Rejected,
+}
+
+/// What a model has for one step (see [`crate::ladder`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Answer {
+    /// The answer to this step, in time: F_pred, N.
+    OnTime(f64),
+    /// This step's answer is late, but the previous step's answer arrived one period late
+    /// and is there now: its F_pred, N.
+    LateOne(f64),
+    /// Nothing usable, and why.
+    Missing(Miss),
+}
+
 pub trait ForceModel: Send {
     /// Short name for the run metadata and the summary.
     fn name(&self) -> &str;
@@ -22,9 +53,25 @@ pub trait ForceModel: Send {
     /// can wait for its server here and mark the next message as a run start (the step
     /// counter passed to `predict` restarts at 0 with every run).
     fn begin_run(&mut self) {}
+    /// Why the run cannot start (e.g. no server came during `begin_run`): the run is refused
+    /// with this message before its first step, the motor still at 0 A.
+    fn start_error(&self) -> Option<&str> {
+        None
+    }
     /// Predicted reaction force (N, positive = the virtual object pushes back) for step
     /// `step` from its features; `None` when no prediction is available in time.
     fn predict(&mut self, step: u64, features: &Features) -> Option<f64>;
+    /// The step's answer for the degradation ladder. The default maps `predict`: a value is
+    /// on time, `None` a late answer. A served model overrides it to pass on the previous
+    /// step's late answer and the precise reason of a miss. Same real-time contract as
+    /// `predict`.
+    #[inline]
+    fn answer(&mut self, step: u64, features: &Features) -> Answer {
+        match self.predict(step, features) {
+            Some(f) => Answer::OnTime(f),
+            None => Answer::Missing(Miss::Late),
+        }
+    }
     /// Fills what the model knows for the loop-status block (deadline misses, round-trip
     /// percentiles). Called about every 100 ms on the loop thread: no allocation, no lock.
     fn report_status(&self, _status: &mut shm_ring::LoopStatus) {}

@@ -13,6 +13,11 @@ use crate::filters::Estimator;
 use crate::params::LoopParams;
 use crate::record::row::Row;
 
+/// A step whose dt exceeds this many nominal periods is a stall: counted, and its updates
+/// bounded (the filters' exact discretisation, see [`crate::filters`]; the PID's integral
+/// takes at most this many periods).
+pub const LONG_STEP_FACTOR: f64 = 3.0;
+
 /// Why the loop stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Stop {
@@ -37,6 +42,10 @@ pub struct Rig<B: Board> {
     time: f64,
     i_motor: f64,
     started: bool,
+    /// Nominal period, s ([`Rig::set_period`]; the SPEC's 10 kHz until set).
+    period: f64,
+    long_steps: u64,
+    max_dt: f64,
 }
 
 impl<B: Board> Rig<B> {
@@ -46,9 +55,11 @@ impl<B: Board> Rig<B> {
         mut experiment: Experiment,
         feature_params: FeatureParams,
     ) -> Self {
-        experiment.begin();
+        // 0 A and the watchdog first: the experiment's start may wait for a server (seconds),
+        // and whatever the DAC held before this process must not stay on the motor meanwhile.
         board.write_dac(32768);
         board.arm_watchdog(params.watchdog_us);
+        experiment.begin();
         Rig {
             est: Estimator::new(&params),
             features: FeatureExtractor::new(feature_params),
@@ -60,7 +71,25 @@ impl<B: Board> Rig<B> {
             time: 0.0,
             i_motor: 0.0,
             started: false,
+            period: 1e-4,
+            long_steps: 0,
+            max_dt: 0.0,
         }
+    }
+
+    /// The nominal period (1 / rate), for the stall detection.
+    pub fn set_period(&mut self, period_s: f64) {
+        self.period = period_s;
+    }
+
+    /// Steps longer than [`LONG_STEP_FACTOR`] periods so far.
+    pub fn long_steps(&self) -> u64 {
+        self.long_steps
+    }
+
+    /// The longest step so far, s.
+    pub fn max_dt(&self) -> f64 {
+        self.max_dt
     }
 
     pub fn steps(&self) -> u64 {
@@ -101,6 +130,15 @@ impl<B: Board> Rig<B> {
         self.started = true;
         self.t_prev_us = snap.timestamp_us;
         self.time += dt;
+        let long_dt = LONG_STEP_FACTOR * self.period;
+        if dt > long_dt {
+            // a stall (preemption, page fault, a stuck board read): the filters bound their
+            // update by themselves; counted here
+            self.long_steps += 1;
+        }
+        if dt > self.max_dt {
+            self.max_dt = dt;
+        }
         let x = snap.counts as f64 * p.meters_per_count;
         // Observers use the current applied during the period that just ended.
         let est = self.est.update(x, dt, self.i_motor);
@@ -117,7 +155,7 @@ impl<B: Board> Rig<B> {
             }
             Command::Position(x_ref) => match &mut self.experiment {
                 Experiment::PositionReplay { pid, .. } => {
-                    (f64::NAN, pid.current(x_ref, dt, &est, p))
+                    (f64::NAN, pid.current(x_ref, dt.min(long_dt), &est, p))
                 }
                 _ => (f64::NAN, 0.0),
             },

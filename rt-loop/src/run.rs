@@ -38,6 +38,23 @@ pub struct RunSummary {
     pub round_trip_us: Option<Percentiles>,
     /// Telemetry rows published into the segment (0 without one).
     pub telemetry_rows: u64,
+    /// Reproduction/shadow: steps per rung of the degradation ladder (on_time, late_one,
+    /// held, fallback); every step is counted in exactly one. `None` for other experiments.
+    pub ladder: Option<crate::ladder::LadderCounts>,
+    /// Why each step not rendered by its on-time answer was not (one reason per such step:
+    /// their sum is late_one + held + fallback).
+    pub degraded_reasons: Option<crate::ladder::Reasons>,
+    /// Largest change of the rendered force in one step caused by a change of ladder level, N.
+    pub max_transition_step_n: f64,
+    /// Steps during which a ladder transition (slew catch-up or cross-fade) was under way.
+    pub transition_steps: u64,
+    /// Ring slots or indices found corrupt by the loop's shared-memory endpoints.
+    pub corrupt: u64,
+    /// Steps whose measured dt exceeded [`crate::rig::LONG_STEP_FACTOR`] periods (stalls);
+    /// the filters took a bounded update on them.
+    pub long_steps: u64,
+    /// The longest step, ms.
+    pub max_step_ms: f64,
     pub warnings: Vec<String>,
 }
 
@@ -116,6 +133,12 @@ pub fn build_experiment(cfg: &RunConfig, model: Option<Box<dyn ForceModel>>) -> 
             duration: cfg.hand.duration(),
             shadow: cfg.experiment == ExperimentKind::Shadow,
             stats: ModelStats::default(),
+            ladder: crate::ladder::Ladder::new(
+                &cfg.ladder,
+                cfg.reproduction.max_force_n,
+                cfg.reproduction.fallback,
+                1.0 / cfg.rate_hz,
+            ),
         },
     })
 }
@@ -166,12 +189,17 @@ pub fn build_rig(
     let (material, _) = Material::load(&cfg.material)?;
     let experiment = build_experiment(cfg, model)?;
     let board = build_board(cfg, Some(&material))?;
-    Ok(Rig::new(
-        board,
-        cfg.params.clone(),
-        experiment,
-        cfg.features.clone(),
-    ))
+    let mut rig = Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone());
+    rig.set_period(1.0 / cfg.rate_hz);
+    Ok(rig)
+}
+
+/// The ladder's figures of a reproduction/shadow run (`None` for other experiments).
+pub fn ladder_report(e: &Experiment) -> Option<crate::ladder::LadderReport> {
+    match e {
+        Experiment::Reproduction { ladder, .. } => Some(ladder.report()),
+        _ => None,
+    }
 }
 
 static STOP_REQUESTED: AtomicBool = AtomicBool::new(false);
@@ -217,6 +245,13 @@ fn fill_status(
     let s = io.status_mut();
     s.steps = rig.steps();
     s.fallbacks = rig.experiment.model_stats().map_or(0, |m| m.fallbacks);
+    if let Some(l) = ladder_report(&rig.experiment) {
+        s.on_time = l.counts.on_time;
+        s.late_one = l.counts.late_one;
+        s.held = l.counts.held;
+        s.fallback_steps = l.counts.fallback;
+        s.max_transition_step_n = l.max_transition_step_n;
+    }
     rig.experiment.report_status(s);
     if let Some(c) = clock {
         s.overruns = c.overruns();
@@ -263,6 +298,17 @@ pub fn run_with(
             );
         }
     }
+    // Rig::new writes 0 A and arms the watchdog, then lets the model wait for its server.
+    let mut rig = Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone());
+    rig.set_period(1.0 / cfg.rate_hz);
+    let start_error = match &rig.experiment {
+        Experiment::Reproduction { model, .. } => model.start_error().map(str::to_string),
+        _ => None,
+    };
+    if let Some(e) = start_error {
+        rig.safe_stop();
+        anyhow::bail!("{e}");
+    }
     let mut recorder = match &cfg.record {
         Some(p) => Some(RecorderHandle::start(
             Target::File(p.clone()),
@@ -272,7 +318,6 @@ pub fn run_with(
         )?),
         None => None,
     };
-    let mut rig = Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone());
     let decimate = cfg.decimate as u64;
     let max_time = cfg.max_duration_s.unwrap_or(f64::INFINITY);
     let mut warnings = Vec::new();
@@ -393,6 +438,7 @@ pub fn run_with(
         }
         io.end_run_status();
     }
+    let ladder = ladder_report(&rig.experiment);
     Ok(RunSummary {
         experiment: rig.experiment.name().into(),
         clock: format!("{:?}", cfg.clock).to_lowercase(),
@@ -409,6 +455,13 @@ pub fn run_with(
         shm: None,
         round_trip_us: None,
         telemetry_rows: io.map_or(0, |io| io.rows_sent),
+        ladder: ladder.map(|l| l.counts),
+        degraded_reasons: ladder.map(|l| l.reasons),
+        max_transition_step_n: ladder.map_or(0.0, |l| l.max_transition_step_n),
+        transition_steps: ladder.map_or(0, |l| l.transition_steps),
+        corrupt: 0,
+        long_steps: rig.long_steps(),
+        max_step_ms: rig.max_dt() * 1e3,
         warnings,
     })
 }

@@ -28,6 +28,8 @@ pub struct ServeConfig {
     pub answer_timeout: Duration,
     /// How long a reproduction/shadow run waits at its start for a server (0: not at all).
     pub server_wait: Duration,
+    /// Lockstep: safety timeouts in a row before the server is treated as hung.
+    pub give_up_after: u32,
     pub answer_wait: WaitStrategy,
 }
 
@@ -37,6 +39,7 @@ impl ServeConfig {
             ClockKind::Realtime => AnswerWait::Deadline(self.deadline),
             ClockKind::Lockstep => AnswerWait::Lockstep {
                 safety: self.answer_timeout,
+                give_up_after: self.give_up_after,
             },
         }
     }

@@ -245,6 +245,18 @@ impl LoopIo {
         s.run_id = u64::from(self.run_id);
         s.steps = 0;
         s.fallbacks = 0;
+        s.experiment.set(match cfg.experiment {
+            crate::config::ExperimentKind::Abstraction => "abstraction",
+            crate::config::ExperimentKind::PositionReplay => "position-replay",
+            crate::config::ExperimentKind::Reproduction => "reproduction",
+            crate::config::ExperimentKind::Shadow => "shadow",
+        });
+        s.on_time = 0;
+        s.late_one = 0;
+        s.held = 0;
+        s.fallback_steps = 0;
+        s.corrupt = 0;
+        s.max_transition_step_n = 0.0;
         s.deadline_misses = 0;
         s.overruns = 0;
         s.round_trip = Quantiles::default();

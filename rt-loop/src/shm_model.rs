@@ -17,7 +17,7 @@
 //! [`LIVENESS_EVERY`] steps (and when a new server attachment is seen).
 
 use crate::features::Features;
-use crate::model::ForceModel;
+use crate::model::{Answer, ForceModel, Miss};
 use hdrhistogram::Histogram;
 use shm_ring::{
     Consumer, FeatureMsg, ForceMsg, Link, Producer, RecvError, SendError, WaitStrategy,
@@ -39,9 +39,17 @@ pub enum AnswerWait {
     /// Realtime: give up `deadline` after sending (fallback for that step).
     Deadline(Duration),
     /// Lockstep: wait for every answer; `safety` only guards against a server that is attached
-    /// but hung (then the step falls back and the run goes on).
-    Lockstep { safety: Duration },
+    /// but hung (then the step falls back and the run goes on). After `give_up_after`
+    /// timeouts in a row the server is treated as gone (nothing sent, no wait) until its
+    /// heartbeat moves again: a hung server costs a few safety timeouts, not one per step.
+    Lockstep {
+        safety: Duration,
+        give_up_after: u32,
+    },
 }
+
+/// Default of `give_up_after` (`--give-up-after`).
+pub const DEFAULT_GIVE_UP_AFTER: u32 = 3;
 
 /// Counters of the shared-memory client, readable from any thread while the loop runs
 /// (relaxed atomics, one writer: the loop thread).
@@ -65,6 +73,12 @@ pub struct ShmCounters {
     pub server_lost: AtomicU64,
     /// New server attachments seen.
     pub attachments_seen: AtomicU64,
+    /// Answers to the previous step that arrived one period late and were used.
+    pub late_used: AtomicU64,
+    /// Lockstep steps skipped because the server is treated as hung (heartbeat still).
+    pub hung: AtomicU64,
+    /// Times the server was declared hung (`give_up_after` timeouts in a row).
+    pub hung_declared: AtomicU64,
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
@@ -78,6 +92,9 @@ pub struct ShmCountersSnapshot {
     pub stale_discarded: u64,
     pub server_lost: u64,
     pub attachments_seen: u64,
+    pub late_used: u64,
+    pub hung: u64,
+    pub hung_declared: u64,
 }
 
 impl ShmCounters {
@@ -93,6 +110,9 @@ impl ShmCounters {
             stale_discarded: l(&self.stale_discarded),
             server_lost: l(&self.server_lost),
             attachments_seen: l(&self.attachments_seen),
+            late_used: l(&self.late_used),
+            hung: l(&self.hung),
+            hung_declared: l(&self.hung_declared),
         }
     }
 }
@@ -119,6 +139,13 @@ pub struct ShmClient {
     origin: Instant,
     /// `counters.late` when the current run began (the status reports the run's misses).
     late_at_run_start: u64,
+    /// The previous step's request, sent and not answered by its deadline: its answer may
+    /// still be used for the next step (`Answer::LateOne`).
+    pending_prev: Option<(u64, Instant)>,
+    /// Lockstep: safety timeouts in a row.
+    timeouts_in_a_row: u32,
+    /// Lockstep: the server's heartbeat when it was declared hung (`None`: not hung).
+    hung_at_heartbeat: Option<u64>,
     /// Loop-observed round trip (send to matching answer), ns; preallocated, recording never
     /// allocates (`saturating_record` clamps to the range).
     pub round_trip_ns: Histogram<u64>,
@@ -151,6 +178,9 @@ impl ShmClient {
             liveness_countdown: LIVENESS_EVERY,
             origin: Instant::now(),
             late_at_run_start: 0,
+            pending_prev: None,
+            timeouts_in_a_row: 0,
+            hung_at_heartbeat: None,
             round_trip_ns: Histogram::new_with_bounds(1, 60_000_000_000, 3)
                 .expect("valid histogram bounds"),
             counters: Arc::new(ShmCounters::default()),
@@ -251,6 +281,9 @@ impl ShmClient {
         self.connected = self.server_alive();
         self.seen_attachments = self.link.server_attachments();
         self.late_at_run_start = self.counters.late.load(Ordering::Relaxed);
+        self.pending_prev = None;
+        self.timeouts_in_a_row = 0;
+        self.hung_at_heartbeat = None;
     }
 
     /// Deadline misses of the current run and the round-trip percentiles into the status
@@ -269,10 +302,26 @@ impl ShmClient {
         self.run_id
     }
 
-    /// One request/answer exchange. REAL-TIME PATH (see the module doc).
+    /// One request/answer exchange: this step's answer if it comes in time, `None` otherwise.
+    /// REAL-TIME PATH (see the module doc).
     #[inline]
-    pub fn exchange(&mut self, _step: u64, features: &Features, wait: AnswerWait) -> Option<f64> {
+    pub fn exchange(&mut self, step: u64, features: &Features, wait: AnswerWait) -> Option<f64> {
+        match self.answer(step, features, wait) {
+            Answer::OnTime(f) => Some(f),
+            _ => None,
+        }
+    }
+
+    /// One request/answer exchange for the degradation ladder: this step's answer in time
+    /// (`OnTime`), else the previous step's answer if it arrived one period late (`LateOne`),
+    /// else why not (`Missing`). Every miss is counted in exactly one counter of
+    /// [`ShmCounters`] (`late`, `no_server`, `ring_full`, `flagged`, `server_lost`, `hung`).
+    /// REAL-TIME PATH (see the module doc).
+    #[inline]
+    pub fn answer(&mut self, _step: u64, features: &Features, wait: AnswerWait) -> Answer {
         let c = &*self.counters;
+        // Only the previous step's request can be answered "one period late".
+        let pending_prev = self.pending_prev.take();
         // A new server (a restart after a crash, or the first one): one atomic load per step.
         let att = self.link.server_attachments();
         if att != self.seen_attachments {
@@ -281,6 +330,8 @@ impl ShmClient {
             self.settle_until = Some(Instant::now() + SETTLE_AFTER_ATTACH);
             self.connected = self.link.peer_alive();
             self.run_start = true; // the new server starts the model's state afresh
+            self.hung_at_heartbeat = None;
+            self.timeouts_in_a_row = 0;
         }
         self.liveness_countdown -= 1;
         if self.liveness_countdown == 0 {
@@ -293,14 +344,23 @@ impl ShmClient {
         }
         if !self.connected {
             bump(&c.no_server);
-            return None;
+            return Answer::Missing(Miss::NoServer);
         }
         if let Some(t) = self.settle_until {
             if Instant::now() < t {
                 bump(&c.no_server);
-                return None;
+                return Answer::Missing(Miss::NoServer);
             }
             self.settle_until = None;
+        }
+        if let Some(hb) = self.hung_at_heartbeat {
+            // one relaxed atomic load: the server's heartbeat moves again when it works again
+            if self.link.peer_heartbeat() == hb {
+                bump(&c.hung);
+                return Answer::Missing(Miss::Hung);
+            }
+            self.hung_at_heartbeat = None;
+            self.timeouts_in_a_row = 0;
         }
         let seq = self.next_seq;
         self.next_seq += 1;
@@ -325,12 +385,12 @@ impl ShmClient {
             Ok(()) => {}
             Err(SendError::Full(_)) => {
                 bump(&c.ring_full);
-                return None;
+                return Answer::Missing(Miss::RingFull);
             }
             Err(_) => {
                 bump(&c.server_lost);
                 self.connected = false;
-                return None;
+                return Answer::Missing(Miss::ServerLost);
             }
         }
         self.run_start = false;
@@ -338,41 +398,71 @@ impl ShmClient {
         let deadline = sent_at
             + match wait {
                 AnswerWait::Deadline(d) => d,
-                AnswerWait::Lockstep { safety } => safety,
+                AnswerWait::Lockstep { safety, .. } => safety,
             };
+        let mut late_prev: Option<f64> = None;
         loop {
             match self.forces_rx.recv_deadline(deadline) {
-                Ok(a) if a.seq < seq => {
-                    // a late answer to an earlier step: its step is long rendered
-                    bump(&c.stale_discarded);
-                }
+                Ok(a) if a.seq < seq => match pending_prev {
+                    Some((ps, pt)) if a.seq == ps && late_prev.is_none() => {
+                        // the previous step's answer, one period late: kept for this step
+                        let rtt = pt.elapsed().as_nanos() as u64;
+                        self.round_trip_ns.saturating_record(rtt.max(1));
+                        if a.flags == 0 && a.force.is_finite() {
+                            late_prev = Some(a.force);
+                        } else {
+                            bump(&c.stale_discarded);
+                        }
+                    }
+                    // older still: its step is long rendered
+                    _ => bump(&c.stale_discarded),
+                },
                 Ok(a) if a.seq == seq => {
                     let rtt = sent_at.elapsed().as_nanos() as u64;
                     self.round_trip_ns.saturating_record(rtt.max(1));
+                    self.timeouts_in_a_row = 0;
+                    if late_prev.is_some() {
+                        // superseded by this step's own answer
+                        bump(&c.stale_discarded);
+                    }
                     if a.flags != 0 {
                         bump(&c.flagged);
-                        return None;
+                        return Answer::Missing(Miss::Flagged);
                     }
                     bump(&c.answered);
-                    return Some(a.force);
+                    return Answer::OnTime(a.force);
                 }
                 Ok(_) => {
                     // an answer from the future cannot come from a sane server: refuse it
                     bump(&c.flagged);
-                    return None;
+                    return Answer::Missing(Miss::Flagged);
                 }
                 Err(RecvError::Timeout) => {
                     bump(&c.late);
-                    return None;
+                    self.pending_prev = Some((seq, sent_at));
+                    if let AnswerWait::Lockstep { give_up_after, .. } = wait {
+                        self.timeouts_in_a_row += 1;
+                        if self.timeouts_in_a_row >= give_up_after.max(1) {
+                            bump(&c.hung_declared);
+                            self.hung_at_heartbeat = Some(self.link.peer_heartbeat());
+                        }
+                    }
+                    return match late_prev {
+                        Some(f) => {
+                            bump(&c.late_used);
+                            Answer::LateOne(f)
+                        }
+                        None => Answer::Missing(Miss::Late),
+                    };
                 }
                 Err(RecvError::PeerGone) => {
                     bump(&c.server_lost);
                     self.connected = false;
-                    return None;
+                    return Answer::Missing(Miss::ServerLost);
                 }
                 Err(_) => {
                     bump(&c.flagged);
-                    return None;
+                    return Answer::Missing(Miss::Flagged);
                 }
             }
         }
@@ -386,6 +476,10 @@ pub struct ShmModel {
     home: Option<Arc<Mutex<Option<ShmClient>>>>,
     wait: AnswerWait,
     server_wait: Duration,
+    /// `rt-loop run --model shm`: the run needs a server with an active model before its
+    /// first step ([`ShmModel::require_server`]); the reason if there was none.
+    require: Option<String>,
+    start_error: Option<String>,
 }
 
 impl ShmModel {
@@ -397,6 +491,8 @@ impl ShmModel {
             home: None,
             wait,
             server_wait,
+            require: None,
+            start_error: None,
         }
     }
 
@@ -412,7 +508,17 @@ impl ShmModel {
             home: Some(home.clone()),
             wait,
             server_wait,
+            require: None,
+            start_error: None,
         })
+    }
+
+    /// The run must not start without a server serving a model: `begin_run` (called after
+    /// the loop wrote 0 A and armed the watchdog) waits up to the server wait for one, and
+    /// [`ForceModel::start_error`] says why not. `instance`: for the error's advice.
+    pub fn require_server(mut self, instance: &str) -> Self {
+        self.require = Some(instance.to_string());
+        self
     }
 
     pub fn client(&self) -> &ShmClient {
@@ -445,11 +551,38 @@ impl ForceModel for ShmModel {
 
     fn begin_run(&mut self) {
         let server_wait = self.server_wait;
+        let require = self.require.clone();
         let c = self.client_mut();
-        if !server_wait.is_zero() && !c.server_alive() {
+        let mut error = None;
+        if let Some(instance) = require {
+            // off the real-time path, before the first step; the loop is at 0 A
+            let name = format!("/haptics-{instance}");
+            eprintln!(
+                "rt-loop: segment {name} created; waiting up to {} s for infer-server (infer-server serve --instance {instance})",
+                server_wait.as_secs_f64()
+            );
+            if !c.wait_for_server(server_wait) {
+                error = Some(format!(
+                    "no infer-server attached to {name} within {} s: start `infer-server serve --instance {instance} --model MODEL` (or raise --server-wait-s)",
+                    server_wait.as_secs_f64()
+                ));
+            } else if let Err(e) = c.wait_for_model(server_wait.max(Duration::from_secs(1))) {
+                // every step should be answered by the model (in lockstep: must)
+                error = Some(format!(
+                    "infer-server attached to {name} but serves no model: {e}; activate one (infer-server serve --model M, or hapticctl swap M)"
+                ));
+            } else {
+                eprintln!("rt-loop: infer-server attached");
+            }
+        } else if !server_wait.is_zero() && !c.server_alive() {
             c.wait_for_server(server_wait);
         }
         c.begin_run();
+        self.start_error = error;
+    }
+
+    fn start_error(&self) -> Option<&str> {
+        self.start_error.as_deref()
     }
 
     fn report_status(&self, status: &mut shm_ring::LoopStatus) {
@@ -464,5 +597,14 @@ impl ForceModel for ShmModel {
         self.client
             .as_mut()
             .and_then(|c| c.exchange(step, features, wait))
+    }
+
+    #[inline]
+    fn answer(&mut self, step: u64, features: &Features) -> Answer {
+        let wait = self.wait;
+        match self.client.as_mut() {
+            Some(c) => c.answer(step, features, wait),
+            None => Answer::Missing(Miss::NoServer),
+        }
     }
 }

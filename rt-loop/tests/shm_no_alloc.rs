@@ -74,6 +74,7 @@ fn exchange_allocates_nothing() {
     client.begin_run();
     let wait = AnswerWait::Lockstep {
         safety: Duration::from_secs(2),
+        give_up_after: 3,
     };
     let row = rt_loop::record::Row::default();
     // the loop-status block: set up off the real-time path (allocates), then published in the

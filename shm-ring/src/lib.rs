@@ -97,7 +97,8 @@ pub use error::Error;
 pub use header::{Channel, LAYOUT_VERSION, MAGIC};
 #[cfg(not(loom))]
 pub use loop_status::{
-    LoopClock, LoopStatus, Quantiles, StatusText, BOARD_BYTES, RECORDER_BYTES, SCHEDULING_BYTES,
+    LoopClock, LoopStatus, Quantiles, StatusText, BOARD_BYTES, EXPERIMENT_BYTES, RECORDER_BYTES,
+    SCHEDULING_BYTES,
 };
 #[cfg(not(loom))]
 pub use segment::{

@@ -11,7 +11,7 @@
 //! never a data race.
 //!
 //! REAL-TIME: [`StatusBlock::publish`] allocates nothing, takes no lock, makes no syscall
-//! (about 50 relaxed stores). Text fields are fixed-size byte arrays ([`StatusText`]),
+//! (about 60 relaxed stores). Text fields are fixed-size byte arrays ([`StatusText`]),
 //! filled with `core::fmt` (no allocation) and truncated at a character boundary.
 
 use std::fmt;
@@ -23,6 +23,8 @@ pub const BOARD_BYTES: usize = 32;
 pub const SCHEDULING_BYTES: usize = 64;
 /// Bytes of [`LoopStatus::recorder`].
 pub const RECORDER_BYTES: usize = 128;
+/// Bytes of [`LoopStatus::experiment`].
+pub const EXPERIMENT_BYTES: usize = 32;
 
 /// How the loop paces its steps.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -186,8 +188,22 @@ pub struct LoopStatus {
     pub running: bool,
     pub run_id: u64,
     pub steps: u64,
-    /// Steps rendered with the fallback model.
+    /// Steps not rendered by the model's on-time answer (late_one + held + fallback_steps).
     pub fallbacks: u64,
+    /// The experiment running (or last run): "reproduction", "shadow", "abstraction", ...
+    pub experiment: StatusText<EXPERIMENT_BYTES>,
+    /// Degradation ladder (issue 14): steps rendered by the model's on-time answer,
+    pub on_time: u64,
+    /// by the previous step's answer arriving one period late,
+    pub late_one: u64,
+    /// by the last served force held (extrapolated),
+    pub held: u64,
+    /// by the fallback law (cross-faded).
+    pub fallback_steps: u64,
+    /// Ring slots or indices the loop found corrupt.
+    pub corrupt: u64,
+    /// Largest change of the rendered force in one step caused by a ladder transition, N.
+    pub max_transition_step_n: f64,
     /// Steps whose answer did not come before the per-step deadline.
     pub deadline_misses: u64,
     /// Steps that ended after the next period had begun (realtime clock).
@@ -220,6 +236,14 @@ pub(crate) struct StatusBlock {
     board: [AtomicU64; words(BOARD_BYTES)],
     scheduling: [AtomicU64; words(SCHEDULING_BYTES)],
     recorder: [AtomicU64; words(RECORDER_BYTES)],
+    // layout version 3: the ladder's counters and the experiment's name
+    on_time: AtomicU64,
+    late_one: AtomicU64,
+    held: AtomicU64,
+    fallback_steps: AtomicU64,
+    corrupt: AtomicU64,
+    max_transition_step_n_bits: AtomicU64,
+    experiment: [AtomicU64; words(EXPERIMENT_BYTES)],
 }
 
 /// How many times a reader retries while the loop is mid-publication (it writes ~50 words,
@@ -270,6 +294,14 @@ impl StatusBlock {
         s.board.store(&self.board);
         s.scheduling.store(&self.scheduling);
         s.recorder.store(&self.recorder);
+        self.on_time.store(s.on_time, r);
+        self.late_one.store(s.late_one, r);
+        self.held.store(s.held, r);
+        self.fallback_steps.store(s.fallback_steps, r);
+        self.corrupt.store(s.corrupt, r);
+        self.max_transition_step_n_bits
+            .store(s.max_transition_step_n.to_bits(), r);
+        s.experiment.store(&self.experiment);
         self.seq.store(base + 2, Ordering::Release);
         (base + 2) / 2
     }
@@ -303,6 +335,13 @@ impl StatusBlock {
                 overruns: self.overruns.load(r),
                 round_trip: load_q(&self.round_trip),
                 period_jitter: load_q(&self.period_jitter),
+                experiment: StatusText::load(&self.experiment),
+                on_time: self.on_time.load(r),
+                late_one: self.late_one.load(r),
+                held: self.held.load(r),
+                fallback_steps: self.fallback_steps.load(r),
+                corrupt: self.corrupt.load(r),
+                max_transition_step_n: f64::from_bits(self.max_transition_step_n_bits.load(r)),
             };
             fence(Ordering::Acquire);
             if self.seq.load(r) == s1 {
@@ -363,6 +402,13 @@ mod tests {
             },
             updated_unix_ns: 11,
             generation: 0,
+            experiment: StatusText::new("shadow"),
+            on_time: 12,
+            late_one: 13,
+            held: 14,
+            fallback_steps: 15,
+            corrupt: 16,
+            max_transition_step_n: 0.04,
         };
         assert_eq!(block.publish(&s), 1);
         let back = block.read().expect("published");

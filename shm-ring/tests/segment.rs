@@ -449,6 +449,13 @@ fn loop_status_block_round_trips_through_the_segment() {
         },
         updated_unix_ns: 1_700_000_000_000_000_000,
         generation: 0,
+        experiment: StatusText::new("shadow"),
+        on_time: 12_000,
+        late_one: 200,
+        held: 100,
+        fallback_steps: 45,
+        corrupt: 1,
+        max_transition_step_n: 0.04,
     };
     assert_eq!(
         s.recorder.as_str().len(),

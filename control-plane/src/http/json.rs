@@ -54,6 +54,13 @@ pub struct LoopJson {
     pub steps: u64,
     pub deadline_misses: u64,
     pub fallbacks: u64,
+    /// Degradation ladder (issue 14): every step of the run in exactly one of these four.
+    pub on_time: u64,
+    pub late_one: u64,
+    pub held: u64,
+    pub fallback: u64,
+    pub corrupt: u64,
+    pub max_transition_step_n: f64,
     pub latency_us: LatencyJson,
     pub experiment: ExperimentJson,
     pub scheduling: String,
@@ -106,6 +113,12 @@ impl StatusJson {
                 steps: l.step,
                 deadline_misses: l.deadline_misses,
                 fallbacks: l.fallbacks,
+                on_time: l.on_time,
+                late_one: l.late_one,
+                held: l.held,
+                fallback: l.fallback,
+                corrupt: l.corrupt,
+                max_transition_step_n: l.max_transition_step_n,
                 latency_us: (&l.round_trip_latency).into(),
                 experiment: ExperimentJson {
                     kind: if l.experiment.kind.is_empty() {

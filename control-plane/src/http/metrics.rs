@@ -37,6 +37,30 @@ pub async fn metrics(State(core): State<Core>) -> Result<Response, ControlError>
         "Steps rendered with the fallback model",
         l.fallbacks as f64,
     );
+    for (level, n) in [
+        ("on_time", l.on_time),
+        ("late_one", l.late_one),
+        ("held", l.held),
+        ("fallback", l.fallback),
+    ] {
+        m.counter_with(
+            "haptics_steps_total",
+            "Steps of the current (or last) run by the rung of the degradation ladder that rendered them",
+            &[("level", level)],
+            n as f64,
+        );
+    }
+    m.counter(
+        "haptics_ring_corrupt_total",
+        "Ring slots or indices the loop found corrupt",
+        l.corrupt as f64,
+    );
+    m.gauge(
+        "haptics_max_transition_step_newtons",
+        "Largest one-step change of the rendered force caused by a ladder transition",
+        &[],
+        l.max_transition_step_n,
+    );
     m.counter(
         "haptics_loop_deadline_misses_total",
         "Steps that missed their deadline",
@@ -208,8 +232,18 @@ impl Metrics {
     }
 
     fn counter(&mut self, name: &'static str, help: &str, value: f64) {
+        self.counter_with(name, help, &[], value);
+    }
+
+    fn counter_with(
+        &mut self,
+        name: &'static str,
+        help: &str,
+        labels: &[(&str, &str)],
+        value: f64,
+    ) {
         self.declare(name, help, "counter");
-        self.sample(name, &[], value);
+        self.sample(name, labels, value);
     }
 
     fn latency(&mut self, name: &'static str, help: &str, l: &Latency) {
