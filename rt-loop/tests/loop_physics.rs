@@ -4,6 +4,7 @@
 mod common;
 
 use common::{run_rows, short_cfg};
+use rt_loop::board::{Board, BoardStop, Snapshot};
 use rt_loop::config::ExperimentKind;
 use rt_loop::rig::Stop;
 
@@ -170,7 +171,8 @@ fn current_never_beyond_the_clamp() {
 }
 
 /// A hand that pushes to 60 mm against a model that renders nothing drives the probe to the
-/// position limit: the loop aborts at |x| >= 0.05 m with the current at zero.
+/// position limit: the loop aborts at |x| >= 0.05 m, and the last word written to the DAC is the
+/// one for 0 A (the board in the middle records every word the loop writes).
 #[test]
 fn position_limit_aborts_with_zero_current() {
     struct Nothing;
@@ -182,10 +184,44 @@ fn position_limit_aborts_with_zero_current() {
             Some(0.0)
         }
     }
+    /// The simulated board, with the DAC words the loop wrote.
+    struct Words<B> {
+        board: B,
+        written: Vec<u16>,
+    }
+    impl<B: Board> Board for Words<B> {
+        fn snapshot(&mut self) -> Result<Snapshot, BoardStop> {
+            self.board.snapshot()
+        }
+        fn write_dac(&mut self, word: u16) {
+            self.written.push(word);
+            self.board.write_dac(word)
+        }
+        fn arm_watchdog(&mut self, timeout_us: u32) {
+            self.board.arm_watchdog(timeout_us)
+        }
+        fn kick_watchdog(&mut self) {
+            self.board.kick_watchdog()
+        }
+        fn true_force(&self) -> f64 {
+            self.board.true_force()
+        }
+        fn name(&self) -> &'static str {
+            "words"
+        }
+    }
     let mut cfg = short_cfg(1, 1.0, 0.0);
     cfg.experiment = ExperimentKind::Reproduction;
     cfg.hand.depth_m = 0.06;
-    let mut rig = rt_loop::run::build_rig(&cfg, Some(Box::new(Nothing))).unwrap();
+    let template = rt_loop::run::build_rig(&cfg, Some(Box::new(Nothing))).unwrap();
+    let board = Words {
+        board: template.board,
+        written: Vec::with_capacity(1 << 20),
+    };
+    let experiment = rt_loop::run::build_experiment(&cfg, Some(Box::new(Nothing))).unwrap();
+    let mut rig =
+        rt_loop::rig::Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone());
+    rig.set_period(1.0 / cfg.rate_hz);
     let mut last = None;
     let stop = loop {
         match rig.step() {
@@ -196,7 +232,25 @@ fn position_limit_aborts_with_zero_current() {
     assert_eq!(stop, Stop::PositionLimit);
     let last = last.unwrap();
     assert!(last.position_x < 0.05 && last.position_x > 0.045);
-    // the board was told 0 A on the abort
+    let zero_amps = rt_loop::dac::current_to_word(0.0, cfg.params.dac_full_scale);
+    assert_eq!(zero_amps, 32768);
+    let words = &rig.board.written;
+    assert!(
+        words.len() > 2,
+        "the loop wrote {} DAC words before the abort",
+        words.len()
+    );
+    // Before the abort the loop commanded a current (so the last word below is the abort's).
+    assert_ne!(
+        words[words.len() - 2],
+        zero_amps,
+        "the step before the abort commanded 0 A already: the test would prove nothing"
+    );
+    assert_eq!(
+        *words.last().unwrap(),
+        zero_amps,
+        "the last DAC word (the abort's) must be the one for 0 A"
+    );
     assert!(rig.board.true_force() > 0.0, "the hand was still pushing");
 }
 

@@ -3,6 +3,8 @@
 //! when a test fails, the project's Python, and small ONNX models written with the `onnx`
 //! package.
 
+pub mod skip;
+
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
