@@ -48,8 +48,11 @@ def provenance(
         ds = {
             "root": dataset.root,
             "train": [{"name": r.name, "sha256": r.sha256[:16]} for r in dataset.train],
+            "validation": [{"name": r.name, "sha256": r.sha256[:16]}
+                           for r in dataset.validation],
             "test": [{"name": r.name, "sha256": r.sha256[:16]} for r in dataset.test],
-        }
+            "manifest": dataset.manifest or None,
+        }  # fmt: skip
     return _jsonable(
         {
             "model": model.name,

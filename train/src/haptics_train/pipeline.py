@@ -47,6 +47,8 @@ DEFAULT_SPECS: tuple[str, ...] = (
     "dnn:xva",
     "dnn_fb:six",
     "lstm_fb:six",
+    # structured stateful: nonlinear spring + Prony series, kinematics only, dissipative
+    "prony",
 )
 
 

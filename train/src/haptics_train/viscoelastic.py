@@ -7,14 +7,17 @@ real force-displacement loading-unloading data with a licence that allows a samp
 docs/train.md), so the import, the manifest and the leave-one-rate-out evaluation are shown on
 this model instead. It is labelled synthetic wherever it is used.
 
-The material: a nonlinear equilibrium spring plus a two-term Prony series (a generalised
-standard linear solid), driven by a triangular displacement (load to `depth`, unload to 0):
+The material: Fung's quasi-linear viscoelasticity (QLV), the usual model of soft tissue and
+elastomers: a nonlinear instantaneous elastic response F_e(x) = k1 x + k3 x^3 convolved with a
+reduced relaxation function G(t) = g_inf + sum_i g_i exp(-t / tau_i) (a two-term Prony series),
 
-    F = k1 x + k3 x^3 + q1 + q2,   dq_i/dt = -q_i / tau_i + g_i k1 dx/dt
+    F = g_inf F_e(x) + q1 + q2,   dq_i/dt = -q_i / tau_i + g_i dF_e(x)/dt
 
-integrated exactly per sample for piecewise-constant velocity; contact is unilateral (the
-force is clamped at 0: the probe leaves the surface when the relaxed material lags behind).
-Measurement noise is Gaussian on the force.
+integrated exactly per sample for a piecewise-linear F_e; driven by a triangular displacement
+(load to `depth`, unload to 0). Its relaxing branches scale with the nonlinear F_e, so it is NOT
+of the class of haptics-train's `prony` model (linear branches on the velocity). Contact is
+unilateral (the force is clamped at 0: the probe leaves the surface when the relaxed material
+lags behind). Measurement noise is Gaussian on the force.
 
     python -m haptics_train.viscoelastic --out data/elastomer
 """
@@ -32,11 +35,15 @@ import pyarrow.csv as pacsv
 
 @dataclass(frozen=True)
 class Elastomer:
-    k1: float = 0.08  # N/mm
-    k3: float = 0.0004  # N/mm^3
-    g: tuple[float, ...] = (0.6, 0.4)  # Prony weights (relative to k1)
+    k1: float = 0.12  # N/mm, instantaneous
+    k3: float = 0.0008  # N/mm^3, instantaneous
+    g_inf: float = 0.5  # G(infinity): the relaxed fraction
+    g: tuple[float, ...] = (0.3, 0.2)  # Prony weights of G
     tau: tuple[float, ...] = (0.4, 4.0)  # s
     noise_n: float = 0.002  # force noise, N (sd)
+
+    def elastic(self, x_mm: np.ndarray | float) -> np.ndarray | float:
+        return self.k1 * x_mm + self.k3 * x_mm**3
 
 
 #: displacement rates (mm/s) of the three tests, and the validation test's
@@ -59,15 +66,16 @@ def loading_unloading(
     t = np.arange(int(np.floor(total * sample_hz)) + 1) / sample_hz
     x = np.interp(t, [0, hold_s, hold_s + ramp, hold_s + 2 * ramp, total],
                   [0, 0, depth_mm, 0, 0])  # fmt: skip
+    fe = np.asarray(mat.elastic(x))
     q = np.zeros(len(mat.g))
     f = np.zeros(len(t))
     for i in range(1, len(t)):
         dt = t[i] - t[i - 1]
-        v = (x[i] - x[i - 1]) / dt
+        rate = (fe[i] - fe[i - 1]) / dt
         for k, (g, tau) in enumerate(zip(mat.g, mat.tau, strict=True)):
             e = np.exp(-dt / tau)
-            q[k] = q[k] * e + g * mat.k1 * v * tau * (1 - e)
-        f[i] = mat.k1 * x[i] + mat.k3 * x[i] ** 3 + q.sum()
+            q[k] = q[k] * e + g * rate * tau * (1 - e)
+        f[i] = mat.g_inf * fe[i] + q.sum()
     f = np.maximum(f, 0.0)
     rng = np.random.default_rng(seed)
     f = f + mat.noise_n * rng.standard_normal(len(f))

@@ -5,10 +5,12 @@ from __future__ import annotations
 from ..features import feature_set
 from .base import ForceModel, TrainConfig
 from .networks import DNN_THESIS, LSTM_THESIS, DenseModel, LSTMModel
+from .prony import PronyModel
 from .sklearn_models import RF_THESIS, SVR_THESIS, ForestModel, LinearModel, SVRModel
 from .spring_damper import SpringDamper
 
-ALGOS = ("sd_const", "sd_poly1", "sd_poly2", "lr", "svr", "rf", "dnn", "lstm", "dnn_fb", "lstm_fb")
+ALGOS = ("sd_const", "sd_poly1", "sd_poly2", "lr", "svr", "rf", "dnn", "lstm", "dnn_fb", "lstm_fb",
+         "prony")
 
 #: `dnn_fb` / `lstm_fb`: the same networks trained with feedback noise on the previous force
 #: (see networks.perturb_previous_force), for a closed loop that does not drift. Its scale is a
@@ -32,6 +34,8 @@ def make_model(
         if order is None:
             raise ValueError(f"unknown spring-damper {algo!r} (sd_const|sd_poly1|sd_poly2)")
         return SpringDamper(order)
+    if algo == "prony":
+        return PronyModel(h)  # always on x, v (kinematics only)
     fs = feature_set(fset)
     if algo == "lr":
         return LinearModel(fs.features, fs.name)
