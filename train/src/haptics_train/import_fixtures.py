@@ -4,7 +4,7 @@ and `python -m haptics_train.import_fixtures` prints the table in docs/train.md 
 the import did), computed by running the import on each.
 
 Every series is one SYNTHETIC loading-unloading cycle of `viscoelastic.Elastomer` at 50 Hz
-unless the case says otherwise.
+unless the case says otherwise; the last case is a REAL AFM curve (tests/data/SOURCE.md).
 """
 
 from __future__ import annotations
@@ -116,6 +116,17 @@ def _text_cell(p: Path) -> Path:
     return _write_text(p, ["time [s]", "displacement [mm]", "force [N]"], rows)
 
 
+#: the one REAL input (tests/data/SOURCE.md: an AFM approach-retract curve, MIT licence)
+AFM_SAMPLE = Path(__file__).resolve().parents[2] / "tests" / "data" / "afm-cellhesion-fd.csv"
+
+
+def _afm(p: Path) -> Path:
+    if not AFM_SAMPLE.is_file():
+        raise FileNotFoundError(f"{AFM_SAMPLE} (in the source tree only)")
+    p.write_bytes(AFM_SAMPLE.read_bytes())
+    return p
+
+
 CASES: list[Case] = [
     Case("elastomer_50hz.csv", "50 Hz, one cycle, `time [s]`, `displacement [mm]`, `force [N]`",
          _headers_mm_n, STD),
@@ -153,6 +164,9 @@ CASES: list[Case] = [
     Case("text_cell.csv", "a text cell (`overload`) in the displacement column",
          _text_cell, STD,
          refused="row 43"),
+    Case("afm-cellhesion-fd.csv (REAL)", "AFM approach-retract curve, 1 kHz, N and m (SI "
+         "headers), a -0.7 nN baseline (tests/data/SOURCE.md)",
+         _afm, {"time_col": "time", "position_col": "height measured", "force_col": "force"}),
 ]  # fmt: skip
 
 
