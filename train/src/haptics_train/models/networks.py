@@ -128,7 +128,11 @@ DNN_DEFAULT = {
     "dropout": 0.0,
     "optimizer": "adam",
     "lr": 1e-3,
-    "epochs": 20,
+    # None: at least 20 epochs and at least `min_updates` optimizer steps, so that a small
+    # dataset (a few hundred rows of a 50 Hz import: one batch per epoch) is trained as long
+    # as the bench's (~150 batches per epoch); a number is taken as given
+    "epochs": None,
+    "min_updates": 3000,
     "batch": 2048,
     "loss": "mse",
     "feedback_noise": 0.0,
@@ -211,8 +215,13 @@ class DenseModel(ForceModel):
         with torch.no_grad():
             zt = net.inp(xt)
         opt = _optim(h["optimizer"], net.body.parameters(), h["lr"])
-        epochs, batch = int(h["epochs"]), int(h["batch"])
-        steps = epochs * math.ceil(len(y) / batch)
+        batch = int(h["batch"])
+        per_epoch = math.ceil(len(y) / batch)
+        if h.get("epochs") is None:
+            epochs = max(20, math.ceil(int(h.get("min_updates", 0)) / per_epoch))
+        else:
+            epochs = int(h["epochs"])
+        steps = epochs * per_epoch
         sched = (
             torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
             if h["arch"] != "thesis"
@@ -254,6 +263,7 @@ class DenseModel(ForceModel):
         self.net = net
         self.train_info = {
             "rows": int(len(y)),
+            "epochs": epochs,
             "feedback_noise_n": sigma,
             "fit_seconds": round(time.perf_counter() - t0, 2),
             "final_train_loss_scaled": losses[-1],
