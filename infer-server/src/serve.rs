@@ -374,6 +374,19 @@ impl Worker {
                     continue;
                 }
                 Err(RecvError::PeerGone) => break Ok(false),
+                Err(RecvError::Corrupt(c)) => {
+                    // Another writer damaged the ring (shm-ring counts it: features_rx.corrupt()).
+                    // A slot with a wrong sequence word was skipped: serve on. Impossible indices
+                    // stay until the loop, which owns the segment, re-creates it and lets go of
+                    // this one: then re-attach (to the new one); until then poll gently.
+                    if !link.peer_alive() {
+                        break Ok(false);
+                    }
+                    if matches!(c, shm_ring::CorruptRing::Indices { .. }) {
+                        std::thread::sleep(Duration::from_millis(1));
+                    }
+                    continue;
+                }
                 Err(e) => break Err(ServeError::Ring(e)),
             };
             let t0 = Instant::now();

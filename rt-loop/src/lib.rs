@@ -27,4 +27,5 @@ pub mod run;
 pub mod serve;
 pub mod shm_io;
 pub mod shm_model;
+pub mod shm_renew;
 pub mod sponge;

@@ -439,6 +439,7 @@ pub fn run_with(
         io.end_run_status();
     }
     let ladder = ladder_report(&rig.experiment);
+    let corrupt = io.as_ref().map_or(0, |io| io.status().corrupt);
     Ok(RunSummary {
         experiment: rig.experiment.name().into(),
         clock: format!("{:?}", cfg.clock).to_lowercase(),
@@ -459,7 +460,7 @@ pub fn run_with(
         degraded_reasons: ladder.map(|l| l.reasons),
         max_transition_step_n: ladder.map_or(0.0, |l| l.max_transition_step_n),
         transition_steps: ladder.map_or(0, |l| l.transition_steps),
-        corrupt: 0,
+        corrupt,
         long_steps: rig.long_steps(),
         max_step_ms: rig.max_dt() * 1e3,
         warnings,

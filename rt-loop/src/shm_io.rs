@@ -77,13 +77,16 @@ pub fn create_segment(instance: &str, answer_wait: WaitStrategy) -> Result<LoopS
     {
         bail!("segment {name}: schema {names:?} is not the loop's {SCHEMA_NAMES:?}");
     }
-    let client = ShmClient::new(
+    let mut client = ShmClient::new(
         side.features_tx,
         side.forces_rx,
         side.link.clone(),
         answer_wait,
     );
-    let io = LoopIo::new(side.telemetry_tx, side.commands_rx, side.link);
+    let mut io = LoopIo::new(side.telemetry_tx, side.commands_rx, side.link);
+    // The keeper: audits the segment and re-creates it when it is found corrupt.
+    let (c, i) = crate::shm_renew::Renewal::start(io.link.clone(), answer_wait)?;
+    (client.renewal, io.renewal) = (Some(c), Some(i));
     Ok(LoopSegment { client, io, name })
 }
 
@@ -190,6 +193,10 @@ pub struct LoopIo {
     recorder_prefix: StatusText<RECORDER_BYTES>,
     status_countdown: u32,
     last_status: Instant,
+    /// Fresh endpoints when the segment is re-created after corruption (`shm_renew`).
+    pub renewal: Option<crate::shm_renew::Renewal>,
+    /// The keeper's corruption count when the current run began.
+    corrupt_at_run_start: u64,
 }
 
 impl LoopIo {
@@ -214,6 +221,8 @@ impl LoopIo {
             recorder_prefix: StatusText::default(),
             status_countdown: STATUS_CHECK_EVERY,
             last_status: Instant::now(),
+            renewal: None,
+            corrupt_at_run_start: 0,
         }
     }
 
@@ -256,6 +265,7 @@ impl LoopIo {
         s.held = 0;
         s.fallback_steps = 0;
         s.corrupt = 0;
+        self.corrupt_at_run_start = self.renewal.as_ref().map_or(0, |r| r.corrupt());
         s.max_transition_step_n = 0.0;
         s.deadline_misses = 0;
         s.overruns = 0;
@@ -330,9 +340,30 @@ impl LoopIo {
     /// Writes the status into the segment (seqlock, no allocation, no lock, no syscall but
     /// the vDSO clock reads).
     pub fn publish_status(&mut self) {
+        self.renew_if_pending();
         self.last_status = Instant::now();
         self.status.updated_unix_ns = unix_ns();
         self.link.publish_loop_status(&self.status);
+    }
+
+    /// Moves telemetry and mailbox to a re-created segment's endpoints (`shm_renew`; at each
+    /// status publication, about every 100 ms: telemetry sent to the old segment meanwhile is
+    /// simply not read) and updates the run's corruption count.
+    fn renew_if_pending(&mut self) {
+        let Some(renewal) = self.renewal.as_mut() else {
+            return;
+        };
+        let (tx, rx, link) = (
+            &mut self.telemetry_tx,
+            &mut self.commands_rx,
+            &mut self.link,
+        );
+        renewal.swap_io(|new| crate::shm_renew::IoEnds {
+            telemetry_tx: std::mem::replace(tx, new.telemetry_tx),
+            commands_rx: std::mem::replace(rx, new.commands_rx),
+            link: std::mem::replace(link, new.link),
+        });
+        self.status.corrupt = renewal.corrupt().saturating_sub(self.corrupt_at_run_start);
     }
 
     /// While idle (called every few ms): publishes about every [`STATUS_EVERY`].

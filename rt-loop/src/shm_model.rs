@@ -150,6 +150,8 @@ pub struct ShmClient {
     /// allocates (`saturating_record` clamps to the range).
     pub round_trip_ns: Histogram<u64>,
     pub counters: Arc<ShmCounters>,
+    /// Fresh endpoints when the segment is re-created after corruption (`shm_renew`).
+    pub renewal: Option<crate::shm_renew::Renewal>,
 }
 
 impl ShmClient {
@@ -184,6 +186,31 @@ impl ShmClient {
             round_trip_ns: Histogram::new_with_bounds(1, 60_000_000_000, 3)
                 .expect("valid histogram bounds"),
             counters: Arc::new(ShmCounters::default()),
+            renewal: None,
+        }
+    }
+
+    /// Moves to the endpoints of a segment the keeper re-created after finding the old one
+    /// corrupt (`shm_renew`); the old ones go back to the keeper thread to be dropped there.
+    /// Per step: one relaxed load while nothing is pending; a swap moves a few pointers (no
+    /// allocation, no syscall). Until a server attaches to the new segment there is none.
+    #[inline]
+    pub fn renew_if_pending(&mut self) {
+        let Some(renewal) = self.renewal.as_mut().filter(|r| r.pending()) else {
+            return;
+        };
+        let (tx, rx, link) = (&mut self.features_tx, &mut self.forces_rx, &mut self.link);
+        if renewal.swap_client(|new| crate::shm_renew::ClientEnds {
+            features_tx: std::mem::replace(tx, new.features_tx),
+            forces_rx: std::mem::replace(rx, new.forces_rx),
+            link: std::mem::replace(link, new.link),
+        }) {
+            self.seen_attachments = self.link.server_attachments();
+            self.connected = false;
+            self.run_start = true;
+            self.pending_prev = None;
+            self.timeouts_in_a_row = 0;
+            self.hung_at_heartbeat = None;
         }
     }
 
@@ -205,6 +232,7 @@ impl ShmClient {
     pub fn wait_for_server(&mut self, timeout: Duration) -> bool {
         let end = Instant::now() + timeout;
         loop {
+            self.renew_if_pending();
             self.link.heartbeat();
             if self.server_alive() {
                 std::thread::sleep(SETTLE_AFTER_ATTACH);
@@ -272,6 +300,7 @@ impl ShmClient {
     /// Prepares a new run (off the real-time path): next message flagged `RUN_START` with a new
     /// run id, answers left over from an earlier run thrown away.
     pub fn begin_run(&mut self) {
+        self.renew_if_pending();
         self.run_id = self.run_id.wrapping_add(1);
         self.run_start = true;
         let stale = self.forces_rx.skip_pending();
@@ -319,6 +348,7 @@ impl ShmClient {
     /// REAL-TIME PATH (see the module doc).
     #[inline]
     pub fn answer(&mut self, _step: u64, features: &Features, wait: AnswerWait) -> Answer {
+        self.renew_if_pending();
         let c = &*self.counters;
         // Only the previous step's request can be answered "one period late".
         let pending_prev = self.pending_prev.take();

@@ -70,6 +70,10 @@ pub mod loom_hooks {
 mod endpoints;
 #[cfg(not(loom))]
 mod error;
+/// Entry points for the `cargo fuzz` targets in `fuzz/` (not a stable API).
+#[cfg(not(loom))]
+#[doc(hidden)]
+pub mod fuzzing;
 #[cfg(not(loom))]
 mod header;
 #[cfg(not(loom))]

@@ -647,7 +647,7 @@ fn lock_instance(name: &SegmentName) -> Result<std::fs::File, Error> {
 
 /// Checks everything in the header against this build; returns the layout and schema to use
 /// (private copies: nothing is read from the header again to place or size a ring).
-fn validate(
+pub(crate) fn validate(
     header: &Header,
     name: &SegmentName,
     file_size: u64,
