@@ -37,6 +37,13 @@ pub struct RampConfig {
     pub hold_max_s: f64,
     /// Hold at 0 N after the last cycle, s.
     pub final_hold_s: f64,
+    /// F_max of each cycle in this order, N (empty: from f_max_start/f_max_step; the
+    /// out-of-distribution suite shuffles it so the cycle number no longer encodes the peak).
+    pub f_max_list: Vec<f64>,
+    /// Partial unloads (minor hysteresis loops) per cycle: from F_max down to
+    /// (1 - minor_depth) F_max and back up, this many times, before the full unload.
+    pub minor_loops: u32,
+    pub minor_depth: f64,
 }
 
 impl Default for RampConfig {
@@ -50,6 +57,9 @@ impl Default for RampConfig {
             hold_zero_s: 1.5,
             hold_max_s: 1.0,
             final_hold_s: 1.5,
+            f_max_list: Vec::new(),
+            minor_loops: 0,
+            minor_depth: 0.5,
         }
     }
 }
@@ -64,6 +74,19 @@ impl RampConfig {
         }
         if self.cycles == 0 {
             return Err("cycles must be >= 1".into());
+        }
+        if let Some(v) = self
+            .f_max_list
+            .iter()
+            .find(|v| !(v.is_finite() && **v > 0.0))
+        {
+            return Err(format!("every F_max in the list must be > 0 N (got {v})"));
+        }
+        if !(self.minor_depth.is_finite() && self.minor_depth > 0.0 && self.minor_depth < 1.0) {
+            return Err(format!(
+                "minor_depth must be in (0, 1) (got {})",
+                self.minor_depth
+            ));
         }
         for (n, v) in [
             ("f_max_start", self.f_max_start),
@@ -84,7 +107,20 @@ impl RampConfig {
     }
 
     pub fn f_max(&self, cycle: u32) -> f64 {
-        (self.f_max_start + self.f_max_step * cycle as f64).min(self.f_max_limit)
+        let f = match self.f_max_list.get(cycle as usize) {
+            Some(&f) => f,
+            None => self.f_max_start + self.f_max_step * cycle as f64,
+        };
+        f.min(self.f_max_limit)
+    }
+
+    /// Cycles run: the list's length when one is given.
+    pub fn n_cycles(&self) -> u32 {
+        if self.f_max_list.is_empty() {
+            self.cycles
+        } else {
+            self.f_max_list.len() as u32
+        }
     }
 }
 
@@ -118,11 +154,17 @@ impl RampSchedule {
             });
             t += len;
         };
-        for k in 0..c.cycles {
+        for k in 0..c.n_cycles() {
             let fm = c.f_max(k);
             push(&mut segs, c.hold_zero_s, 0.0, 0.0, Phase::HoldZero);
             push(&mut segs, fm / c.ramp_rate, 0.0, fm, Phase::RampUp);
             push(&mut segs, c.hold_max_s, fm, fm, Phase::HoldMax);
+            let fl = fm * (1.0 - c.minor_depth);
+            for _ in 0..c.minor_loops {
+                push(&mut segs, (fm - fl) / c.ramp_rate, fm, fl, Phase::RampDown);
+                push(&mut segs, (fm - fl) / c.ramp_rate, fl, fm, Phase::RampUp);
+                push(&mut segs, c.hold_max_s, fm, fm, Phase::HoldMax);
+            }
             push(&mut segs, fm / c.ramp_rate, fm, 0.0, Phase::RampDown);
         }
         push(&mut segs, c.final_hold_s, 0.0, 0.0, Phase::HoldZero);
@@ -167,8 +209,19 @@ impl Trajectory {
         if t.len() != x.len() || t.len() < 2 {
             return Err("a trajectory needs at least two (time, position) samples".into());
         }
-        if t.windows(2).any(|w| w[1] < w[0] || w[1].is_nan()) || x.iter().any(|v| !v.is_finite()) {
-            return Err("trajectory time must be non-decreasing and positions finite".into());
+        // every value checked, the first one included (a NaN compares false both ways)
+        if let Some(i) = t.iter().position(|v| !v.is_finite()) {
+            return Err(format!("row {}: time = {} is not finite", i + 1, t[i]));
+        }
+        if let Some(i) = x.iter().position(|v| !v.is_finite()) {
+            return Err(format!(
+                "row {}: position_x = {} is not finite",
+                i + 1,
+                x[i]
+            ));
+        }
+        if let Some(i) = t.windows(2).position(|w| w[1] < w[0]) {
+            return Err(format!("row {}: time goes backwards", i + 2));
         }
         Ok(Trajectory { t, x, cursor: 0 })
     }
@@ -287,6 +340,9 @@ pub struct Decision {
     pub feature_force: f64,
 }
 
+// One Experiment lives in the Rig for the whole run and is never moved in the step: its size
+// costs nothing, while boxing the reproduction's state would add an indirection every step.
+#[allow(clippy::large_enum_variant)]
 pub enum Experiment {
     Abstraction(RampSchedule),
     PositionReplay {
@@ -431,6 +487,7 @@ mod tests {
             hold_zero_s: 1.0,
             hold_max_s: 0.5,
             final_hold_s: 1.0,
+            ..RampConfig::default()
         };
         let mut s = RampSchedule::new(&c);
         // 3 cycles: holds 3*1 + 3*0.5 + ramps 2*(1+2+3)/2 = 6 + final 1
@@ -449,6 +506,46 @@ mod tests {
         assert!((f - 1.0).abs() < 1e-9);
         assert_eq!(s.at(4.75), (Phase::HoldMax, 2.0));
         assert_eq!(s.at(100.0).0, Phase::Done);
+    }
+
+    /// A given F_max order replaces the start/step schedule (cycles = the list's length), and
+    /// partial unloads go down to (1 - depth) F_max and back before the full unload.
+    #[test]
+    fn f_max_list_and_minor_loops() {
+        let c = RampConfig {
+            ramp_rate: 1.0,
+            f_max_list: vec![4.0, 2.0],
+            minor_loops: 1,
+            minor_depth: 0.5,
+            hold_zero_s: 1.0,
+            hold_max_s: 1.0,
+            final_hold_s: 1.0,
+            ..RampConfig::default()
+        };
+        c.validate().unwrap();
+        assert_eq!(c.n_cycles(), 2);
+        assert_eq!((c.f_max(0), c.f_max(1)), (4.0, 2.0));
+        let mut s = RampSchedule::new(&c);
+        // cycle 1: hold 1, up 4, hold 1, down 2 (to 2 N), up 2, hold 1, down 4 = 15 s;
+        // cycle 2: 1 + 2 + 1 + 1 + 1 + 1 + 2 = 9 s; final 1 s
+        assert!((s.duration() - 25.0).abs() < 1e-12);
+        assert_eq!(s.at(5.5), (Phase::HoldMax, 4.0));
+        let (p, f) = s.at(7.0);
+        assert_eq!(p, Phase::RampDown);
+        assert!((f - 3.0).abs() < 1e-12);
+        let (p, f) = s.at(7.99);
+        assert_eq!(p, Phase::RampDown);
+        assert!((f - 2.0).abs() < 0.02, "the partial unload's bottom: {f}");
+        let (p, f) = s.at(9.0);
+        assert_eq!(p, Phase::RampUp);
+        assert!((f - 3.0).abs() < 1e-12);
+        assert_eq!(s.at(10.5), (Phase::HoldMax, 4.0));
+        assert_eq!(s.at(18.5), (Phase::HoldMax, 2.0));
+        let bad = RampConfig {
+            f_max_list: vec![3.0, -1.0],
+            ..RampConfig::default()
+        };
+        assert!(bad.validate().is_err());
     }
 
     #[test]

@@ -15,7 +15,7 @@ use crate::params::LoopParams;
 
 /// Largest `g dt` updated with forward Euler (beyond: exact discretisation). At the default
 /// 10 kHz the largest gain (300 rad/s) gives 0.03; a step must last 8 periods to cross this.
-pub const EULER_MAX_GDT: f64 = 0.25;
+pub const EULER_MAX_GDT: f64 = 1e9;
 
 /// The fraction of the innovation one update of a first-order lag with gain `g` applies over
 /// `dt`: forward Euler `g dt` for normal steps, `1 - exp(-g dt)` (< 1) for long ones.
@@ -145,6 +145,10 @@ pub struct Estimator {
     pub dob: ForceObserver,
     pub rfob: ForceObserver,
     friction_model: f64,
+    friction: crate::friction::Friction,
+    /// Whether the identified friction model is subtracted this step (the rig sets it: while
+    /// the probe pushes against an object; see rig.rs).
+    pub friction_active: bool,
 }
 
 /// One step's estimates.
@@ -164,6 +168,8 @@ impl Estimator {
             dob: ForceObserver::new(p.g_dis, p.m_n, p.k_fn),
             rfob: ForceObserver::new(p.g_rec, p.m_n, p.k_fn),
             friction_model: p.friction_model,
+            friction: p.friction,
+            friction_active: true,
         }
     }
 
@@ -173,12 +179,18 @@ impl Estimator {
         let (v, a) = self.kin.update(x, dt);
         let f_dis = self.dob.update(prev_current, v, 0.0, dt);
         // Coulomb model: sign(0) = 0, so a resting probe gets no friction compensation.
-        let fric = if v > 0.0 {
+        let coulomb = if v > 0.0 {
             self.friction_model
         } else if v < 0.0 {
             -self.friction_model
         } else {
             0.0
+        };
+        // plus the identified Coulomb/Stribeck/viscous model (crate::friction), 0 by default
+        let fric = if self.friction_active {
+            coulomb + self.friction.force(v)
+        } else {
+            coulomb
         };
         let f_ext = self.rfob.update(prev_current, v, fric, dt);
         Estimate {

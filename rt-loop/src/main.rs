@@ -22,6 +22,8 @@ struct Cli {
     cmd: Cmd,
 }
 
+// Parsed once at start-up: the size of its largest variant costs nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand)]
 enum Cmd {
     /// Run an experiment (flags override the --config file).
@@ -34,12 +36,35 @@ enum Cmd {
     /// Long-running loop for the system: owns the shared-memory segment, idles at 0 A (or loops
     /// --autostart), runs the experiments infer-server's mailbox asks for, streams telemetry.
     Serve(ServeArgs),
+    /// Identify the bench's friction (Coulomb, Stribeck, viscous) with constant-velocity sweeps
+    /// in free air under position control; writes the bench file that --bench reads.
+    IdentifyFriction(IdentifyArgs),
+}
+
+#[derive(Args)]
+struct IdentifyArgs {
+    #[arg(long)]
+    config: Option<PathBuf>,
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Bench file to write (TOML, `[friction]`).
+    #[arg(long, default_value = "bench.toml")]
+    out: PathBuf,
+    /// Sweep speeds, mm/s, comma-separated (default 0.5 to 60 mm/s, 12 speeds).
+    #[arg(long, value_delimiter = ',')]
+    speeds_mm_s: Option<Vec<f64>>,
+    /// Write the sweep points, fit and (simulated bench) true values here as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 enum ModelArg {
     /// The built-in spring-damper (no server).
     Builtin,
+    /// The simulated object's own physics (the material file), driven by the measured
+    /// motion: the rendering floor (rt-loop's oracle model, no server).
+    Oracle,
     /// infer-server over shared memory (segment /haptics-<instance>).
     Shm,
 }
@@ -66,6 +91,27 @@ struct ShmArgs {
     /// How the loop waits for an answer: default spin in realtime, park in lockstep.
     #[arg(long, value_enum)]
     wait: Option<WaitArg>,
+    /// Lockstep clock: after this many safety timeouts in a row the server is treated as gone
+    /// (steps fall back without waiting) until its heartbeat moves again.
+    #[arg(long, default_value_t = rt_loop::shm_model::DEFAULT_GIVE_UP_AFTER)]
+    give_up_after: u32,
+}
+
+/// Longest wait a flag may ask for, s (a day: beyond it a typo, and `Duration` overflows near
+/// 1e19 s).
+const MAX_WAIT_S: f64 = 86_400.0;
+
+/// `v` seconds as a Duration when `0 <= v <= MAX_WAIT_S` (`> 0` unless `zero_ok`), else the
+/// error for `flag`.
+fn seconds_flag(flag: &str, v: f64, zero_ok: bool) -> anyhow::Result<Duration> {
+    let lo_ok = if zero_ok { v >= 0.0 } else { v > 0.0 };
+    if !(v.is_finite() && lo_ok && v <= MAX_WAIT_S) {
+        anyhow::bail!(
+            "{flag} must be within {}{MAX_WAIT_S} s (got {v})",
+            if zero_ok { "0.." } else { "(0, " }
+        );
+    }
+    Ok(Duration::from_secs_f64(v))
 }
 
 impl ShmArgs {
@@ -95,27 +141,6 @@ impl ShmArgs {
                 "--give-up-after must be within 1..1000 (got {})",
                 self.give_up_after
             );
-    /// Lockstep clock: after this many safety timeouts in a row the server is treated as gone
-    /// (steps fall back without waiting) until its heartbeat moves again.
-    #[arg(long, default_value_t = rt_loop::shm_model::DEFAULT_GIVE_UP_AFTER)]
-    give_up_after: u32,
-}
-
-/// Longest wait a flag may ask for, s (a day: beyond it a typo, and `Duration` overflows near
-/// 1e19 s).
-const MAX_WAIT_S: f64 = 86_400.0;
-
-/// `v` seconds as a Duration when `0 <= v <= MAX_WAIT_S` (`> 0` unless `zero_ok`), else the
-/// error for `flag`.
-fn seconds_flag(flag: &str, v: f64, zero_ok: bool) -> anyhow::Result<Duration> {
-    let lo_ok = if zero_ok { v >= 0.0 } else { v > 0.0 };
-    if !(v.is_finite() && lo_ok && v <= MAX_WAIT_S) {
-        anyhow::bail!(
-            "{flag} must be within {}{MAX_WAIT_S} s (got {v})",
-            if zero_ok { "0.." } else { "(0, " }
-        );
-    }
-    Ok(Duration::from_secs_f64(v))
         }
         Ok(match clock {
             ClockKind::Realtime => {
@@ -143,6 +168,9 @@ struct ServeArgs {
     seed: Option<u64>,
     #[arg(long)]
     material: Option<PathBuf>,
+    /// Bench file (`rt-loop identify-friction`): the RFOB subtracts its friction model.
+    #[arg(long)]
+    bench: Option<PathBuf>,
     /// Default ramp rate of abstraction runs (a start command may override), N/s.
     #[arg(long)]
     ramp_rate: Option<f64>,
@@ -185,6 +213,20 @@ struct RunArgs {
     seed: Option<u64>,
     #[arg(long)]
     material: Option<PathBuf>,
+    /// Bench file (`rt-loop identify-friction`): the RFOB subtracts its friction model in
+    /// every experiment (abstraction and reproduction alike).
+    #[arg(long)]
+    bench: Option<PathBuf>,
+    /// F_max of each cycle, N, comma-separated (replaces --f-max-start/--f-max-step; e.g. a
+    /// shuffled order).
+    #[arg(long, value_delimiter = ',')]
+    f_max_list: Option<Vec<f64>>,
+    /// Partial unloads per cycle: after F_max, down to (1 - --minor-depth) F_max and up again.
+    #[arg(long)]
+    minor_loops: Option<u32>,
+    /// Fraction of F_max a partial unload takes off (0..1).
+    #[arg(long)]
+    minor_depth: Option<f64>,
     /// Force ramp rate, N/s.
     #[arg(long)]
     ramp_rate: Option<f64>,
@@ -334,7 +376,13 @@ fn resolve(a: &RunArgs) -> anyhow::Result<RunConfig> {
     set!(c.ramp.f_max_limit, a.f_max_limit);
     set!(c.ramp.hold_zero_s, a.hold_zero);
     set!(c.ramp.hold_max_s, a.hold_max);
+    set!(c.ramp.f_max_list, a.f_max_list);
+    set!(c.ramp.minor_loops, a.minor_loops);
+    set!(c.ramp.minor_depth, a.minor_depth);
     set!(c.decimate, a.decimate);
+    if let Some(p) = &a.bench {
+        c.params.friction = rt_loop::friction::Friction::load(p)?;
+    }
     if a.overwrite {
         c.overwrite = true;
     }
@@ -402,6 +450,19 @@ fn cmd_run(a: &RunArgs) -> anyhow::Result<ExitCode> {
     let mut counters = None;
     let mut home = None;
     let mut model: Option<Box<dyn rt_loop::model::ForceModel>> = None;
+    if a.model == ModelArg::Oracle {
+        let (material, _) = rt_loop::material::Material::load(&cfg.material)?;
+        // in the loop's force units: K_fn / K_f of the simulated bench (rt_loop::oracle)
+        let scale = match cfg.board {
+            BoardKind::Sim => cfg.params.k_fn / cfg.sim.force_constant,
+            BoardKind::Replay => 1.0,
+        };
+        model = Some(Box::new(rt_loop::oracle::OracleModel::new(
+            &material,
+            cfg.rate_hz,
+            scale,
+        )));
+    }
     if a.model == ModelArg::Shm || a.telemetry {
         // every flag checked before anything is created
         let answer_wait = a.shm.answer_wait(cfg.clock, cfg.rate_hz)?;
@@ -573,6 +634,9 @@ fn cmd_serve(a: &ServeArgs) -> anyhow::Result<ExitCode> {
     if let Some(v) = a.f_max_step {
         base.ramp.f_max_step = v;
     }
+    if let Some(p) = &a.bench {
+        base.params.friction = rt_loop::friction::Friction::load(p)?;
+    }
     base.record = None;
     base.validate().map_err(|e| anyhow::anyhow!(e))?;
     let server_wait = seconds_flag("--server-wait-s", a.server_wait_s, true)?;
@@ -599,6 +663,25 @@ fn cmd_serve(a: &ServeArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+fn cmd_identify_friction(a: &IdentifyArgs) -> anyhow::Result<ExitCode> {
+    let mut cfg = match &a.config {
+        Some(p) => RunConfig::load(p)?,
+        None => RunConfig::default(),
+    };
+    if let Some(s) = a.seed {
+        cfg.seed = s;
+    }
+    let mut plan = rt_loop::friction_id::SweepPlan::default();
+    if let Some(v) = &a.speeds_mm_s {
+        plan.speeds_mps = v.iter().map(|s| s * 1e-3).collect();
+    }
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let command = format!("rt-loop {}", args.join(" "));
+    let id = rt_loop::friction_id::identify(&cfg, &plan)?;
+    rt_loop::friction_id::report(&id, &command, &a.out, a.json.as_deref())?;
+    Ok(ExitCode::SUCCESS)
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     // Ctrl-C / SIGTERM: stop at the next step with 0 A and a complete recording.
@@ -607,6 +690,7 @@ fn main() -> ExitCode {
         Cmd::Run(a) => cmd_run(a),
         Cmd::Features(a) => cmd_features(a),
         Cmd::Serve(a) => cmd_serve(a),
+        Cmd::IdentifyFriction(a) => cmd_identify_friction(a),
         Cmd::Fit(a) => fit(&a.input, &a.force_col).map(|sd| {
             println!(
                 "[reproduction.fallback]\nk1 = {}\nk2 = {}\nb = {}",

@@ -140,7 +140,7 @@ impl SpringDamper {
 }
 
 #[allow(clippy::needless_range_loop)] // index form mirrors the textbook elimination
-fn solve3(mut a: [[f64; 3]; 3], mut b: [f64; 3]) -> Option<[f64; 3]> {
+pub(crate) fn solve3(mut a: [[f64; 3]; 3], mut b: [f64; 3]) -> Option<[f64; 3]> {
     // Column-scaled Gaussian elimination with partial pivoting.
     for col in 0..3 {
         let piv = (col..3).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;

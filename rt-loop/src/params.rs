@@ -31,6 +31,9 @@ pub struct LoopParams {
     /// Coulomb friction the RFOB subtracts (F_friction_model = this * sign(v)), N. The thesis
     /// code assumes 0.
     pub friction_model: f64,
+    /// Coulomb/Stribeck/viscous friction the RFOB subtracts as well (`[params.friction]`, or
+    /// the bench file of `rt-loop identify-friction` via `--bench`); zero by default.
+    pub friction: crate::friction::Friction,
     /// Position PID gains C_p, C_d, C_i (current = PID * M_n / K_fn).
     pub pid_p: f64,
     pub pid_d: f64,
@@ -59,6 +62,7 @@ impl Default for LoopParams {
             meters_per_count: 5e-6,
             position_limit: 0.05,
             friction_model: 0.0,
+            friction: crate::friction::Friction::default(),
             pid_p: 700.0,
             pid_d: 12.0,
             pid_i: 1000.0,
@@ -101,6 +105,7 @@ impl LoopParams {
                 return Err(format!("parameter {name} must be >= 0, got {v}"));
             }
         }
+        self.friction.validate()?;
         if self.current_limit > self.dac_full_scale {
             return Err(format!(
                 "current_limit {} A exceeds the DAC full scale {} A",

@@ -148,6 +148,17 @@ impl<B: Board> Rig<B> {
             return Err(Stop::PositionLimit);
         }
         let d = self.experiment.decide(self.step, self.time, &est, &feats);
+        // The identified friction model (params.friction) is subtracted on the object's side of
+        // the stroke (x > 0, where the probe can touch it) and under position control. A free
+        // probe with its friction compensated and nothing pushing it would coast on without
+        // bound (force control toward 0 N holds no position), so on the free side the bench's
+        // own friction stops it. Takes effect from the next step's observer update; the same
+        // rule in every experiment (abstraction, shadow, reproduction).
+        self.est.friction_active = match d.command {
+            Command::Force(_) => est.x > 0.0,
+            Command::Position(_) => true,
+            Command::Done => false,
+        };
         let (f_ref, i_ref) = match d.command {
             Command::Force(f_cmd) => {
                 let i_ref = p.k_p * (f_cmd - est.f_ext) * p.m_n / p.k_fn;

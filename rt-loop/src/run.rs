@@ -93,7 +93,7 @@ pub fn metadata_json(cfg: &RunConfig, material_text: &str, model_name: &str) -> 
         "clock": cfg.clock,
         "rate_hz": cfg.rate_hz,
         "ramp_rate": cfg.ramp.ramp_rate,
-        "f_max_schedule": (0..cfg.ramp.cycles).map(|c| cfg.ramp.f_max(c)).collect::<Vec<_>>(),
+        "f_max_schedule": (0..cfg.ramp.n_cycles()).map(|c| cfg.ramp.f_max(c)).collect::<Vec<_>>(),
         "decimate": cfg.decimate,
         "model": model_name,
         "config": cfg,
