@@ -25,6 +25,44 @@ pub const OUTPUT_FORCE: &str = "force";
 pub const OUTPUT_H: &str = "h_out";
 pub const OUTPUT_C: &str = "c_out";
 
+/// Largest rank of a tensor the server allocates for a model (`h_in`/`c_in`, `h_out`/`c_out`).
+pub const MAX_TENSOR_RANK: usize = 8;
+/// Largest single dimension of such a tensor.
+pub const MAX_TENSOR_DIM: i64 = 1 << 16;
+/// Most elements of one such tensor: 4 MiB of float32. An LSTM of the thesis's size has a few
+/// hundred; this cap refuses a crafted declaration before anything is allocated for it.
+pub const MAX_TENSOR_ELEMENTS: usize = 1 << 20;
+
+/// The element count of a concrete (all dimensions >= 0) shape, with checked arithmetic, or why
+/// the shape is refused: a rank, a dimension or a count over the caps above, or a negative
+/// dimension. Called before any buffer of that shape is allocated.
+pub fn checked_elements(shape: &[i64]) -> Result<usize, String> {
+    if shape.len() > MAX_TENSOR_RANK {
+        return Err(format!(
+            "shape {shape:?} has rank {}, over the limit of {MAX_TENSOR_RANK}",
+            shape.len()
+        ));
+    }
+    let mut count: usize = 1;
+    for &d in shape {
+        if !(0..=MAX_TENSOR_DIM).contains(&d) {
+            return Err(format!(
+                "shape {shape:?} has a dimension {d}, outside 0..={MAX_TENSOR_DIM}"
+            ));
+        }
+        count = count
+            .checked_mul(d as usize)
+            .filter(|&c| c <= MAX_TENSOR_ELEMENTS)
+            .ok_or_else(|| {
+                format!(
+                    "shape {shape:?} has more than {MAX_TENSOR_ELEMENTS} elements (the limit \
+                     for one tensor the server allocates)"
+                )
+            })?;
+    }
+    Ok(count)
+}
+
 /// The nine features of thesis Table 3.1, in that order (docs/recording-format.md). A model uses
 /// any subset of these, in any order.
 /// One list for the whole system: shm-ring's, which the segment's schema is built from.
@@ -160,6 +198,24 @@ mod tests {
         assert_eq!(s.len(), 9);
         assert_eq!(s.names()[0], "position_x");
         assert_eq!(s.names()[8], "area_fx");
+    }
+
+    #[test]
+    fn element_counts_are_checked_before_allocation() {
+        assert_eq!(checked_elements(&[]), Ok(1));
+        assert_eq!(checked_elements(&[1, 1, 64]), Ok(64));
+        assert_eq!(checked_elements(&[2, 0, 5]), Ok(0));
+        assert_eq!(checked_elements(&[1024, 1024]), Ok(MAX_TENSOR_ELEMENTS));
+        for bad in [
+            vec![1, 1, 1 << 31],
+            vec![1 << 32, 1 << 32, 1 << 32],
+            vec![i64::MAX, i64::MAX],
+            vec![1025, 1024],
+            vec![-1, 4],
+            vec![1; 9],
+        ] {
+            assert!(checked_elements(&bad).is_err(), "{bad:?}");
+        }
     }
 
     #[test]

@@ -11,16 +11,19 @@
 //! `malloc` calls it makes per step (see docs/infer-server.md for the figures).
 
 use std::ffi::{c_char, CStr, CString};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::ptr;
+use std::sync::atomic::{AtomicU8, AtomicUsize, Ordering};
+use std::sync::{mpsc, Arc};
 
-use ort::session::Session;
+use ort::session::{RunOptions, Session};
 use ort::sys::{OrtIoBinding, OrtRunOptions, OrtStatus, OrtValue};
 use ort::value::Tensor;
 use ort::AsPointer;
 
 use crate::contract::{
-    FeatureSchema, ModelKind, INPUT_C, INPUT_FEATURES, INPUT_H, OUTPUT_C, OUTPUT_FORCE, OUTPUT_H,
+    checked_elements, FeatureSchema, ModelKind, INPUT_C, INPUT_FEATURES, INPUT_H, OUTPUT_C,
+    OUTPUT_FORCE, OUTPUT_H,
 };
 use crate::model::{self, ModelError, ModelInfo, SessionConfig};
 use crate::runtime::Runtime;
@@ -138,7 +141,9 @@ pub struct StepEngine {
     schema_len: usize,
     last_error: ErrorText,
     /// Created once and passed to every run (a null one makes ONNX Runtime build a default
-    /// `RunOptions` per call).
+    /// `RunOptions` per call). Shared with [`load_bounded`], which sets its terminate flag to
+    /// stop a load that ran out of time in the middle of a run.
+    _run_options_owner: Arc<RunOptions>,
     run_options: *mut OrtRunOptions,
     /// With `SessionConfig::io_binding`: inputs and outputs bound once, `RunWithBinding` per step.
     binding: *mut OrtIoBinding,
@@ -148,13 +153,11 @@ impl Drop for StepEngine {
     fn drop(&mut self) {
         // Before the fields (session, tensors) go: the binding refers to both.
         let api = ort::api();
-        // SAFETY: created in `load` by ONNX Runtime, released exactly once here.
+        // SAFETY: created in `load` by ONNX Runtime, released exactly once here (the run
+        // options are `_run_options_owner`'s, released when the last `Arc` goes).
         unsafe {
             if !self.binding.is_null() {
                 (api.ReleaseIoBinding)(self.binding);
-            }
-            if !self.run_options.is_null() {
-                (api.ReleaseRunOptions)(self.run_options);
             }
         }
     }
@@ -188,9 +191,14 @@ impl std::fmt::Debug for StepEngine {
 // be moved between threads (`ort::Session` is `Send`).
 unsafe impl Send for StepEngine {}
 
-fn zeros(shape: &[i64]) -> Result<Tensor<f32>, ModelError> {
-    let len: i64 = shape.iter().product();
-    Tensor::from_array((shape.to_vec(), vec![0f32; len as usize].into_boxed_slice())).map_err(|e| {
+/// A zeroed tensor of `shape`, whose size is checked (caps, checked arithmetic) before anything
+/// is allocated: a crafted shape gets `BadShape`, never an aborting allocation.
+fn zeros(name: &str, shape: &[i64]) -> Result<Tensor<f32>, ModelError> {
+    let len = checked_elements(shape).map_err(|detail| ModelError::BadShape {
+        name: name.to_string(),
+        detail,
+    })?;
+    Tensor::from_array((shape.to_vec(), vec![0f32; len].into_boxed_slice())).map_err(|e| {
         ModelError::Session {
             reason: format!("cannot allocate a tensor of shape {shape:?}: {e}"),
         }
@@ -211,7 +219,7 @@ impl StepEngine {
         cfg: &SessionConfig,
     ) -> Result<Self, ModelError> {
         let session = model::open_session(rt, path, cfg)?;
-        Self::from_session(session, path, schema, cfg)
+        Self::from_session(session, path, schema, cfg, new_run_options()?)
     }
 
     /// As [`StepEngine::load`], for a model held in memory (an upload); `label` stands for
@@ -224,7 +232,7 @@ impl StepEngine {
         cfg: &SessionConfig,
     ) -> Result<Self, ModelError> {
         let session = model::open_session_from_bytes(rt, bytes, label, cfg)?;
-        Self::from_session(session, label, schema, cfg)
+        Self::from_session(session, label, schema, cfg, new_run_options()?)
     }
 
     fn from_session(
@@ -232,6 +240,7 @@ impl StepEngine {
         path: &Path,
         schema: &FeatureSchema,
         cfg: &SessionConfig,
+        run_options: Arc<RunOptions>,
     ) -> Result<Self, ModelError> {
         let meta = model::read_metadata(&session)?;
         let input_map = model::map_features(&meta.features, schema)?;
@@ -252,11 +261,11 @@ impl StepEngine {
         };
 
         // Inputs, in the contract's order.
-        let mut inputs = vec![zeros(&sig.features_shape)?];
+        let mut inputs = vec![zeros(INPUT_FEATURES, &sig.features_shape)?];
         let mut in_name_list = vec![INPUT_FEATURES];
         if let Some(s) = &sig.state_shape {
-            inputs.push(zeros(s)?);
-            inputs.push(zeros(s)?);
+            inputs.push(zeros(INPUT_H, s)?);
+            inputs.push(zeros(INPUT_C, s)?);
             in_name_list.extend([INPUT_H, INPUT_C]);
         }
 
@@ -267,10 +276,15 @@ impl StepEngine {
 
         // One run through ort's safe API with outputs left to ONNX Runtime tells the actual
         // output shapes (declared ones may be dynamic), which the preallocated outputs must match.
-        let probe = probe_outputs(&mut session, &in_name_list, &inputs, &out_name_list)?;
+        let probe = probe_outputs(
+            &mut session,
+            &in_name_list,
+            &inputs,
+            &out_name_list,
+            &run_options,
+        )?;
         let force_shape = probe[0].0.clone();
-        let force_len: i64 = force_shape.iter().product();
-        if force_len != 1 {
+        if checked_elements(&force_shape) != Ok(1) {
             return Err(ModelError::BadShape {
                 name: OUTPUT_FORCE.to_string(),
                 detail: format!(
@@ -279,7 +293,7 @@ impl StepEngine {
             });
         }
         info.force_shape = force_shape.clone();
-        let mut outputs = vec![zeros(&force_shape)?];
+        let mut outputs = vec![zeros(OUTPUT_FORCE, &force_shape)?];
         if let Some(s) = &sig.state_shape {
             for (i, name) in [(1usize, OUTPUT_H), (2, OUTPUT_C)] {
                 if probe[i].0 != *s {
@@ -288,7 +302,7 @@ impl StepEngine {
                         detail: format!("produced shape {:?}, h_in/c_in have {s:?}", probe[i].0),
                     });
                 }
-                outputs.push(zeros(s)?);
+                outputs.push(zeros(name, s)?);
             }
         }
         check_finite(&probe, &out_name_list, &vec![0.0; info.features.len()])?;
@@ -315,7 +329,8 @@ impl StepEngine {
             c_in: data_mut(&mut inputs[2]),
             h_out: data_mut(&mut outputs[1]).cast_const(),
             c_out: data_mut(&mut outputs[2]).cast_const(),
-            len: s.iter().product::<i64>() as usize,
+            // Checked by `zeros` above, which allocated these buffers.
+            len: checked_elements(s).unwrap_or(0),
         });
 
         let mut engine = StepEngine {
@@ -337,17 +352,14 @@ impl StepEngine {
                 buf: [0; 256],
                 len: 0,
             },
-            run_options: ptr::null_mut(),
+            run_options: run_options.ptr().cast_mut(),
+            _run_options_owner: run_options,
             binding: ptr::null_mut(),
         };
         let api = ort::api();
         // SAFETY: plain ONNX Runtime C calls; every pointer passed is owned by `engine` and
         // outlives the objects created (released in Drop before the session and tensors).
         unsafe {
-            setup_status(
-                "CreateRunOptions",
-                (api.CreateRunOptions)(&mut engine.run_options),
-            )?;
             if cfg.io_binding {
                 setup_status(
                     "CreateIoBinding",
@@ -546,11 +558,15 @@ fn probe_outputs(
     in_names: &[&str],
     inputs: &[Tensor<f32>],
     out_names: &[&str],
+    run_options: &RunOptions,
 ) -> Result<Vec<ProbedOutput>, ModelError> {
     let feed: Vec<(&str, &Tensor<f32>)> = in_names.iter().copied().zip(inputs.iter()).collect();
-    let outputs = session.run(feed).map_err(|e| ModelError::RunFailed {
-        reason: e.to_string(),
-    })?;
+    let outputs =
+        session
+            .run_with_options(feed, run_options)
+            .map_err(|e| ModelError::RunFailed {
+                reason: e.to_string(),
+            })?;
     out_names
         .iter()
         .map(|name| {
@@ -580,4 +596,92 @@ fn check_finite(outputs: &[ProbedOutput], names: &[&str], input: &[f32]) -> Resu
         }
     }
     Ok(())
+}
+
+fn new_run_options() -> Result<Arc<RunOptions>, ModelError> {
+    RunOptions::new()
+        .map(Arc::new)
+        .map_err(|e| ModelError::Session {
+            reason: format!("CreateRunOptions: {e}"),
+        })
+}
+
+/// Most loads that ran out of time and whose threads still run (finishing the run in progress,
+/// or stuck in session creation, which cannot be interrupted). Beyond it new loads are refused
+/// with [`ModelError::Busy`] until one ends, so crafted models cannot pile up threads.
+pub const MAX_ABANDONED_LOADS: usize = 2;
+static ABANDONED: AtomicUsize = AtomicUsize::new(0);
+
+const RUNNING: u8 = 0;
+const DONE: u8 = 1;
+const GAVE_UP: u8 = 2;
+
+/// [`StepEngine::load_from_bytes`] with a time limit (`cfg.load_timeout`): the load runs on a
+/// thread of its own; when the limit passes first, its run options' terminate flag stops the
+/// run in progress (ONNX Runtime checks it between nodes), the caller gets
+/// [`ModelError::TimedOut`] at once, and the thread drops what it built when it ends. Session
+/// creation (graph optimisation) cannot be interrupted: a load stuck there keeps its thread,
+/// and [`MAX_ABANDONED_LOADS`] bounds how many such threads exist ([`ModelError::Busy`] beyond).
+pub fn load_bounded(
+    rt: &'static Runtime,
+    bytes: Arc<[u8]>,
+    label: &Path,
+    schema: &FeatureSchema,
+    cfg: &SessionConfig,
+) -> Result<StepEngine, ModelError> {
+    let abandoned = ABANDONED.load(Ordering::Acquire);
+    if abandoned >= MAX_ABANDONED_LOADS {
+        return Err(ModelError::Busy { running: abandoned });
+    }
+    // RUNNING until the thread ends (DONE) or the caller stops waiting (GAVE_UP); whichever
+    // comes second sees the other's mark, so ABANDONED counts exactly the threads given up on
+    // and still running.
+    let state = Arc::new(AtomicU8::new(RUNNING));
+    let run_options = new_run_options()?;
+    let (tx, rx) = mpsc::sync_channel(1);
+    let (label_owned, schema_owned, cfg_owned): (PathBuf, FeatureSchema, SessionConfig) =
+        (label.to_path_buf(), schema.clone(), cfg.clone());
+    let options = Arc::clone(&run_options);
+    std::thread::Builder::new()
+        .name("model-load".into())
+        .spawn({
+            let state = Arc::clone(&state);
+            move || {
+                let result = model::open_session_from_bytes(rt, &bytes, &label_owned, &cfg_owned)
+                    .and_then(|session| {
+                        StepEngine::from_session(
+                            session,
+                            &label_owned,
+                            &schema_owned,
+                            &cfg_owned,
+                            options,
+                        )
+                    });
+                // The receiver is gone when the load ran out of time: the engine is dropped here.
+                let _ = tx.send(result);
+                if state.swap(DONE, Ordering::AcqRel) == GAVE_UP {
+                    ABANDONED.fetch_sub(1, Ordering::AcqRel);
+                }
+            }
+        })
+        .map_err(|e| ModelError::Session {
+            reason: format!("cannot start a load thread: {e}"),
+        })?;
+    match rx.recv_timeout(cfg.load_timeout) {
+        Ok(result) => result,
+        Err(_) => {
+            let _ = run_options.terminate();
+            ABANDONED.fetch_add(1, Ordering::AcqRel);
+            if state
+                .compare_exchange(RUNNING, GAVE_UP, Ordering::AcqRel, Ordering::Acquire)
+                .is_err()
+            {
+                // The thread ended in the meantime: nothing left running.
+                ABANDONED.fetch_sub(1, Ordering::AcqRel);
+            }
+            Err(ModelError::TimedOut {
+                limit_s: cfg.load_timeout.as_secs_f64(),
+            })
+        }
+    }
 }

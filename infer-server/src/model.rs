@@ -10,9 +10,9 @@ use ort::session::Session;
 use ort::value::{TensorElementType, ValueType};
 
 use crate::contract::{
-    FeatureSchema, ModelKind, FEATURE_NAMES, INPUT_C, INPUT_FEATURES, INPUT_H, META_FEATURES,
-    META_KIND, META_PREVIOUS_FORCE, META_PROVENANCE, META_STATE_SIZE, META_UNITS, OUTPUT_C,
-    OUTPUT_FORCE, OUTPUT_H,
+    checked_elements, FeatureSchema, ModelKind, FEATURE_NAMES, INPUT_C, INPUT_FEATURES, INPUT_H,
+    META_FEATURES, META_KIND, META_PREVIOUS_FORCE, META_PROVENANCE, META_STATE_SIZE, META_UNITS,
+    OUTPUT_C, OUTPUT_FORCE, OUTPUT_H,
 };
 use crate::runtime::Runtime;
 
@@ -68,6 +68,10 @@ pub enum ModelError {
     RunFailed { reason: String },
     #[error("could not configure the ONNX Runtime session: {reason}")]
     Session { reason: String },
+    #[error("loading and warming up the model took longer than the limit of {limit_s} s; it was stopped (a model this slow could not keep up with the loop)")]
+    TimedOut { limit_s: f64 },
+    #[error("{running} model loads that ran out of time are still running (each finishes its current run first); try again in a moment")]
+    Busy { running: usize },
 }
 
 impl ModelError {
@@ -85,6 +89,8 @@ impl ModelError {
             Self::NonFinite { .. } => "non_finite_output",
             Self::RunFailed { .. } => "run_failed",
             Self::Session { .. } => "session_failed",
+            Self::TimedOut { .. } => "timed_out",
+            Self::Busy { .. } => "busy",
         }
     }
 }
@@ -105,6 +111,9 @@ pub struct SessionConfig {
     /// Bind inputs and outputs once (`OrtIoBinding`) and step with `RunWithBinding` instead
     /// of `Run` with preallocated outputs. Both write into the same preallocated buffers.
     pub io_binding: bool,
+    /// How long the server's registry lets a load (session, checks, warm-up) take before it
+    /// stops it ([`crate::engine::load_bounded`]); 10 s by default.
+    pub load_timeout: std::time::Duration,
 }
 
 impl Default for SessionConfig {
@@ -114,6 +123,7 @@ impl Default for SessionConfig {
             spinning: false,
             warmup_runs: 32,
             io_binding: false,
+            load_timeout: std::time::Duration::from_secs(10),
         }
     }
 }
@@ -463,8 +473,12 @@ pub fn check_signature(session: &Session, meta: &Metadata) -> Result<Signature, 
                     });
                 }
             }
+            checked_elements(&concrete).map_err(|detail| ModelError::BadShape {
+                name: INPUT_H.to_string(),
+                detail,
+            })?;
             if let Some(size) = meta.state_size {
-                if size as i64 != hidden {
+                if i64::try_from(size).ok() != Some(hidden) {
                     return Err(ModelError::BadMetadata {
                         key: META_STATE_SIZE.to_string(),
                         value: size.to_string(),

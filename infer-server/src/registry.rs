@@ -13,8 +13,12 @@
 //! Activation moves the loaded engine to the inference thread through the atomic handoff
 //! ([`crate::handoff`], one pointer swap between two steps) and returns once the thread has
 //! taken it, with the first step the new model answered. The engine the thread gave back goes
-//! back to its model, which is `Loaded` again (no reload). Loads, activations and unloads are
-//! serialised by one mutex; none of them ever touches the inference thread's path.
+//! back to its model, which is `Loaded` again (no reload). Activations and unloads are
+//! serialised by one mutex; a load builds its engine off that mutex, within the load time limit
+//! ([`crate::engine::load_bounded`]), and takes it only to record the result, so a slow or
+//! crafted model holds up no swap, unload or status. Uploaded models kept in memory are capped
+//! in total ([`Registry::with_max_uploads_held`]). None of this ever touches the inference
+//! thread's path.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -25,7 +29,8 @@ use control_plane::{
     backend::validate_model_name, Activation, ControlError, ModelInfo, ModelSource, ModelState,
 };
 
-use crate::engine::StepEngine;
+use crate::contract::FeatureSchema;
+use crate::engine::{load_bounded, StepEngine};
 use crate::model::ModelError;
 use crate::server::Server;
 
@@ -44,6 +49,17 @@ enum Source {
     Directory,
     Upload(Arc<[u8]>),
 }
+
+/// A load's checked inputs, before the engine is built.
+struct Prepared {
+    name: String,
+    source: Source,
+    bytes: Arc<[u8]>,
+    label: PathBuf,
+}
+
+/// Uploaded models held in memory at most, in bytes, by default (256 MiB).
+pub const DEFAULT_MAX_UPLOADS_HELD: usize = 256 << 20;
 
 struct Entry {
     source: Source,
@@ -73,6 +89,8 @@ pub struct Registry {
     dir: PathBuf,
     ops: Mutex<()>,
     state: Mutex<State>,
+    /// Cap on the bytes of uploaded models kept in memory.
+    max_uploads_held: usize,
 }
 
 /// Maps a refused model to the control plane's error: the model's own faults are
@@ -83,6 +101,7 @@ pub fn control_error(name: &str, e: &ModelError) -> ControlError {
         ModelError::MissingFeature { .. } => ControlError::FailedPrecondition(msg),
         ModelError::Unreadable { .. } => ControlError::FailedPrecondition(msg),
         ModelError::Session { .. } => ControlError::Internal(msg),
+        ModelError::Busy { .. } => ControlError::Unavailable(msg),
         _ => ControlError::InvalidArgument(msg),
     }
 }
@@ -95,7 +114,14 @@ impl Registry {
             dir: dir.into(),
             ops: Mutex::new(()),
             state: Mutex::new(State::default()),
+            max_uploads_held: DEFAULT_MAX_UPLOADS_HELD,
         }
+    }
+
+    /// Sets the cap on the bytes of uploaded models kept in memory.
+    pub fn with_max_uploads_held(mut self, bytes: usize) -> Self {
+        self.max_uploads_held = bytes;
+        self
     }
 
     pub fn server(&self) -> &Arc<Server> {
@@ -225,24 +251,62 @@ impl Registry {
     }
 
     /// Reads, validates (against the attached segment's schema, the nine standard features
-    /// while no loop is attached) and warms a model, and keeps it loaded.
+    /// while no loop is attached) and warms a model, and keeps it loaded. The model is built
+    /// off the registry's lock and within the load time limit ([`load_bounded`]), so a slow or
+    /// crafted model holds up no activation, unload or status meanwhile.
     pub fn load(&self, source: ModelSource) -> Result<ModelInfo, ControlError> {
+        let prepared = self.prepare(source)?;
+        let schema = self.server.schema();
+        let result = self.build(&prepared, &schema);
         let _ops = self.lock_ops();
         self.collect_returned();
-        self.load_locked(source)
+        self.store(prepared, &schema, result)
     }
 
+    /// The same under the registry's lock (activation of a model not loaded yet).
     fn load_locked(&self, source: ModelSource) -> Result<ModelInfo, ControlError> {
+        let prepared = self.prepare(source)?;
+        let schema = self.server.schema();
+        let result = self.build(&prepared, &schema);
+        self.store(prepared, &schema, result)
+    }
+
+    /// Bytes of uploaded models held in memory, leaving out `except`.
+    fn uploads_held(&self, except: &str) -> usize {
+        let st = self.lock();
+        st.entries
+            .iter()
+            .filter(|(n, _)| n.as_str() != except)
+            .map(|(_, e)| match &e.source {
+                Source::Upload(b) => b.len(),
+                Source::Directory => 0,
+            })
+            .sum()
+    }
+
+    /// Refuses an upload that would take the uploads held in memory over the cap.
+    fn check_upload_cap(&self, name: &str, len: usize) -> Result<(), ControlError> {
+        let held = self.uploads_held(name);
+        if held.saturating_add(len) > self.max_uploads_held {
+            return Err(ControlError::TooLarge(format!(
+                "uploaded models held in memory would take {} bytes with {name} ({len} bytes), \
+                 over the server's cap of {} bytes: unload an uploaded model first, or put the \
+                 file in the model directory and load it by name",
+                held.saturating_add(len),
+                self.max_uploads_held
+            )));
+        }
+        Ok(())
+    }
+
+    /// Name, source and bytes of a load, checked (name, not the active model, upload cap).
+    fn prepare(&self, source: ModelSource) -> Result<Prepared, ControlError> {
         let name = match &source {
             ModelSource::Directory { name } => self.canonical_name(name),
             ModelSource::Upload { name, .. } => name.clone(),
         };
         validate_model_name(&name)?;
-        if self.lock().active.as_deref() == Some(name.as_str()) {
-            return Err(ControlError::FailedPrecondition(format!(
-                "{name} is the active model: activate another model before reloading it"
-            )));
-        }
+        self.refuse_active(&name)?;
         let (source, bytes): (Source, Arc<[u8]>) = match source {
             ModelSource::Directory { .. } => {
                 (Source::Directory, self.read_directory_file(&name)?.into())
@@ -257,20 +321,60 @@ impl Registry {
                 // The same bytes as the directory's file: that file.
                 Ok(_) => (Source::Directory, bytes.into()),
                 Err(_) => {
+                    self.check_upload_cap(&name, bytes.len())?;
                     let b: Arc<[u8]> = bytes.into();
                     (Source::Upload(Arc::clone(&b)), b)
                 }
             },
         };
         let label = self.label(&name, &source);
-        let schema = self.server.schema();
-        let result = StepEngine::load_from_bytes(
+        Ok(Prepared {
+            name,
+            source,
+            bytes,
+            label,
+        })
+    }
+
+    fn refuse_active(&self, name: &str) -> Result<(), ControlError> {
+        if self.lock().active.as_deref() == Some(name) {
+            return Err(ControlError::FailedPrecondition(format!(
+                "{name} is the active model: activate another model before reloading it"
+            )));
+        }
+        Ok(())
+    }
+
+    /// Builds the engine within the load time limit.
+    fn build(&self, p: &Prepared, schema: &FeatureSchema) -> Result<StepEngine, ModelError> {
+        load_bounded(
             self.server.runtime(),
-            &bytes,
-            &label,
-            &schema,
+            Arc::clone(&p.bytes),
+            &p.label,
+            schema,
             self.server.session_config(),
-        );
+        )
+    }
+
+    /// Records the outcome of a load (under the registry's lock): the engine kept, or the
+    /// model marked `Failed` with why.
+    fn store(
+        &self,
+        p: Prepared,
+        schema: &FeatureSchema,
+        result: Result<StepEngine, ModelError>,
+    ) -> Result<ModelInfo, ControlError> {
+        let Prepared {
+            name,
+            source,
+            bytes,
+            ..
+        } = p;
+        // Checked again: another call may have activated it, or uploaded others, meanwhile.
+        self.refuse_active(&name)?;
+        if let Source::Upload(b) = &source {
+            self.check_upload_cap(&name, b.len())?;
+        }
         let mut entry = Entry {
             source,
             size_bytes: bytes.len() as u64,
@@ -457,9 +561,9 @@ impl Registry {
                     (Source::Directory, self.read_directory_file(name)?.into())
                 }
             };
-            return StepEngine::load_from_bytes(
+            return load_bounded(
                 self.server.runtime(),
-                &bytes,
+                bytes,
                 &self.label(name, &src),
                 &self.server.schema(),
                 self.server.session_config(),
@@ -549,9 +653,9 @@ impl Registry {
             Source::Directory => self.read_directory_file(&name).map(Into::into),
         };
         let result = bytes.and_then(|b| {
-            StepEngine::load_from_bytes(
+            load_bounded(
                 self.server.runtime(),
-                &b,
+                b,
                 &self.label(&name, &source),
                 &schema,
                 self.server.session_config(),

@@ -360,7 +360,6 @@ fn check_model_answers(
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn models_load_activate_swap_and_refusals_over_grpc() {
     let Some(fixtures) = common::fixtures() else {
-        eprintln!("skipped (HAPTICS_SKIP_PY=1)");
         return;
     };
     let names = [
@@ -682,7 +681,6 @@ fn row(step: u64, phase: u8) -> TelemetryRow {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn status_experiments_and_telemetry_from_the_segment() {
     if common::fixtures().is_none() {
-        eprintln!("skipped (HAPTICS_SKIP_PY=1)");
         return;
     }
     let dir = models_dir("status", common::fixtures().unwrap(), &["linear"]);
@@ -868,7 +866,6 @@ async fn status_experiments_and_telemetry_from_the_segment() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sigterm_ends_open_streams_and_websockets_quickly() {
     if common::fixtures().is_none() {
-        eprintln!("skipped (HAPTICS_SKIP_PY=1)");
         return;
     }
     let dir = models_dir("term", common::fixtures().unwrap(), &["linear"]);
@@ -975,7 +972,6 @@ fn loop_with(segment: &SegmentName, order: &[usize]) -> LoopSide {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_new_loop_is_served_again_and_the_active_model_revalidated_for_it() {
     let Some(fixtures) = common::fixtures() else {
-        eprintln!("skipped (HAPTICS_SKIP_PY=1)");
         return;
     };
     let dir = models_dir("reattach", fixtures, &["tree"]);
@@ -1052,7 +1048,6 @@ async fn a_new_loop_is_served_again_and_the_active_model_revalidated_for_it() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_hundred_swaps_lose_no_step_and_each_takes_effect_at_its_reported_step() {
     let Some(fixtures) = common::fixtures() else {
-        eprintln!("skipped (HAPTICS_SKIP_PY=1)");
         return;
     };
     let dir = models_dir("swap100", fixtures, &["linear", "tree"]);
@@ -1103,7 +1098,6 @@ async fn a_hundred_swaps_lose_no_step_and_each_takes_effect_at_its_reported_step
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_python_grpc_client_uses_the_real_server_through_reflection() {
     let Some(fixtures) = common::fixtures() else {
-        eprintln!("skipped (HAPTICS_SKIP_PY=1)");
         return;
     };
     let dir = models_dir("py", fixtures, &[]);

@@ -2,9 +2,13 @@
 //!
 //! The fixtures are written by `tests/fixtures/make_models.py` with the project's venv
 //! (`bash scripts/setup.sh` creates it). Without the venv the tests fail and say so; set
-//! `HAPTICS_SKIP_PY=1` to skip them explicitly instead (each skipped test prints a line).
+//! `HAPTICS_SKIP_PY=1` to skip them explicitly instead: each skipped test is recorded
+//! ([`skip::skip`]: counted by scripts/test.sh), and under `CI=true` it fails instead.
 
 #![allow(dead_code)]
+
+#[path = "../../../tests/src/skip.rs"]
+pub mod skip;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -68,32 +72,35 @@ pub fn generate(script: &Path, dir: &Path, extra: &[&str]) {
     );
 }
 
-/// The fixture directory, generated on first use. `None` only when HAPTICS_SKIP_PY=1.
+/// The fixture directory, generated on first use. `None` only when HAPTICS_SKIP_PY=1: the
+/// calling test is then recorded as skipped (or fails under `CI=true`) and must return.
 pub fn fixtures() -> Option<&'static Path> {
     static DIR: OnceLock<Option<PathBuf>> = OnceLock::new();
-    DIR.get_or_init(|| {
-        if skip_python() {
-            eprintln!("HAPTICS_SKIP_PY=1: skipping a test that needs the Python-built fixtures");
-            return None;
-        }
-        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("infer-server-fixtures");
-        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/make_models.py");
-        generate(&script, &dir, &[]);
-        Some(dir)
-    })
-    .as_deref()
+    let dir = DIR
+        .get_or_init(|| {
+            if skip_python() {
+                return None;
+            }
+            let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("infer-server-fixtures");
+            let script =
+                Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/make_models.py");
+            generate(&script, &dir, &[]);
+            Some(dir)
+        })
+        .as_deref();
+    if dir.is_none() {
+        skip::skip("HAPTICS_SKIP_PY=1: the test needs the Python-built fixture models");
+    }
+    dir
 }
 
-/// `fixtures()` joined with `name.onnx`, or return from the test when skipping.
+/// `fixtures()` joined with `name.onnx`, or return from the test when skipping (recorded).
 #[macro_export]
 macro_rules! model_or_skip {
     ($name:expr) => {
         match common::fixtures() {
             Some(dir) => dir.join(format!("{}.onnx", $name)),
-            None => {
-                eprintln!("skipped (HAPTICS_SKIP_PY=1)");
-                return;
-            }
+            None => return,
         }
     };
 }
