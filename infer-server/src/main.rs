@@ -91,6 +91,20 @@ enum Command {
         /// Largest model upload accepted, MiB.
         #[arg(long, default_value_t = 64)]
         max_upload_mib: usize,
+        /// Most MiB of model uploads held in memory: those being received at once (gRPC and
+        /// HTTP together; each in progress reserves --max-upload-mib), and, counted apart,
+        /// the uploaded models kept loaded.
+        #[arg(long, default_value_t = 256)]
+        max_uploads_mib: usize,
+        /// Time limit of a model load (session, checks, warm-up), seconds: a slower model is
+        /// stopped and refused (docs/model-contract.md, "Loader limits").
+        #[arg(long, default_value_t = 10.0)]
+        load_timeout_s: f64,
+        /// A host name the page and /api may be reached under, besides localhost and the
+        /// listening addresses (repeatable; also $HAPTICS_ALLOWED_HOSTS, comma-separated). Any
+        /// other name in a request's Host is refused (DNS rebinding; docs/control-plane.md).
+        #[arg(long = "allowed-host", value_name = "NAME")]
+        allowed_hosts: Vec<String>,
         /// rt-loop instance name: the segment is /haptics-INSTANCE.
         #[arg(long, default_value = "default", conflicts_with = "segment")]
         instance: String,
@@ -154,6 +168,9 @@ fn main() -> ExitCode {
             token,
             allow_public_without_token,
             max_upload_mib,
+            max_uploads_mib,
+            load_timeout_s,
+            mut allowed_hosts,
             instance,
             segment,
             wait,
@@ -189,9 +206,25 @@ fn main() -> ExitCode {
                 rt_priority,
                 exit_when_loop_gone,
             };
+            // Every numeric setting checked here, with what is allowed (the control plane's
+            // own, like the upload limits, are checked by control_plane::Config::check).
+            let numeric = [
+                ("--load-timeout-s", load_timeout_s, 0.0, 600.0, false),
+                ("--stats-every", stats_every, 0.0, 86_400.0, true),
+                ("--ort-threads", ort_threads as f64, 1.0, 64.0, true),
+            ];
+            for (flag, v, lo, hi, lo_ok) in numeric {
+                let above_lo = if lo_ok { v >= lo } else { v > lo };
+                if !(v.is_finite() && above_lo && v <= hi) {
+                    let lo_word = if lo_ok { ">=" } else { ">" };
+                    eprintln!("infer-server: {flag} is {v}; it must be {lo_word} {lo} and <= {hi}");
+                    return ExitCode::from(EXIT_USAGE);
+                }
+            }
             let session = SessionConfig {
                 intra_threads: ort_threads,
                 spinning: ort_spin,
+                load_timeout: Duration::from_secs_f64(load_timeout_s),
                 ..SessionConfig::default()
             };
             if mlock {
@@ -212,6 +245,18 @@ fn main() -> ExitCode {
                 token,
                 allow_public_without_token,
                 max_upload_bytes: max_upload_mib.saturating_mul(1 << 20),
+                max_uploads_in_flight_bytes: max_uploads_mib.saturating_mul(1 << 20),
+                allowed_hosts: {
+                    if let Ok(env) = std::env::var("HAPTICS_ALLOWED_HOSTS") {
+                        allowed_hosts.extend(
+                            env.split(',')
+                                .map(str::trim)
+                                .filter(|h| !h.is_empty())
+                                .map(String::from),
+                        );
+                    }
+                    allowed_hosts
+                },
                 // Streams end at once on shutdown; this is for connections that hang on.
                 shutdown_grace: Duration::from_millis(1000),
                 version: env!("CARGO_PKG_VERSION").to_string(),
@@ -341,7 +386,10 @@ fn serve(ort_lib: Option<&Path>, args: ServeArgs) -> ExitCode {
             return ExitCode::from(EXIT_REFUSED);
         }
     };
-    let registry = Arc::new(Registry::new(Arc::clone(&server), &args.dir));
+    let registry = Arc::new(
+        Registry::new(Arc::clone(&server), &args.dir)
+            .with_max_uploads_held(args.control.max_uploads_in_flight_bytes),
+    );
     let mut exit = ExitCode::SUCCESS;
     // Load the start model up front, so a broken one is refused before waiting for a loop.
     // Against the standard features: a model for another loop schema is retried on attach.
