@@ -101,8 +101,10 @@ def table(out: dict, specs: tuple[str, ...]) -> str:
     names = [*BASELINES, *learned]
     md = ["# Leave-one-rate-out on loading-unloading tests (SYNTHETIC data)", ""]
     md.append(
-        "**Synthetic stand-in, not a measurement**: no public force-displacement dataset with a "
-        "licence that allows a sample could be obtained here (docs/train.md). The tests are the "
+        "**Synthetic stand-in, not a measurement**: no public dataset of loading-unloading "
+        "tests of one material at several rates, with a licence that allows a sample, could be "
+        "obtained here (the one real curve found, an AFM approach-retract curve, has a single "
+        "rate: docs/train.md). The tests are the "
         "`haptics_train.viscoelastic` elastomer (Fung quasi-linear viscoelasticity: a cubic "
         "instantaneous spring with a two-term Prony relaxation function; not the class of the "
         f"`prony` model), parameters `{json.dumps(out['material'])}`, one loading-unloading "
@@ -146,12 +148,16 @@ def main() -> None:
     p.add_argument("--models", default=",".join(SPECS))
     p.add_argument("--quick", action="store_true", help="small models (a smoke run)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--from-json", help="re-render the table from a previous run's .json")
     a = p.parse_args()
     import torch
 
     torch.set_num_threads(1)
     specs = tuple(s.strip() for s in a.models.split(",") if s.strip())
-    res = run(Path(a.work), specs, a.quick, a.seed)
+    if a.from_json:
+        res = json.loads(Path(a.from_json).read_text())
+    else:
+        res = run(Path(a.work), specs, a.quick, a.seed)
     text = table(res, specs)
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(text)
