@@ -25,6 +25,7 @@ import numpy as np
 import onnx
 import torch
 from scipy.optimize import nnls
+from scipy.signal import lfilter
 
 from ..closed_loop import contact_thresholds
 from ..data import Recording
@@ -38,12 +39,8 @@ def branch_states(v: np.ndarray, dt: float, taus: np.ndarray) -> np.ndarray:
     """[n, K] Maxwell-branch states along a velocity series (zero before the first row)."""
     e = np.exp(-dt / taus)
     gain = taus * (1.0 - e)
-    out = np.empty((len(v), len(taus)))
-    s = np.zeros(len(taus))
-    for i, vi in enumerate(v):
-        s = s * e + gain * vi
-        out[i] = s
-    return out
+    # s[n] = e s[n-1] + gain v[n]: a first-order IIR filter per branch
+    return np.column_stack([lfilter([g], [1.0, -ei], v) for g, ei in zip(gain, e, strict=True)])
 
 
 class _PronyModule(torch.nn.Module):
