@@ -42,3 +42,28 @@ def test_diverged_prediction_scores_infinite_rmse_not_dropped():
 def test_shape_mismatch_is_an_error():
     with pytest.raises(ValueError):
         regression_metrics(np.zeros(3), np.zeros(4))
+
+
+def test_force_metrics_by_hand():
+    from haptics_train.metrics import force_metrics, loop_work, pooled
+
+    # a square loop in the force-depth plane: load at 2 N from x=0 to 1, unload at 1 N back
+    x = np.array([0.0, 1.0, 1.0, 0.0])
+    f = np.array([2.0, 2.0, 1.0, 1.0])
+    assert loop_work(x, f) == pytest.approx(2.0 * 1 + 1.5 * 0 + 1.0 * -1)  # = 1 J dissipated
+    y = np.array([0.0, 1.0, 3.0, 0.0])
+    p = np.array([0.0, 2.0, 3.0, 0.5])
+    m = force_metrics(y, p, np.array([0.0, 1.0, 2.0, 0.0]), contact_n=0.5)
+    assert m["max_abs"] == 1.0
+    assert m["rmse"] == pytest.approx(np.sqrt((1 + 0.25) / 4))
+    assert m["rmse_pct_range"] == pytest.approx(100 * m["rmse"] / 3.0)
+    assert m["contact_rows"] == 2 and m["contact_rmse"] == pytest.approx(np.sqrt(1 / 2))
+    # work true: 0.5*1 + 2*1 + 1.5*(-2) = -0.5; predicted: 1 + 2.5 - 3.5 = 0
+    assert m["loop_work_true"] == pytest.approx(-0.5)
+    assert m["loop_work_error"] == pytest.approx(0.5)
+    assert m["loop_work_error_pct"] == pytest.approx(100.0)
+    both = pooled([(y, p, x, 0.5), (y, y, x, 0.5)])
+    assert both["mse"] == pytest.approx(m["mse"] / 2)
+    assert both["contact_rows"] == 4 and both["contact_rmse"] == pytest.approx(np.sqrt(1 / 4))
+    diverged = force_metrics(y, np.array([0.0, np.inf, 0.0, 0.0]), x, 0.5)
+    assert diverged["rmse"] == float("inf") and diverged["max_abs"] == float("inf")
