@@ -17,11 +17,11 @@ def test_pipeline_end_to_end(tmp_path, capsys):
     main([
         "pipeline", "--dataset", str(synth_root), "--models-dir", str(models),
         "--out", str(report), "--decimate", "10", "--no-progress",
-        "--models", "sd_poly2,rf:six,lstm:six,dnn:memory",
+        "--models", "sd_poly2,rf:six,lstm:six,dnn:memory,prony",
         "--rf-trees", "5", "--lstm-iterations", "5", "--dnn-epochs", "1",
     ])  # fmt: skip
     res = json.loads((models / "results.json").read_text())
-    assert set(res) == {"sd_poly2", "rf_six", "lstm_six", "dnn_memory"}
+    assert set(res) == {"sd_poly2", "rf_six", "lstm_six", "dnn_memory", "prony"}
     for name, r in res.items():
         t = r["test"][0]
         assert t["recording"] == "test_2.1"
