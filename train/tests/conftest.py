@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import NoReturn
 
 import pytest
 import torch
@@ -16,11 +17,24 @@ REPO = Path(__file__).resolve().parents[2]
 torch.set_num_threads(1)  # 2 threads on a busy 2-core box run ~10x slower
 
 
+def missing(why: str) -> NoReturn:
+    """A dependency of the test is missing: a failure under CI=true (a test that cannot run
+    must not pass there), an explicit skip elsewhere (pytest counts it; scripts/test.sh prints
+    the count)."""
+    if os.environ.get("CI") == "true":
+        pytest.fail(f"{why} (CI=true: a test that cannot run fails)", pytrace=False)
+    pytest.skip(why)
+
+
 def binary(name: str, env: str) -> Path | None:
-    """A built project binary: $ENV, else target/release, else target/debug."""
+    """A built project binary: $ENV, else target/release, else target/debug.
+
+    $ENV naming a file that does not exist is a mistake, never a reason to skip: it fails."""
     if os.environ.get(env):
         p = Path(os.environ[env])
-        return p if p.is_file() else None
+        if not p.is_file():
+            pytest.fail(f"${env} is {p}, which is not a file", pytrace=False)
+        return p
     for sub in ("release", "debug"):
         p = REPO / "target" / sub / name
         if p.is_file() and os.access(p, os.X_OK):
@@ -42,7 +56,7 @@ def synth(synth_root: Path) -> Dataset:
 def rt_loop() -> Path:
     p = binary("rt-loop", "HAPTICS_RT_LOOP")
     if p is None:
-        pytest.skip("rt-loop binary not built (cargo build --release -p rt-loop)")
+        missing("rt-loop binary not built (cargo build --release -p rt-loop)")
     return p
 
 
@@ -50,5 +64,5 @@ def rt_loop() -> Path:
 def infer_server() -> Path:
     p = binary("infer-server", "HAPTICS_INFER_SERVER")
     if p is None:
-        pytest.skip("infer-server binary not built (cargo build --release -p infer-server)")
+        missing("infer-server binary not built (cargo build --release -p infer-server)")
     return p

@@ -10,17 +10,18 @@ export const CHROMIUM = process.env.CHROMIUM_PATH ?? "/usr/bin/chromium";
 const ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update", "--no-first-run", "--disable-sync", "--disable-dev-shm-usage"];
 
 /**
- * Starts Chromium with a new temporary profile. Returns { context, page, requests, close }.
+ * Starts Chromium with a new temporary profile (and `args` besides the usual ones). Returns
+ * { context, page, requests, close }.
  * `requests` records every URL the page asked for, so a test can check that nothing left the
  * server the page came from.
  */
-export async function openBrowser({ width = 1440, height = 1000 } = {}) {
+export async function openBrowser({ width = 1440, height = 1000, args = [] } = {}) {
   if (!existsSync(CHROMIUM)) throw new Error(`${CHROMIUM} not found: install Debian's chromium (apt-get install -y chromium); the tests never download a browser`);
   const userDataDir = await mkdtemp(join(tmpdir(), "haptics-chromium-"));
   const context = await chromium.launchPersistentContext(userDataDir, {
     executablePath: CHROMIUM,
     headless: true,
-    args: ARGS,
+    args: [...ARGS, ...args],
     viewport: { width, height },
     acceptDownloads: true,
   });
@@ -43,6 +44,16 @@ export async function openBrowser({ width = 1440, height = 1000 } = {}) {
       await rm(userDataDir, { recursive: true, force: true }).catch(() => {});
     },
   };
+}
+
+/**
+ * A dependency of a test is missing (a binary, a browser): under CI=true that FAILS (throws);
+ * elsewhere it returns `why`, for the caller to skip with (node:test counts skips, and
+ * scripts/test.sh prints the count).
+ */
+export function missing(why) {
+  if (process.env.CI === "true") throw new Error(`${why} (CI=true: a test that cannot run fails)`);
+  return why;
 }
 
 export const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
