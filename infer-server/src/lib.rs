@@ -7,6 +7,10 @@
 //! - [`latency`]: a lock-free HDR-style latency histogram the inference thread writes and any
 //!   thread reads.
 //! - [`handoff`]: hands a freshly validated engine to the inference thread between two steps.
+//! - [`period_sync`]: learns the loop's period and phase so the inference thread sleeps until
+//!   just before each step instead of parking (the period-synchronised wait).
+//! - [`profile`]: the wait profiles (dedicated core, period-synchronised, shared) chosen from
+//!   the machine.
 //! - [`serve`]: the inference thread over rt-loop's shared-memory segment.
 //! - [`server`]: [`server::Server`], the control side (validate, activate, revalidate, stats)
 //!   that `serve`, gRPC and the web page call.
@@ -24,6 +28,8 @@ pub mod engine;
 pub mod handoff;
 pub mod latency;
 pub mod model;
+pub mod period_sync;
+pub mod profile;
 pub mod registry;
 pub mod runtime;
 pub mod serve;

@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 use clap::{Parser, Subcommand};
 use control_plane::{ControlError, ModelSource, Shutdown, TelemetryHub};
 use infer_server::backend::ServerBackend;
+use infer_server::profile::{self, Machine, Profile};
 use infer_server::registry::Registry;
 use infer_server::serve::ServeConfig;
 use infer_server::server::Server;
@@ -39,6 +40,8 @@ struct Cli {
     command: Command,
 }
 
+// Parsed once at start: the size of the largest variant (serve's flags) costs nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand)]
 enum Command {
     /// Check a model against the contract (docs/model-contract.md) and a feature schema.
@@ -111,23 +114,31 @@ enum Command {
         /// Explicit segment name (starting with /), instead of --instance.
         #[arg(long)]
         segment: Option<String>,
-        /// How the inference thread waits for features: spin (burns a core), park, or
-        /// spin-park (spin --spins times, then park).
-        #[arg(long, default_value = "spin-park")]
-        wait: WaitArg,
+        /// Wait profile: auto (chosen from the machine's CPUs, isolated CPUs and permissions,
+        /// printed at start), dedicated (spin on a core of its own), period (sleep until
+        /// shortly before each step, spin through its arrival), shared (spin briefly, park).
+        /// --wait, --cpu, --rt-priority and --mlock override their part of it.
+        #[arg(long, value_enum, default_value = "auto")]
+        profile: Profile,
+        /// How the inference thread waits for features (default: the profile's): spin (burns a
+        /// core), park, spin-park (spin --spins times, then park), or period (the
+        /// period-synchronised wait).
+        #[arg(long)]
+        wait: Option<WaitArg>,
         /// Spin budget of spin-park before parking (2000: a few microseconds); a budget covering the
         /// loop's period keeps the thread awake between steps (best latency, one busy core).
         #[arg(long, default_value_t = 2000)]
         spins: u32,
-        /// Pin the inference thread to this CPU (ignored with a warning where not permitted).
+        /// Pin the inference thread to this CPU (default: the profile's; ignored with a warning
+        /// where not permitted).
         #[arg(long)]
         cpu: Option<usize>,
-        /// SCHED_FIFO priority (1-99) for the inference thread (reported and ignored where not
-        /// permitted). Use with --wait park or spin-park on a two-core machine.
+        /// SCHED_FIFO priority (1-99) for the inference thread (default: the profile's; 0: the
+        /// default scheduler; reported and ignored where not permitted).
         #[arg(long)]
         rt_priority: Option<i32>,
         /// Lock the process's memory (mlockall) so no page fault can stall a step later
-        /// (reported and ignored where not permitted).
+        /// (the profiles do where permitted; reported and ignored where not permitted).
         #[arg(long)]
         mlock: bool,
         /// Let ONNX Runtime's threads spin (off by default; only matters with --ort-threads > 1).
@@ -173,6 +184,7 @@ fn main() -> ExitCode {
             mut allowed_hosts,
             instance,
             segment,
+            profile,
             wait,
             spins,
             cpu,
@@ -194,16 +206,46 @@ fn main() -> ExitCode {
                     return ExitCode::from(EXIT_REFUSED);
                 }
             };
-            let wait = match wait {
-                WaitArg::Spin => WaitStrategy::Spin,
-                WaitArg::Park => WaitStrategy::Park,
-                WaitArg::SpinPark => WaitStrategy::SpinThenPark { spins },
-            };
+            if rt_priority.is_some_and(|p| !(0..=99).contains(&p)) {
+                eprintln!("infer-server: --rt-priority must be 0..=99 (0: default scheduler)");
+                return ExitCode::from(EXIT_USAGE);
+            }
+            let machine = Machine::detect();
+            let mut chosen = profile::settings(profile, &machine);
+            if let Some(w) = wait {
+                chosen.wait = match w {
+                    WaitArg::Spin => WaitStrategy::Spin,
+                    WaitArg::Park => WaitStrategy::Park,
+                    WaitArg::SpinPark => WaitStrategy::SpinThenPark { spins },
+                    WaitArg::Period => WaitStrategy::PeriodSync,
+                };
+            }
+            if cpu.is_some() {
+                chosen.cpu = cpu;
+            }
+            if let Some(p) = rt_priority {
+                chosen.rt_priority = (p > 0).then_some(p);
+            }
+            chosen.mlock |= mlock;
+            let overridden = wait.is_some() || cpu.is_some() || rt_priority.is_some() || mlock;
+            eprintln!(
+                "infer-server: profile {}{} on {}: {}",
+                profile_name(chosen.profile),
+                match (profile, overridden) {
+                    (Profile::Auto, false) => " (auto)",
+                    (Profile::Auto, true) => " (auto, with explicit flags)",
+                    (_, true) => " (with explicit flags)",
+                    _ => "",
+                },
+                machine.describe(),
+                chosen.describe()
+            );
+            let mlock = chosen.mlock;
             let cfg = ServeConfig {
                 segment: name,
-                wait,
-                cpu,
-                rt_priority,
+                wait: chosen.wait,
+                cpu: chosen.cpu,
+                rt_priority: chosen.rt_priority,
                 exit_when_loop_gone,
             };
             // Every numeric setting checked here, with what is allowed (the control plane's
@@ -289,6 +331,16 @@ enum WaitArg {
     Spin,
     Park,
     SpinPark,
+    Period,
+}
+
+fn profile_name(p: Profile) -> &'static str {
+    match p {
+        Profile::Auto => "auto",
+        Profile::Dedicated => "dedicated",
+        Profile::Period => "period",
+        Profile::Shared => "shared",
+    }
 }
 
 static STOP: AtomicBool = AtomicBool::new(false);
@@ -484,6 +536,7 @@ fn serve(ort_lib: Option<&Path>, args: ServeArgs) -> ExitCode {
 
     let mut last_report = Instant::now();
     let mut attached = false;
+    let mut undecodable_seen = 0u64;
     while !STOP.load(Ordering::Relaxed) && !server.is_finished() && !control_thread.is_finished() {
         std::thread::sleep(Duration::from_millis(20));
         let now_attached = server.attached();
@@ -511,6 +564,21 @@ fn serve(ort_lib: Option<&Path>, args: ServeArgs) -> ExitCode {
                     }
                 }
             }
+        }
+        let undecodable = server.counters().undecodable.load(Ordering::Relaxed);
+        if undecodable != undecodable_seen {
+            let why = server
+                .counters()
+                .last_undecodable
+                .lock()
+                .ok()
+                .and_then(|e| e.map(|e| e.to_string()))
+                .unwrap_or_default();
+            eprintln!(
+                "infer-server: skipped {} feature message(s) that do not decode ({why}); serving on",
+                undecodable - undecodable_seen
+            );
+            undecodable_seen = undecodable;
         }
         if let Some(line) = registry.maintain() {
             eprintln!("infer-server: {line}");
@@ -559,7 +627,7 @@ fn report_stats(server: &Server) {
     let s = server.stats();
     let l = server.latency().snapshot();
     eprintln!(
-        "infer-server: answered {} (model {}, no model {}, errors {}, schema mismatch {}, non-finite {}, bad features {}), resets {}, attachments {}; ring-to-ring p50 {} ns p99 {} ns p99.9 {} ns max {} ns",
+        "infer-server: answered {} (model {}, no model {}, errors {}, schema mismatch {}, non-finite {}, bad features {}, undecodable {}), resets {}, attachments {}; period-sync period {} ns margin {} ns locks {} relearns {} missed wake-ups {}; ring-to-ring p50 {} ns p99 {} ns p99.9 {} ns max {} ns",
         s.answered,
         s.predicted,
         s.no_model,
@@ -567,8 +635,14 @@ fn report_stats(server: &Server) {
         s.schema_mismatch,
         s.non_finite,
         s.bad_features,
+        s.undecodable,
         s.resets,
         s.attachments,
+        s.sync_period_ns,
+        s.sync_margin_ns,
+        s.sync_locks,
+        s.sync_relearns,
+        s.sync_missed_wakes,
         l.quantile(0.5),
         l.quantile(0.99),
         l.quantile(0.999),

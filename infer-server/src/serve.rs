@@ -6,26 +6,34 @@
 //! ([`crate::handoff`]), reset a stateful model at a run start, run the model
 //! ([`crate::engine::StepEngine::step`]), send the force, record the ring-to-ring latency
 //! ([`crate::latency`]) and bump the counters in [`ServerStats`]. None of this allocates, locks
-//! or makes a syscall, except the futex wait/wake of the rings' wait strategy. Attaching,
+//! or makes a syscall, except the futex wait/wake of the rings' wait strategy, or with
+//! [`WaitStrategy::PeriodSync`] the one absolute sleep per step before the step is due
+//! ([`crate::period_sync`]). Attaching,
 //! re-attaching after the loop restarts, and publishing the segment's schema happen between
 //! runs, not per step.
 //!
 //! Every message gets an answer, even when there is nothing sensible to say: without a model,
 //! with a model validated against another schema, or when ONNX Runtime fails, the answer is
 //! NaN with a flag ([`force_flags`]), so a lockstep loop falls back at once instead of waiting.
+//! A message whose words do not decode (a corrupt or hostile writer) is counted, reported by
+//! the main thread, and skipped: the thread serves on with the next one.
 
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use shm_ring::{FeatureMsg, ForceMsg, RecvError, Segment, SegmentName, WaitStrategy};
+use shm_ring::{
+    monotonic_ns, sleep_until_ns, Consumer, DecodeError, FeatureMsg, ForceMsg, RecvError, Segment,
+    SegmentName, WaitStrategy,
+};
 
 use crate::attachment::{LoopEndpoints, SharedEndpoints};
 use crate::contract::{FeatureSchema, ModelKind};
 use crate::engine::StepError;
 use crate::handoff::{Offered, Taker};
 use crate::latency::{self, LatencyReader, LatencyRecorder};
+use crate::period_sync::{PeriodSync, Plan};
 
 /// Bits of `ForceMsg::flags` the server sets. 0 = a normal answer from the model.
 pub mod force_flags {
@@ -92,6 +100,18 @@ pub struct ServerStats {
     pub pinned_cpu: AtomicI64,
     /// SCHED_FIFO priority obtained, 0 when running on the default scheduler.
     pub rt_priority: AtomicI64,
+    /// Feature messages whose words did not decode: skipped (see [`ServerStats::last_undecodable`]).
+    pub undecodable: AtomicU64,
+    /// Why the last undecodable message was refused (written with `try_lock`, never waited on).
+    pub last_undecodable: Mutex<Option<DecodeError>>,
+    /// The period-synchronised wait ([`crate::period_sync`]): the learnt period (0: not locked),
+    /// the wake-up margin, how often it locked on and re-learnt, and the planned wake-ups after
+    /// which no message came.
+    pub sync_period_ns: AtomicU64,
+    pub sync_margin_ns: AtomicU64,
+    pub sync_locks: AtomicU64,
+    pub sync_relearns: AtomicU64,
+    pub sync_missed_wakes: AtomicU64,
 }
 
 #[inline(always)]
@@ -120,6 +140,12 @@ pub struct StatsSnapshot {
     pub attached: bool,
     pub pinned_cpu: i64,
     pub rt_priority: i64,
+    pub undecodable: u64,
+    pub sync_period_ns: u64,
+    pub sync_margin_ns: u64,
+    pub sync_locks: u64,
+    pub sync_relearns: u64,
+    pub sync_missed_wakes: u64,
 }
 
 impl ServerStats {
@@ -144,6 +170,12 @@ impl ServerStats {
             attached: self.attached.load(Ordering::Relaxed),
             pinned_cpu: self.pinned_cpu.load(Ordering::Relaxed),
             rt_priority: self.rt_priority.load(Ordering::Relaxed),
+            undecodable: l(&self.undecodable),
+            sync_period_ns: l(&self.sync_period_ns),
+            sync_margin_ns: l(&self.sync_margin_ns),
+            sync_locks: l(&self.sync_locks),
+            sync_relearns: l(&self.sync_relearns),
+            sync_missed_wakes: l(&self.sync_missed_wakes),
         }
     }
 }
@@ -357,12 +389,28 @@ impl Worker {
         };
         let mut usable = matches(active);
         let mut last_run: Option<u32> = None;
+        // A new loop: learn its period afresh (nothing of the last one applies).
+        let mut sync = (self.cfg.wait == WaitStrategy::PeriodSync).then(PeriodSync::new);
         let result = loop {
             if self.stop.load(Ordering::Relaxed) {
                 break Ok(true);
             }
-            let msg: FeatureMsg = match features_rx.recv_timeout(RECV_SLICE) {
+            let received = match sync.as_mut() {
+                Some(sync) => recv_synced(&mut features_rx, sync, &stats),
+                None => features_rx.recv_timeout(RECV_SLICE),
+            };
+            let msg: FeatureMsg = match received {
                 Ok(m) => m,
+                Err(RecvError::Decode(e)) => {
+                    // The slot was consumed; its words make no message (a corrupt or hostile
+                    // writer). Count it, leave the reason for the main thread to log, serve on.
+                    // The loop renders that step without an answer, as it would a late one.
+                    bump(&stats.undecodable);
+                    if let Ok(mut last) = stats.last_undecodable.try_lock() {
+                        *last = Some(e);
+                    }
+                    continue;
+                }
                 Err(RecvError::Timeout) => {
                     link.heartbeat();
                     // A model may arrive while the loop is idle (e.g. before its first step).
@@ -387,9 +435,11 @@ impl Worker {
                     }
                     continue;
                 }
-                Err(e) => break Err(ServeError::Ring(e)),
             };
             let t0 = Instant::now();
+            if let Some(sync) = sync.as_mut() {
+                sync.observe(msg.timestamp_ns, msg.seq, monotonic_ns());
+            }
 
             // ---- real-time section: no allocation, no lock, no syscall ----
             if self.taker.take(active) {
@@ -469,6 +519,53 @@ impl Worker {
         }
         result
     }
+}
+
+/// One receive under the period-synchronised wait: a message already waiting is taken at once;
+/// otherwise, once the period is learnt, sleep until shortly before the next step is due and
+/// spin until it arrives (or give up half a period after it was due); before that, the ring's
+/// own spin-then-park wait. No allocation; one `clock_nanosleep` per step.
+fn recv_synced(
+    rx: &mut Consumer<FeatureMsg>,
+    sync: &mut PeriodSync,
+    stats: &ServerStats,
+) -> Result<FeatureMsg, RecvError> {
+    if let Some(m) = rx.try_recv()? {
+        return Ok(m);
+    }
+    let result = match sync.plan(monotonic_ns()) {
+        Plan::Park => {
+            rx.set_wait_strategy(WaitStrategy::DEFAULT_SPIN_THEN_PARK);
+            rx.recv_timeout(RECV_SLICE)
+        }
+        Plan::Sleep {
+            wake_ns,
+            give_up_ns,
+        } => {
+            sleep_until_ns(wake_ns);
+            let woke = monotonic_ns();
+            sync.woke(wake_ns, woke);
+            rx.set_wait_strategy(WaitStrategy::Spin);
+            let spin_for = Duration::from_nanos(give_up_ns.saturating_sub(woke));
+            let r = rx.recv_deadline(Instant::now() + spin_for);
+            if matches!(r, Err(RecvError::Timeout)) {
+                sync.missed();
+            }
+            r
+        }
+    };
+    stats
+        .sync_period_ns
+        .store(sync.period_ns(), Ordering::Relaxed);
+    stats
+        .sync_margin_ns
+        .store(sync.margin_ns(), Ordering::Relaxed);
+    stats.sync_locks.store(sync.locks, Ordering::Relaxed);
+    stats.sync_relearns.store(sync.relearns, Ordering::Relaxed);
+    stats
+        .sync_missed_wakes
+        .store(sync.missed_wakes, Ordering::Relaxed);
+    result
 }
 
 /// Pins the calling thread to `cpu` (Linux `sched_setaffinity`).

@@ -170,36 +170,9 @@ impl Drop for RealtimeGuard {
     }
 }
 
-fn now_ns() -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: valid pointer; CLOCK_MONOTONIC always exists on Linux.
-    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
-    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
-}
-
-fn sleep_until_ns(deadline: u64) {
-    let ts = libc::timespec {
-        tv_sec: (deadline / 1_000_000_000) as libc::time_t,
-        tv_nsec: (deadline % 1_000_000_000) as libc::c_long,
-    };
-    loop {
-        // SAFETY: valid pointers; absolute sleep on CLOCK_MONOTONIC.
-        let r = unsafe {
-            libc::clock_nanosleep(
-                libc::CLOCK_MONOTONIC,
-                libc::TIMER_ABSTIME,
-                &ts,
-                std::ptr::null_mut(),
-            )
-        };
-        if r != libc::EINTR {
-            break;
-        }
-    }
-}
+// One implementation of the absolute-deadline sleep and the clock read, shared with
+// infer-server's period-synchronised wait.
+use shm_ring::{monotonic_ns as now_ns, sleep_until_ns};
 
 /// Percentiles of a histogram in microseconds.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]

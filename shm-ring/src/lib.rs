@@ -92,6 +92,8 @@ pub use overwrite::{heap_overwrite_channel, OverwriteConsumer, OverwriteProducer
 pub use ring_mem::slot_words;
 pub use spsc::{heap_channel, Consumer, CorruptRing, Producer, RecvError, SendError};
 pub use wait::WaitStrategy;
+#[cfg(not(loom))]
+pub use wait::{monotonic_ns, sleep_until_ns};
 
 #[cfg(not(loom))]
 pub use endpoints::{LoopSide, ServerSide};

@@ -27,6 +27,12 @@ pub enum WaitStrategy {
     SpinThenPark { spins: u32 },
     /// Park on the futex right away (after one re-check). Costs a wake-up syscall per wait.
     Park,
+    /// For a consumer whose producer sends on a fixed period (infer-server's inference
+    /// thread): the caller learns the period and phase, sleeps on an absolute clock
+    /// ([`sleep_until_ns`]) until shortly before the next message is due and then spins
+    /// ([`WaitStrategy::Spin`] with a deadline). The ring's own waits under this strategy, used
+    /// while nothing is learnt yet, are [`WaitStrategy::DEFAULT_SPIN_THEN_PARK`]'s.
+    PeriodSync,
 }
 
 impl WaitStrategy {
@@ -38,6 +44,7 @@ impl WaitStrategy {
         match self {
             WaitStrategy::Spin => u32::MAX,
             WaitStrategy::SpinThenPark { spins } => spins,
+            WaitStrategy::PeriodSync => WaitStrategy::DEFAULT_SPIN_THEN_PARK.spins(),
             WaitStrategy::Park => 0,
         }
     }
@@ -46,6 +53,45 @@ impl WaitStrategy {
 impl Default for WaitStrategy {
     fn default() -> Self {
         WaitStrategy::DEFAULT_SPIN_THEN_PARK
+    }
+}
+
+/// CLOCK_MONOTONIC now, nanoseconds (a vDSO read, no syscall). The same clock as
+/// `std::time::Instant` on Linux, so a peer's `Instant`-based timestamps compare with it.
+#[cfg(not(loom))]
+#[inline]
+pub fn monotonic_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: valid pointer; CLOCK_MONOTONIC always exists on Linux.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+/// Sleeps until CLOCK_MONOTONIC reads `deadline_ns` (`clock_nanosleep` with `TIMER_ABSTIME`:
+/// an absolute deadline, so a late wake-up does not push the next one later). Returns at once
+/// for a deadline already past. One syscall, no allocation.
+#[cfg(not(loom))]
+pub fn sleep_until_ns(deadline_ns: u64) {
+    let ts = libc::timespec {
+        tv_sec: (deadline_ns / 1_000_000_000) as libc::time_t,
+        tv_nsec: (deadline_ns % 1_000_000_000) as libc::c_long,
+    };
+    loop {
+        // SAFETY: valid pointers; absolute sleep on CLOCK_MONOTONIC.
+        let r = unsafe {
+            libc::clock_nanosleep(
+                libc::CLOCK_MONOTONIC,
+                libc::TIMER_ABSTIME,
+                &ts,
+                std::ptr::null_mut(),
+            )
+        };
+        if r != libc::EINTR {
+            break;
+        }
     }
 }
 

@@ -1,5 +1,7 @@
 //! `/ws/telemetry?fps=30`: binary frames of min/max buckets at the given rate, and the status
-//! object as a text frame about twice a second (docs/web-protocol.md).
+//! object as a text frame about twice a second (docs/web-protocol.md). The page asks for the rate
+//! it draws at, and changes it on the open socket with a text frame `{"fps": N}` (fewer while its
+//! tab is hidden), so the server never encodes and sends frames nobody draws.
 use std::time::Duration;
 
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
@@ -53,7 +55,7 @@ async fn run(core: Core, mut socket: WebSocket, fps: u32) {
     let stats = &core.stats;
     let _open = GaugeGuard::new(&stats.ws_clients);
     let mut telemetry = core.backend.subscribe_telemetry();
-    let mut frame_tick = tokio::time::interval(Duration::from_secs_f64(1.0 / f64::from(fps)));
+    let mut frame_tick = tokio::time::interval(frame_period(fps));
     frame_tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
     let mut status_tick = tokio::time::interval(STATUS_PERIOD);
     status_tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
@@ -68,8 +70,17 @@ async fn run(core: Core, mut socket: WebSocket, fps: u32) {
                 return;
             }
             incoming = socket.recv() => match incoming {
-                // The page sends nothing we need; a close or an error ends the session.
+                // A close or an error ends the session.
                 Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return,
+                // The page's frame rate changed (its tab was hidden or shown): send at the new
+                // rate. Anything else from the page is ignored.
+                Some(Ok(Message::Text(text))) => {
+                    if let Some(new_fps) = requested_fps(&text) {
+                        frame_tick = tokio::time::interval(frame_period(new_fps));
+                        frame_tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
+                    }
+                    continue;
+                }
                 Some(Ok(_)) => continue,
             },
             _ = status_tick.tick() => match core.status().await {
@@ -103,6 +114,20 @@ async fn run(core: Core, mut socket: WebSocket, fps: u32) {
     }
 }
 
+/// The interval between binary frames at `fps` (clamped to 1..=MAX_FPS).
+fn frame_period(fps: u32) -> Duration {
+    Duration::from_secs_f64(1.0 / f64::from(fps.clamp(1, MAX_FPS)))
+}
+
+/// `{"fps": N}` from the page: the rate it now draws at. None for anything else.
+fn requested_fps(text: &str) -> Option<u32> {
+    #[derive(Deserialize)]
+    struct Rate {
+        fps: u32,
+    }
+    serde_json::from_str::<Rate>(text).ok().map(|r| r.fps)
+}
+
 /// Takes every batch published since the last frame.
 fn drain(
     telemetry: &mut tokio::sync::broadcast::Receiver<crate::telemetry::TelemetryBatch>,
@@ -133,4 +158,19 @@ fn decimate(core: &Core, decimator: &mut Decimator, pending: &[Bucket], out: &mu
     }
     // Each frame carries all its steps: no bucket waits for the next frame.
     decimator.flush(out);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_page_changes_the_rate_with_a_text_frame() {
+        assert_eq!(requested_fps(r#"{"fps": 2}"#), Some(2));
+        assert_eq!(requested_fps(r#"{"fps": -1}"#), None);
+        assert_eq!(requested_fps("hello"), None);
+        assert_eq!(frame_period(0), Duration::from_secs(1));
+        assert_eq!(frame_period(1000), frame_period(MAX_FPS));
+        assert_eq!(frame_period(2), Duration::from_millis(500));
+    }
 }
