@@ -908,18 +908,28 @@ async fn sigterm_ends_open_streams_and_websockets_quickly() {
         .await
         .unwrap()
         .into_inner();
-    let mut ws = TcpStream::connect(&server.http).unwrap();
-    write!(
-        ws,
-        "GET /ws/telemetry?fps=30 HTTP/1.1\r\nHost: {}\r\nConnection: Upgrade\r\n\
-         Upgrade: websocket\r\nSec-WebSocket-Version: 13\r\n\
-         Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n",
-        server.http
-    )
-    .unwrap();
-    ws.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
-    let mut head = [0u8; 12];
-    ws.read_exact(&mut head).unwrap();
+    // With a token the WebSocket needs it too (docs/control-plane.md, "Safety").
+    let upgrade = |auth: &str| {
+        let mut ws = TcpStream::connect(&server.http).unwrap();
+        write!(
+            ws,
+            "GET /ws/telemetry?fps=30 HTTP/1.1\r\nHost: {}\r\nConnection: Upgrade\r\n\
+             Upgrade: websocket\r\nSec-WebSocket-Version: 13\r\n{auth}\
+             Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n",
+            server.http
+        )
+        .unwrap();
+        ws.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+        let mut head = [0u8; 12];
+        ws.read_exact(&mut head).unwrap();
+        (ws, head)
+    };
+    let (_, refused) = upgrade("");
+    assert_eq!(
+        &refused, b"HTTP/1.1 401",
+        "WebSocket upgrade without the token"
+    );
+    let (mut ws, head) = upgrade("Authorization: Bearer s3cret\r\n");
     assert_eq!(&head, b"HTTP/1.1 101", "WebSocket upgrade");
 
     let (exit, took) = server.terminate();
