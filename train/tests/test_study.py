@@ -3,6 +3,7 @@ pair (reference and builtin reproduction) when the binary is built."""
 
 from __future__ import annotations
 
+import json
 import math
 import os
 from pathlib import Path
@@ -11,13 +12,19 @@ import numpy as np
 import pytest
 
 from haptics_train.study import (
+    DEFAULT_MATERIAL,
+    ORACLE,
     STUDY_HAND,
+    Row,
+    Run,
     Tools,
+    _floor_section,
     align,
     compare,
     ratio,
     run_loop,
     write_config,
+    write_fidelity,
 )
 
 
@@ -161,3 +168,83 @@ def test_a_refused_model_is_reported_not_waited_for(
     assert r.wall_s < 15  # not the loop's 20 s server wait
     assert not (tmp_path / "rep.parquet").exists()
     assert not Path(f"/dev/shm/haptics-{inst}").exists()
+
+
+def _row(name: str, rmse: float, learned: bool) -> Row:
+    run = Run(name=name, kind="reproduction", path=Path(name), ok=True)
+    m = {"r2": 0.9, "mae": rmse, "mse": rmse * rmse, "rmse": rmse, "coverage": 1.0}
+    return Row(name, "test", m, None, run, None, learned)
+
+
+def test_fidelity_keys_follow_the_numbers_and_the_recommendation(tmp_path: Path) -> None:
+    rows = [
+        _row(ORACLE, 0.05, False),
+        _row("sd_poly2", 1.5, False),
+        _row("rf_memory", 0.4, True),
+        _row("dnn_fb_six", 0.3, True),
+    ]
+    fast = [_row("rf_memory", 0.6, True), _row("dnn_fb_six", 0.7, True)]
+    path = tmp_path / "fidelity.json"
+    doc = write_fidelity(path, rows, fast)
+    assert doc["felt_model"] == "dnn_fb_six"
+    assert (doc["felt_rmse_n"], doc["felt_fast_rmse_n"]) == (0.3, 0.7)
+    assert (doc["oracle_felt_rmse_n"], doc["sd_poly2_felt_rmse_n"]) == (0.05, 1.5)
+    # the pipeline's recommendation wins over the study's best, and its keys are kept
+    path.write_text(json.dumps({"recommended": "rf_memory", "free_run_rmse_n": 0.2}))
+    doc = write_fidelity(path, rows, fast)
+    assert doc["felt_model"] == "rf_memory" and doc["felt_rmse_n"] == 0.4
+    assert doc["felt_fast_rmse_n"] == 0.6 and doc["free_run_rmse_n"] == 0.2
+    assert json.loads(path.read_text()) == doc
+
+
+def test_floor_section_is_computed_from_the_numbers() -> None:
+    ref = Run(name="ref", kind="reference", path=Path("r"), ok=True)
+    good = [_row(ORACLE, 0.08, False), _row("sd_poly2", 1.6, False), _row("m", 0.1, True)]
+    bad = [_row(ORACLE, 0.3, False), _row("sd_poly2", 1.2, False), _row("m", 0.9, True)]
+    text = "\n".join(
+        _floor_section({"off": (ref, bad), "on": (ref, good)}, {"headline": "on"}, "-")
+    )
+    assert "| on | 0.080 | 1.600 | - | `m` 0.100 | 1.25x |" in text
+    assert "| off | 0.300 | 1.200 | - | `m` 0.900 | 3.00x |" in text
+    assert "Best learned at most 0.20 N: **met** (0.100 N)" in text
+    assert "Within 1.5x of the oracle's floor: **met** (1.25x)" in text
+    assert "Floor at most 0.10 N with friction compensated: **met** (0.080 N)" in text
+    text = "\n".join(_floor_section({"off": (ref, bad)}, {"headline": "off"}, "-"))
+    assert "Best learned at most 0.20 N: **not met** (0.900 N)" in text
+    assert "no bench file given" in text
+
+
+def test_oracle_renders_the_floor_with_rt_loop(rt_loop: Path, tmp_path: Path) -> None:
+    # The oracle (the material's own physics) feels like the object within a small fraction of
+    # the builtin spring-damper's error, with and without friction compensation.
+    hand = {**STUDY_HAND, "repeats": 1, "press_s": 0.5, "hold_s": 0.2, "release_s": 0.5}
+    cfg = tmp_path / "hand.toml"
+    write_config(cfg, 1, hand)
+    bench = tmp_path / "bench.toml"
+    bench.write_text("[friction]\ncoulomb_n = 0.88\nviscous = 4.8\n")
+    tools = Tools(rt_loop, rt_loop, dict(os.environ))
+    root = Path(__file__).resolve().parents[2]
+    for extra in ([], ["--bench", str(bench)]):
+        base = ["--config", str(cfg), "--material", str(root / DEFAULT_MATERIAL), *extra]
+        ref = run_loop(
+            tools, "ref", "reference", [*base, "--experiment", "shadow"], tmp_path / "ref.parquet"
+        )
+        runs = {
+            name: run_loop(
+                tools,
+                name,
+                "reproduction",
+                [*base, "--experiment", "reproduction", *model],
+                tmp_path / f"{name}.parquet",
+            )
+            for name, model in (("oracle", ["--model", "oracle"]), ("builtin", []))
+        }
+        rmse = {}
+        for name, r in runs.items():
+            assert r.ok, (name, r.note, r.stop)
+            m = compare(
+                ref.series["time"], ref.series["F_true"], r.series["time"], r.series["F_true"]
+            )
+            rmse[name] = m["rmse"]
+        assert rmse["oracle"] < 0.2, (extra, rmse)
+        assert rmse["oracle"] < 0.25 * rmse["builtin"], (extra, rmse)

@@ -59,6 +59,12 @@ STUDY_HAND = {
 FAST_HAND = {**STUDY_HAND, "press_s": 0.4, "release_s": 0.4}
 FAST_BEST = 3
 BUILTIN = "rt-loop builtin spring-damper"
+#: rt-loop's oracle model: the material's own physics driven by the measured motion, rendered
+#: through the same force loop: the rendering floor no learned model can beat.
+ORACLE = "oracle"
+DEFAULT_MATERIAL = "materials/sponge.toml"
+#: docs/fidelity.json keys the study fills (the pipeline fills the others).
+FIDELITY_KEYS = ("oracle_felt_rmse_n", "sd_poly2_felt_rmse_n", "felt_rmse_n", "felt_fast_rmse_n")
 
 SERIES = ("time", "position_x", "F_true", "F_pred", "rtob_force", "fallback")
 
@@ -161,8 +167,8 @@ def read_series(path: Path, columns: tuple[str, ...] = SERIES) -> dict[str, np.n
     return {c: np.asarray(table.column(c), dtype=np.float64) for c in columns}
 
 
-def write_config(path: Path, seed: int, hand: dict[str, float]) -> None:
-    lines = [f"seed = {seed}", 'clock = "lockstep"', "", "[hand]"]
+def write_config(path: Path, seed: int, hand: dict[str, float], clock: str = "lockstep") -> None:
+    lines = [f"seed = {seed}", f'clock = "{clock}"', "", "[hand]"]
     lines += [f"{k} = {v}" for k, v in hand.items()]
     path.write_text("\n".join(lines) + "\n")
 
@@ -314,10 +320,25 @@ def run_study(
     infer_server: str | None = None,
     shadow_predictions: bool = True,
     log: bool = True,
+    material: Path = Path(DEFAULT_MATERIAL),
+    bench: Path | None = None,
+    bench_models_dir: Path | None = None,
+    clock: str = "lockstep",
+    fidelity: Path | None = None,
 ) -> Path:
+    """The study. With `bench` (a bench file of `rt-loop identify-friction`) every reproduction
+    runs twice: without friction compensation and with it (`--bench`, in the reference too),
+    the latter with the models of `bench_models_dir` (trained on recordings made with the same
+    bench file) when given. The figures of the compensated setting are the headline then."""
     t_start = time.perf_counter()
     tools = find_tools(root, rt_loop, infer_server)
     files = study_models(models_dir, names)
+    if not material.is_file():
+        raise StudyError(f"no material file {material}")
+    if bench is not None and not bench.is_file():
+        raise StudyError(f"no bench file {bench} (rt-loop identify-friction --out {bench})")
+    if clock not in ("lockstep", "realtime"):
+        raise StudyError(f"clock must be lockstep or realtime (got {clock})")
     if not trajectory.is_file():
         raise StudyError(f"no trajectory recording {trajectory} (scripts/record-dataset.sh)")
     work.mkdir(parents=True, exist_ok=True)
@@ -327,18 +348,31 @@ def run_study(
         if log:
             print(f"[study] {msg}", flush=True)
 
-    ref, rows = _reproduce_all(tools, files, work, "", STUDY_HAND, seed, shadow_predictions, say)
+    common = ["--material", str(material)]
+    settings: dict[str, tuple[Run, list[Row]]] = {}
+    settings["off"] = _reproduce_all(
+        tools, files, work, "", STUDY_HAND, seed, shadow_predictions, say, common, clock
+    )
+    primary = "off"
+    extra = common
+    if bench is not None:
+        extra = [*common, "--bench", str(bench)]
+        files_on = study_models(bench_models_dir, names) if bench_models_dir else files
+        settings["on"] = _reproduce_all(
+            tools, files_on, work, "fc_", STUDY_HAND, seed, shadow_predictions, say, extra, clock
+        )
+        primary = "on"
+        files = files_on
+    ref, rows = settings[primary]
 
-    # Sensitivity (not part of the goal): the same presses, 2.5 times faster, for the best
-    # learned models and the spring-dampers only.
+    # The same presses, 2.5 times faster, for the best learned models, the spring-dampers and
+    # the oracle (in the headline setting).
     ranked = sorted((r for r in rows if r.learned and _rankable(r)), key=_rmse)
     keep = {r.name for r in ranked[:FAST_BEST]} | set(SPRING_DAMPERS)
     fast_files = [f for f in files if f.stem in keep]
-    fast_ref, fast_rows = None, []
-    if fast_files:
-        fast_ref, fast_rows = _reproduce_all(
-            tools, fast_files, work, "fast_", FAST_HAND, seed, False, say
-        )
+    fast_ref, fast_rows = _reproduce_all(
+        tools, fast_files, work, "fast_", FAST_HAND, seed, False, say, extra, clock
+    )
 
     rep = run_loop(
         tools,
@@ -353,6 +387,7 @@ def run_study(
             str(replay_seed),
             "--trajectory",
             str(trajectory),
+            *extra,
         ],
         work / "replay.parquet",
     )
@@ -372,12 +407,34 @@ def run_study(
     results = _load_results(models_dir)
     total = time.perf_counter() - t_start
     _plots(out_dir, ref, rows, rec, rep_s)
+    setup = {
+        "material": str(material),
+        "bench": str(bench) if bench else None,
+        "clock": clock,
+        "headline": primary,
+    }
     readme = _write_readme(
-        out_dir, ref, rows, replay, rep, trajectory, results, total, seed, fast_ref, fast_rows
+        out_dir,
+        ref,
+        rows,
+        replay,
+        rep,
+        trajectory,
+        results,
+        total,
+        seed,
+        fast_ref,
+        fast_rows,
+        settings,
+        setup,
     )
-    (out_dir / "results.json").write_text(
-        json.dumps(_json(rows, replay, total, fast_rows), indent=1)
-    )
+    doc = _json(rows, replay, total, fast_rows)
+    doc["setup"] = setup
+    doc["friction"] = {k: _floor_summary(v[1]) for k, v in settings.items()}
+    (out_dir / "results.json").write_text(json.dumps(doc, indent=1))
+    if fidelity is not None:
+        write_fidelity(fidelity, rows, fast_rows)
+        say(f"fidelity keys -> {fidelity}")
     say(f"report -> {readme} ({total:.0f} s)")
     return readme
 
@@ -391,13 +448,16 @@ def _reproduce_all(
     seed: int,
     shadow_predictions: bool,
     say: Callable[[str], None],
+    extra: list[str] | None = None,
+    clock: str = "lockstep",
 ) -> tuple[Run, list[Row]]:
-    """The reference (shadow on the simulated sponge), then every model's reproduction (and,
-    optionally, its prediction along the real interaction), then the builtin spring-damper,
-    all with the same hand programme and seed."""
+    """The reference (shadow on the simulated object), the oracle, then every model's
+    reproduction (and, optionally, its prediction along the real interaction), then the
+    builtin spring-damper, all with the same hand programme, seed, material and bench file
+    (`extra`: rt-loop flags)."""
     cfg = work / f"{tag}hand.toml"
-    write_config(cfg, seed, hand)
-    base = ["--config", str(cfg), "--clock", "lockstep", "--seed", str(seed)]
+    write_config(cfg, seed, hand, clock)
+    base = ["--config", str(cfg), "--clock", clock, "--seed", str(seed), *(extra or [])]
     ref = run_loop(
         tools,
         "sponge",
@@ -410,6 +470,16 @@ def _reproduce_all(
     say(f"{tag}reference: simulated sponge, {ref.steps} steps in {ref.wall_s:.1f} s")
     t_ref, f_ref = ref.series["time"], ref.series["F_true"]
     rows: list[Row] = []
+    o = run_loop(
+        tools,
+        ORACLE,
+        "reproduction",
+        [*base, "--experiment", "reproduction", "--model", "oracle"],
+        work / f"{tag}repro_oracle.parquet",
+    )
+    ro = _score(t_ref, f_ref, o)
+    rows.append(Row(o.name, "rt-loop oracle", ro, None, o, None, False))
+    say(f"{tag}oracle: felt-force RMSE {_fmt(ro['rmse'] if ro else None)} N (the floor)")
     pid = os.getpid()
     for f in files:
         name = f.stem
@@ -504,6 +574,58 @@ def _best(rows: list[Row], learned: bool, key: str = "repro") -> Row | None:
 
 def _sd2(rows: list[Row]) -> Row | None:
     return next((r for r in rows if r.name == "sd_poly2"), None)
+
+
+def _named(rows: list[Row], name: str) -> Row | None:
+    return next((r for r in rows if r.name == name), None)
+
+
+def _felt(r: Row | None) -> float:
+    return r.repro["rmse"] if r is not None and r.repro and _rankable(r) else math.nan
+
+
+def _floor_summary(rows: list[Row]) -> dict[str, object]:
+    """Felt-force RMSE of the oracle (floor), sd_poly2, the builtin and the best learned model
+    of one friction setting."""
+    best = _best(rows, True)
+    return {
+        "oracle_felt_rmse_n": _felt(_named(rows, ORACLE)),
+        "sd_poly2_felt_rmse_n": _felt(_sd2(rows)),
+        "builtin_felt_rmse_n": _felt(_named(rows, BUILTIN)),
+        "best_learned": best.name if best else None,
+        "best_learned_felt_rmse_n": _felt(best),
+        "models": {r.name: _felt(r) for r in rows},
+    }
+
+
+def _nan_to_none(v: float) -> float | None:
+    return v if math.isfinite(v) else None
+
+
+def write_fidelity(path: Path, rows: list[Row], fast_rows: list[Row]) -> dict:
+    """Merges the study's keys into docs/fidelity.json (the pipeline writes the others):
+    the oracle's and sd_poly2's felt force, and the felt force (normal and fast hand) of the
+    recommended model when the pipeline has named one (`recommended`) and it was in the study,
+    else of the best learned model (`felt_model` says which)."""
+    try:
+        doc = json.loads(path.read_text())
+        if not isinstance(doc, dict):
+            doc = {}
+    except (OSError, json.JSONDecodeError):
+        doc = {}
+    rec = doc.get("recommended")
+    model = _named(rows, rec) if isinstance(rec, str) else None
+    if model is None or not _rankable(model):
+        model = _best(rows, True)
+    fast = _named(fast_rows, model.name) if model is not None else None
+    doc["oracle_felt_rmse_n"] = _nan_to_none(_felt(_named(rows, ORACLE)))
+    doc["sd_poly2_felt_rmse_n"] = _nan_to_none(_felt(_sd2(rows)))
+    doc["felt_rmse_n"] = _nan_to_none(_felt(model))
+    doc["felt_fast_rmse_n"] = _nan_to_none(_felt(fast))
+    doc["felt_model"] = model.name if model is not None else None
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(doc, indent=1) + "\n")
+    return doc
 
 
 # ---------------------------------------------------------------------------------------------
@@ -615,7 +737,10 @@ def _write_readme(
     seed: int,
     fast_ref: Run | None = None,
     fast_rows: list[Row] | None = None,
+    settings: dict[str, tuple[Run, list[Row]]] | None = None,
+    setup: dict | None = None,
 ) -> Path:
+    setup = setup or {"material": DEFAULT_MATERIAL, "bench": None, "clock": "lockstep"}
     best = _best(rows, True)
     sd2 = _sd2(rows)
     sd2_rmse = sd2.repro["rmse"] if sd2 and sd2.repro else float("nan")
@@ -629,8 +754,10 @@ def _write_readme(
     L.append("# Reproduction study (thesis 6.4.3 and 6.4.4) on the simulated bench\n")
     L.append(
         "Written by `bash scripts/reproduction-study.sh` (`haptics-train study`). Everything "
-        "below was measured by the real processes: `rt-loop run` (lockstep clock, seed "
-        f"{seed}) and, per model, `infer-server serve --model models/NAME.onnx` beside "
+        f"below was measured by the real processes: `rt-loop run` ({setup['clock']} clock, seed "
+        f"{seed}, material `{setup['material']}`, bench file "
+        f"{'`' + str(setup['bench']) + '`' if setup.get('bench') else 'none'}) "
+        "and, per model, `infer-server serve --model models/NAME.onnx` beside "
         "`rt-loop run --experiment reproduction --model shm`, exchanging features and forces "
         "over shared memory every control step (10 kHz loop time).\n"
     )
@@ -643,8 +770,14 @@ def _write_readme(
             f"{1000 * (h['depth_m'] + i * h['depth_step_m']):.0f}" for i in range(int(h["repeats"]))
         )
         + f" mm: {dur:.1f} s of loop time, {ref.steps} control steps per run.\n"
-        "- **Reference**: `shadow`, the hand presses the simulated sponge "
-        "(`materials/sponge.toml`) through a transparent motor (F_cmd = 0).\n"
+        "- **Reference**: `shadow`, the hand presses the simulated object "
+        f"(`{setup['material']}`) through a transparent motor (F_cmd = 0).\n"
+        "- **Oracle** (`rt-loop run --model oracle`): the object's own physics (a separate "
+        "instance of the same material model) driven by the measured motion, rendered through "
+        "the same force loop: the rendering floor.\n"
+        "- **Friction compensation**: with a bench file (`rt-loop identify-friction`), the RFOB "
+        "subtracts the identified friction (`--bench`) in the reference and in every "
+        "reproduction alike; `off` = without (the thesis code's `friction_model` = 0).\n"
         "- **Reproduction**: no sponge; the motor renders F_cmd = -F_pred of the served model; "
         "the features' previous force is the model's own previous prediction.\n"
         "- **Felt force** = the recording's `F_true`, which in both `shadow` and "
@@ -693,33 +826,7 @@ def _write_readme(
             fast_note = (
                 f"{_fmt(ratio(fsd.repro['rmse'], fb.repro['rmse']), 2)}x (sensitivity run below)."
             )
-    if not met_ratio:
-        L.append(
-            "Why the 10x is missed: the thesis's spring-damper rendered 20.95 N RMSE (R2 -72): "
-            "its stiffness and viscosity were predefined, not fitted, and it was far off on the "
-            "real bench. Here `sd_poly2` is fitted by least squares to the same simulated "
-            "sponge and the same observer output as the learned models, and renders the felt "
-            f"force within {_fmt(sd2_rmse, 2)} N RMSE: ten times closer would need "
-            f"{_fmt(sd2_rmse / GOAL_RATIO, 3)} N. Its error is visible in the plots: (1) an "
-            "overshoot while the hand presses, because its damping b(x) v was fitted on slow "
-            "force ramps, where b v mostly stands in for the hysteresis (loading vs unloading) "
-            "rather than for viscosity, and the hand moves faster than those ramps; (2) no "
-            "hysteresis and no permanent set: it renders 0 N on the way out while the sponge "
-            "still pushes (the felt force falls early), and the probe comes back to another "
-            "rest depth. The learned models get most of that right; what is left of their "
-            "error is partly the model (`rf_memory`'s unloading branch wobbles) and partly the "
-            "rendering every virtual sponge goes through (force control with observer lag, the "
-            "~1 N stick-slip friction the RFOB does not compensate with `friction_model` = 0, "
-            "the 3 % force-constant error), which the shadow reference does not go through. "
-            "That rendering floor was not measured here (it needs an rt-loop 'oracle' model "
-            "that renders the simulated sponge's own force; proposed). A faster hand: "
-            f"{fast_note} What could: a "
-            "learned model closer to the sponge on unloading and at rest (the set), a friction "
-            "model in the RFOB for both abstraction and reproduction (lowers the rendering "
-            "floor), or a comparison on the rendered force itself (`pred along real` below) "
-            "rather than the felt force.\n"
-        )
-
+    L.extend(_floor_section(settings or {}, setup, fast_note))
     L.append("## Felt force: every served model against the simulated sponge\n")
     L.append(
         "`repro` = reproduction (the hand on the virtual sponge) vs the reference's felt force. "
@@ -781,16 +888,10 @@ def _write_readme(
         f"{_fmt(1000 * px['rmse'])} |\n"
     )
     L.append(
-        "The true contact force follows the recording closely (the sponge is deterministic and "
-        f"the PID tracks the recorded depth within {_fmt(1000 * px['rmse'])} mm RMS); "
-        "the RFOB estimate differs more because under position control the observer also sees "
-        "the PID's different friction state (stick-slip happens at other moments than under "
-        "force control) and the RFOB is not told about friction (`friction_model` = 0, as in "
-        "the thesis code); in the plot the replay's F_res chatters by 1-2 N around the "
-        "recording's during the presses (stick-slip of the ~1 N friction under the PID). "
-        "The models' predictions along this same trajectory (closed loop, "
-        "each fed its own previous predictions) are the `closed-loop` column of "
-        "docs/report/README.md.\n"
+        f"Depth tracking {_fmt(1000 * px['rmse'])} mm RMS; force response (RFOB) RMSE "
+        f"{_fmt(rf['rmse'])} N against the true contact force's {_fmt(tf['rmse'])} N. The "
+        "models' predictions along this same trajectory (closed loop, each fed its own "
+        "previous predictions) are in docs/report/README.md.\n"
     )
     L.append("![position replay](position_replay.png)\n")
     if fast_ref is not None and fast_rows:
@@ -800,10 +901,9 @@ def _write_readme(
             f"The same three presses with press and release in {fh['press_s']} s instead of "
             f"{h['press_s']} s (the reference re-run with that hand too), for the "
             f"{FAST_BEST} best learned models above and the spring-dampers. Reported whatever "
-            "it shows; the goal is judged on the table above. Fallbacks here are steps "
-            "where the spring-damper asked for more than the loop's 20 N safety limit "
-            "(`reproduction.max_force_n`): the loop rendered its built-in fallback instead, "
-            "which caps the spring-damper's overshoot (and so flatters it).\n"
+            "it shows. Fallbacks are steps whose served force was refused (beyond "
+            "`reproduction.max_force_n`, late or missing): the loop rendered its built-in "
+            "fallback instead.\n"
         )
         L.append("| model | R2 | MAE | MSE | RMSE | served / fallbacks | stop |")
         L.append("|---|---|---|---|---|---|---|")
@@ -842,6 +942,61 @@ def _write_readme(
     path = out / "README.md"
     path.write_text("\n".join(L))
     return path
+
+
+def _floor_section(
+    settings: dict[str, tuple[Run, list[Row]]], setup: dict, fast_note: str
+) -> list[str]:
+    """The rendering floor (oracle) beside sd_poly2, the builtin and the best learned model,
+    per friction setting; every sentence computed from the numbers."""
+    L = ["## Rendering floor and friction compensation\n"]
+    if not settings:
+        return L + ["Not measured in this run.\n"]
+    L.append(
+        "Felt-force RMSE (N) against the reference of the same setting. `off`: no friction "
+        "model in the RFOB; `on`: the bench file's friction subtracted "
+        f"({setup.get('bench') or '-'}).\n"
+    )
+    L.append("| setting | oracle (floor) | sd_poly2 | builtin | best learned | best / oracle |")
+    L.append("|---|---|---|---|---|---|")
+    for key, (_, rows) in settings.items():
+        f = _floor_summary(rows)
+        o, b = float(f["oracle_felt_rmse_n"]), float(f["best_learned_felt_rmse_n"])  # type: ignore[arg-type]
+        L.append(
+            f"| {key} | {_fmt(o)} | {_fmt(float(f['sd_poly2_felt_rmse_n']))} | "  # type: ignore[arg-type]
+            f"{_fmt(float(f['builtin_felt_rmse_n']))} | "  # type: ignore[arg-type]
+            f"{'`' + str(f['best_learned']) + '` ' if f['best_learned'] else ''}{_fmt(b)} | "
+            f"{_fmt(b / o if o > 0 else math.nan, 2)}x |"
+        )
+    L.append("")
+    for key, (_, rows) in settings.items():
+        o = _felt(_named(rows, ORACLE))
+        sd = _felt(_sd2(rows))
+        if math.isfinite(o) and math.isfinite(sd) and o > 0:
+            L.append(
+                f"- `{key}`: sd_poly2 renders {_fmt(sd / o, 1)}x the floor's error; a model "
+                f"at the floor would be {_fmt(sd / o, 1)}x closer than sd_poly2.\n"
+            )
+    L.append(f"- Faster hand, best learned vs sd_poly2: {fast_note}\n")
+    head = settings.get(str(setup.get("headline", "off"))) or next(iter(settings.values()))
+    o, b = _felt(_named(head[1], ORACLE)), _felt(_best(head[1], True))
+    on = settings.get("on")
+    floor_on = _felt(_named(on[1], ORACLE)) if on else math.nan
+
+    def met(ok: bool) -> str:
+        return "**met**" if ok else "**not met**"
+
+    L.append("Issue 11 goals (felt force, the headline setting):\n")
+    L.append(f"- Best learned at most 0.20 N: {met(b <= 0.20)} ({_fmt(b)} N).\n")
+    L.append(
+        f"- Within 1.5x of the oracle's floor: {met(o > 0 and b / o <= 1.5)} "
+        f"({_fmt(b / o if o > 0 else math.nan, 2)}x).\n"
+    )
+    L.append(
+        f"- Floor at most 0.10 N with friction compensated: {met(floor_on <= 0.10)} "
+        f"({_fmt(floor_on)} N{'' if on else ', no bench file given'}).\n"
+    )
+    return L
 
 
 def _json(
