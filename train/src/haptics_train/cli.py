@@ -276,6 +276,11 @@ def cmd_study(a: argparse.Namespace) -> None:
             rt_loop=a.rt_loop,
             infer_server=a.infer_server,
             shadow_predictions=not a.no_shadow_predictions,
+            material=Path(a.material),
+            bench=Path(a.bench) if a.bench else None,
+            bench_models_dir=Path(a.bench_models_dir) if a.bench_models_dir else None,
+            clock=a.clock,
+            fidelity=Path(a.fidelity) if a.fidelity else None,
         )
     except StudyError as e:
         raise RuntimeError(str(e)) from None
@@ -375,6 +380,28 @@ def build_parser() -> argparse.ArgumentParser:
         "--no-shadow-predictions",
         action="store_true",
         help="skip the models' predictions along the real interaction (halves the run time)",
+    )
+    s.add_argument(
+        "--material",
+        default="materials/sponge.toml",
+        help="the simulated object (rt-loop --material; default %(default)s)",
+    )
+    s.add_argument(
+        "--bench",
+        help="bench file (rt-loop identify-friction): every reproduction also runs with the "
+        "friction compensated, which becomes the headline setting",
+    )
+    s.add_argument(
+        "--bench-models-dir",
+        help="models trained on recordings made with --bench (default: --models-dir)",
+    )
+    s.add_argument(
+        "--clock", choices=("lockstep", "realtime"), default="lockstep", help="rt-loop's clock"
+    )
+    s.add_argument(
+        "--fidelity",
+        default="docs/fidelity.json",
+        help="merge the study's keys into this file ('' to skip; default %(default)s)",
     )
     s.set_defaults(fn=cmd_study)
 
