@@ -23,17 +23,37 @@ pub fn column_names(path: &Path) -> Result<Vec<String>> {
             .with_context(|| format!("cannot open {}", path.display()))?;
         Ok(rdr.headers()?.iter().map(str::to_string).collect())
     } else {
-        let file =
-            std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-        let builder = ParquetRecordBatchReaderBuilder::try_new(file)
-            .with_context(|| format!("{} is not a readable Parquet file", path.display()))?;
-        Ok(builder
-            .schema()
-            .fields()
-            .iter()
-            .map(|f| f.name().clone())
-            .collect())
+        parquet_guard(path, || {
+            let file = std::fs::File::open(path)
+                .with_context(|| format!("cannot open {}", path.display()))?;
+            let builder = ParquetRecordBatchReaderBuilder::try_new(file)
+                .with_context(|| format!("{} is not a readable Parquet file", path.display()))?;
+            Ok(builder
+                .schema()
+                .fields()
+                .iter()
+                .map(|f| f.name().clone())
+                .collect())
+        })
     }
+}
+
+/// Runs a Parquet read, turning a panic inside the parquet crate into an error. The crate
+/// (57.x) panics on some malformed files instead of returning an error (found by fuzzing,
+/// `fuzz/fuzz_targets/recording.rs`: an `unwrap` in its thrift metadata decoder); a file that
+/// is not a valid recording must be refused with a message, never end the process.
+fn parquet_guard<T>(path: &Path, read: impl FnOnce() -> Result<T>) -> Result<T> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(read)).unwrap_or_else(|panic| {
+        let why = panic
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| panic.downcast_ref::<String>().cloned())
+            .unwrap_or_default();
+        Err(anyhow!(
+            "{} is not a readable Parquet file (the Parquet reader failed: {why})",
+            path.display()
+        ))
+    })
 }
 
 /// The named columns, in the order asked, converted to f64 (integers and booleans exactly).
@@ -41,7 +61,7 @@ pub fn read_columns(path: &Path, names: &[&str]) -> Result<Vec<Vec<f64>>> {
     if is_csv(path) {
         read_csv(path, names)
     } else {
-        read_parquet(path, names)
+        parquet_guard(path, || read_parquet(path, names))
     }
 }
 
@@ -178,12 +198,14 @@ pub fn read_metadata(path: &Path) -> Result<Option<String>> {
             Err(e) => Err(e.into()),
         };
     }
-    let file = std::fs::File::open(path)?;
-    let builder = ParquetRecordBatchReaderBuilder::try_new(file)?;
-    let kv = builder.metadata().file_metadata().key_value_metadata();
-    Ok(kv.and_then(|kv| {
-        kv.iter()
-            .find(|k| k.key == "haptics.run")
-            .and_then(|k| k.value.clone())
-    }))
+    parquet_guard(path, || {
+        let file = std::fs::File::open(path)?;
+        let builder = ParquetRecordBatchReaderBuilder::try_new(file)?;
+        let kv = builder.metadata().file_metadata().key_value_metadata();
+        Ok(kv.and_then(|kv| {
+            kv.iter()
+                .find(|k| k.key == "haptics.run")
+                .and_then(|k| k.value.clone())
+        }))
+    })
 }

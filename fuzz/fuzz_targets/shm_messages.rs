@@ -1,0 +1,3 @@
+//! The shared-memory messages decoded from arbitrary slot words (shm_ring::fuzzing::messages).
+#![no_main]
+libfuzzer_sys::fuzz_target!(|data: &[u8]| shm_ring::fuzzing::messages(data));
