@@ -258,6 +258,13 @@ export async function startFakeServer(opts = {}) {
         steps: bench.step,
         deadline_misses: state.misses,
         fallbacks: state.fallbacks,
+        // the fake bench has no ladder: a step is on time or rendered by the fallback
+        on_time: Math.max(0, bench.step - state.fallbacks),
+        late_one: 0,
+        held: 0,
+        fallback: state.fallbacks,
+        corrupt: 0,
+        max_transition_step_n: 0,
         latency_us: pct(1),
         experiment: { kind: bench.exp.running ? bench.exp.kind : "idle", running: !!bench.exp.running, cycle: bench.exp.running ? bench.cycle ?? 0 : 0, phase: bench.phase },
         scheduling: "SCHED_OTHER (fake)",

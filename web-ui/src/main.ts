@@ -413,6 +413,11 @@ function viewState(now: number): ViewState {
   if (status.loop_alive === false) return "loop-gone";
   if (now - lastStatusAt > 5000 && now - lastDataAt > 2000) return "no-data";
   if (now - lastDataAt > 2000) return "no-data";
+  // The degradation ladder: anything below "on time" is counted; the fallback rung is the bad one.
+  const rungs = [s.on_time, s.late_one, s.held, s.fallback];
+  setText("f-ladder", rungs.every((v) => v === undefined) ? "–" : rungs.map(fmtInt).join(" / "), (s.fallback ?? 0) > 0 ? "bad" : (s.late_one ?? 0) + (s.held ?? 0) > 0 ? "warn" : "");
+  setText("f-transition", typeof s.max_transition_step_n === "number" ? `${s.max_transition_step_n.toFixed(3)} N` : "–", (s.max_transition_step_n ?? 0) > 0.05 ? "bad" : "");
+  setText("f-corrupt", fmtInt(s.corrupt), (s.corrupt ?? 0) > 0 ? "bad" : "");
   return "live";
 }
 

@@ -89,6 +89,16 @@ export interface Status {
   step?: number;
   fallbacks?: number;
   deadline_misses?: number;
+  /** Degradation ladder of the current (or last) run: steps rendered by the model's on-time
+   * answer, by the previous step's answer one period late, by the held force, by the fallback. */
+  on_time?: number;
+  late_one?: number;
+  held?: number;
+  fallback?: number;
+  /** Ring slots or indices the loop found corrupt. */
+  corrupt?: number;
+  /** Largest one-step change of the rendered force a ladder transition caused, N. */
+  max_transition_step_n?: number;
   experiment_cycle?: number;
   experiment_phase?: string;
   board?: string;
@@ -173,6 +183,12 @@ export function normalizeStatus(raw: unknown): Status {
     step: num(loop?.steps),
     fallbacks: num(loop?.fallbacks),
     deadline_misses: num(loop?.deadline_misses),
+    on_time: num(loop?.on_time),
+    late_one: num(loop?.late_one),
+    held: num(loop?.held),
+    fallback: num(loop?.fallback),
+    corrupt: num(loop?.corrupt),
+    max_transition_step_n: num(loop?.max_transition_step_n),
     scheduling: str(loop?.scheduling),
     recorder: str(loop?.recorder),
     telemetry_drops: num(loop?.telemetry_drops),

@@ -167,9 +167,12 @@ describe("status and models", () => {
         latency_us: { p50: 6, p99: 14, p999: 31, max: 60, count: 100 },
         experiment: { kind: "abstraction", running: true, cycle: 3, phase: "ramp-up" },
         scheduling: "SCHED_FIFO 80", recorder: "off", telemetry_drops: 0,
+        on_time: 12338, late_one: 4, held: 2, fallback: 1, corrupt: 0, max_transition_step_n: 0.04,
       },
       active_model: { name: "rf6", kind: "stateless", features: ["position_x"], since_step: 10, model_id: 2 },
     });
+    assert.deepEqual([st.on_time, st.late_one, st.held, st.fallback, st.corrupt], [12338, 4, 2, 1, 0]);
+    assert.equal(st.max_transition_step_n, 0.04);
     assert.equal(st.loop_alive, true);
     assert.equal(st.rate_hz, 9999.5);
     assert.equal(st.step, 12345);

@@ -37,8 +37,16 @@ impl ReplayBoard {
         let f_true = crate::record::read::read_columns(path, &["F_true"])
             .map(|mut c| c.remove(0))
             .unwrap_or_default();
-        let counts = cols[0].iter().map(|&c| c as i32).collect();
-        let ts = cols[1].iter().map(|&t| t as u32).collect();
+        let counts = integers(&cols[0], "counts", i32::MIN as f64, i32::MAX as f64)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
+            .into_iter()
+            .map(|c| c as i32)
+            .collect();
+        let ts = integers(&cols[1], "timestamp", 0.0, u32::MAX as f64)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
+            .into_iter()
+            .map(|t| t as u32)
+            .collect();
         ReplayBoard::new(counts, ts, f_true).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
     }
 
@@ -48,6 +56,22 @@ impl ReplayBoard {
 
     pub fn is_empty(&self) -> bool {
         self.counts.is_empty()
+    }
+}
+
+/// The column's values when every one is a whole number within `lo..=hi`; otherwise the first
+/// offending row (1-based data row). A cast would turn NaN into 0 and clip the rest silently.
+fn integers(col: &[f64], name: &str, lo: f64, hi: f64) -> Result<Vec<f64>, String> {
+    match col
+        .iter()
+        .position(|v| !(v.is_finite() && v.fract() == 0.0 && *v >= lo && *v <= hi))
+    {
+        Some(i) => Err(format!(
+            "row {}: {name} = {} is not a whole number within {lo}..{hi}",
+            i + 1,
+            col[i]
+        )),
+        None => Ok(col.to_vec()),
     }
 }
 
@@ -71,5 +95,24 @@ impl Board for ReplayBoard {
     }
     fn name(&self) -> &'static str {
         "replay"
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn non_finite_or_fractional_values_are_refused_with_their_row() {
+        let e = integers(&[1.0, 2.0, f64::NAN], "counts", -10.0, 10.0).unwrap_err();
+        assert!(e.contains("row 3") && e.contains("counts"), "{e}");
+        let e = integers(&[1.0, 2.5], "timestamp", 0.0, 10.0).unwrap_err();
+        assert!(e.contains("row 2"), "{e}");
+        let e = integers(&[1.0, 1e12], "timestamp", 0.0, u32::MAX as f64).unwrap_err();
+        assert!(e.contains("row 2"), "{e}");
+        assert_eq!(
+            integers(&[-3.0, 4.0], "counts", -10.0, 10.0).unwrap(),
+            vec![-3.0, 4.0]
+        );
     }
 }
