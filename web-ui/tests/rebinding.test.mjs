@@ -23,7 +23,7 @@ import { createServer } from "node:net";
 import { tmpdir } from "node:os";
 import { dirname, join, resolve } from "node:path";
 import { fileURLToPath } from "node:url";
-import { missing, openBrowser, sleep, waitFor } from "./harness.mjs";
+import { hook, missing, openBrowser, sleep, waitFor } from "./harness.mjs";
 
 const here = dirname(fileURLToPath(import.meta.url));
 const repo = resolve(here, "..", "..");
@@ -82,56 +82,65 @@ const BROWSER_CHECKS_OFF = "LocalNetworkAccessChecks,PrivateNetworkAccessSendPre
 
 const ATTACKER_PAGE = `<!doctype html><title>an ordinary page</title><p>nothing to see</p>`;
 
+/**
+ * Starts the real infer-server (no loop) on free ports over freshly written fixture models, with
+ * `extra` arguments, into `ctx` (proc, port, local, evil, tmp, out); or returns why it cannot
+ * (a counted skip; a failure under CI=true).
+ */
+async function startServer(ctx, extra = []) {
+  if (!existsSync(server)) return missing(`${server} not found (cargo build --release -p infer-server, or set HAPTICS_BIN_DIR)`);
+  if (!existsSync(python)) return missing(`${python} not found (bash scripts/setup.sh): the test's models are written with it`);
+  ctx.tmp = await mkdtemp(join(tmpdir(), "haptics-rebinding-"));
+  const models = join(ctx.tmp, "models");
+  const made = spawnSync(python, [makeModels, models], { encoding: "utf8" });
+  assert.equal(made.status, 0, `make_models.py: ${made.stderr}`);
+  ctx.port = await freePort();
+  const grpc = await freePort();
+  const args = ["serve", "--models", models, "--instance", `rebinding-${process.pid}-${ctx.port}`, "--grpc", `127.0.0.1:${grpc}`, "--http", `127.0.0.1:${ctx.port}`, "--wait", "park", "--stats-every", "0", ...extra];
+  const env = { ...process.env };
+  delete env.HAPTICS_TOKEN;
+  delete env.HAPTICS_ALLOWED_HOSTS;
+  ctx.proc = spawn(server, args, { cwd: repo, env, stdio: ["ignore", "pipe", "pipe"] });
+  ctx.out = "";
+  ctx.proc.stdout.on("data", (d) => (ctx.out += d));
+  ctx.proc.stderr.on("data", (d) => (ctx.out += d));
+  ctx.exited = null;
+  ctx.proc.on("exit", (code) => (ctx.exited = code));
+  ctx.local = `http://127.0.0.1:${ctx.port}`;
+  ctx.evil = `http://evil.test:${ctx.port}`;
+  await waitFor(
+    async () => {
+      if (ctx.exited !== null) throw new Error(`infer-server exited (${ctx.exited}):\n${ctx.out}`);
+      return fetch(`${ctx.local}/api/status`).then((r) => r.ok, () => false);
+    },
+    { timeoutMs: 20000, what: "infer-server answering" },
+  );
+  return null;
+}
+
+async function stopServer(ctx) {
+  if (ctx.proc && ctx.exited === null) {
+    ctx.proc.kill("SIGINT");
+    const end = Date.now() + 5000;
+    while (ctx.exited === null && Date.now() < end) await sleep(50);
+    if (ctx.exited === null) ctx.proc.kill("SIGKILL");
+  }
+  if (ctx.tmp) await rm(ctx.tmp, { recursive: true, force: true });
+}
+
 describe("DNS rebinding: a page under a foreign name cannot drive the server", () => {
   const ctx = {};
   let skipWhy = null;
 
   before(async () => {
-    if (!existsSync(server)) {
-      skipWhy = missing(`${server} not found (cargo build --release -p infer-server, or set HAPTICS_BIN_DIR)`);
-      return;
-    }
-    if (!existsSync(python)) {
-      skipWhy = missing(`${python} not found (bash scripts/setup.sh): the test's models are written with it`);
-      return;
-    }
-    ctx.tmp = await mkdtemp(join(tmpdir(), "haptics-rebinding-"));
-    const models = join(ctx.tmp, "models");
-    const made = spawnSync(python, [makeModels, models], { encoding: "utf8" });
-    assert.equal(made.status, 0, `make_models.py: ${made.stderr}`);
-    ctx.port = await freePort();
-    const grpc = await freePort();
-    const args = ["serve", "--models", models, "--instance", `rebinding-${process.pid}`, "--grpc", `127.0.0.1:${grpc}`, "--http", `127.0.0.1:${ctx.port}`, "--wait", "park", "--stats-every", "0"];
-    const env = { ...process.env };
-    delete env.HAPTICS_TOKEN;
-    delete env.HAPTICS_ALLOWED_HOSTS;
-    ctx.proc = spawn(server, args, { cwd: repo, env, stdio: ["ignore", "pipe", "pipe"] });
-    ctx.out = "";
-    ctx.proc.stdout.on("data", (d) => (ctx.out += d));
-    ctx.proc.stderr.on("data", (d) => (ctx.out += d));
-    ctx.exited = null;
-    ctx.proc.on("exit", (code) => (ctx.exited = code));
-    ctx.local = `http://127.0.0.1:${ctx.port}`;
-    ctx.evil = `http://evil.test:${ctx.port}`;
-    await waitFor(
-      async () => {
-        if (ctx.exited !== null) throw new Error(`infer-server exited (${ctx.exited}):\n${ctx.out}`);
-        return fetch(`${ctx.local}/api/status`).then((r) => r.ok, () => false);
-      },
-      { timeoutMs: 20000, what: "infer-server answering" },
-    );
+    skipWhy = await startServer(ctx);
+    if (skipWhy) return;
     ctx.b = await openBrowser({ args: ["--host-resolver-rules=MAP evil.test 127.0.0.1", `--disable-features=${BROWSER_CHECKS_OFF}`] });
   });
 
   after(async () => {
     await ctx.b?.close();
-    if (ctx.proc && ctx.exited === null) {
-      ctx.proc.kill("SIGINT");
-      const end = Date.now() + 5000;
-      while (ctx.exited === null && Date.now() < end) await sleep(50);
-      if (ctx.exited === null) ctx.proc.kill("SIGKILL");
-    }
-    if (ctx.tmp) await rm(ctx.tmp, { recursive: true, force: true });
+    await stopServer(ctx);
   });
 
   const it = (name, fn) =>
@@ -188,5 +197,37 @@ describe("DNS rebinding: a page under a foreign name cannot drive the server", (
     assert.equal(got.start, 412);
     assert.equal(got.status, 200);
     assert.equal(got.socket, "open");
+  });
+});
+
+describe("with a token, the page's telemetry socket needs it and the page sends it", () => {
+  const ctx = {};
+  let skipWhy = null;
+
+  before(async () => {
+    skipWhy = await startServer(ctx, ["--token", "s3cret"]);
+    if (skipWhy) return;
+    ctx.b = await openBrowser();
+  });
+
+  after(async () => {
+    await ctx.b?.close();
+    await stopServer(ctx);
+  });
+
+  test("refused without the token, open once it is entered", async (t) => {
+    if (skipWhy) return t.skip(skipWhy);
+    const page = ctx.b.page;
+    await page.goto(`${ctx.local}/`);
+    // The socket is refused (401): the page learns over HTTP that a token is wanted.
+    await waitFor(async () => (await page.getAttribute("#token-btn", "class"))?.includes("primary"), { what: "the token button asks for a token" });
+    await sleep(1000);
+    assert.notEqual(await hook.state(page), "loop-gone", "the socket must not open without the token");
+    await page.click("#token-btn");
+    await page.waitForSelector("#token-dialog[open]");
+    await page.fill("#token-input", "s3cret");
+    await page.keyboard.press("Enter");
+    // Open: the status over the socket says no loop is attached.
+    await waitFor(async () => (await hook.state(page)) === "loop-gone", { timeoutMs: 10000, what: "the socket open with the token" });
   });
 });
