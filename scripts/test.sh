@@ -86,6 +86,10 @@ RUSTFLAGS="--cfg loom" CARGO_TARGET_DIR=target/loom cargo test -p shm-ring --rel
   tee target/test-loom.log
 count_rust <target/test-loom.log
 
+step "fuzz targets, a few seconds each (fuzz/: libFuzzer; scripts/fuzz.sh runs the long one)"
+bash scripts/fuzz.sh --seconds 4 --no-hostile 2>&1 | tee target/test-fuzz.log
+count_rust <target/test-fuzz.log
+
 if [ -f train/pyproject.toml ]; then
   step "ruff + pytest (train/)"
   (cd train && "$root/.venv/bin/ruff" check . && "$root/.venv/bin/python" -m pytest -q -rs) 2>&1 |
