@@ -46,9 +46,11 @@ class Elastomer:
         return self.k1 * x_mm + self.k3 * x_mm**3
 
 
-#: displacement rates (mm/s) of the three tests, and the validation test's
+#: displacement rates (mm/s) of the three tests, and of the validation tests: one slower and one
+#: faster than all three, so that a choice made on them is a choice for extrapolation in rate
+#: (a held-out rate at either end lies outside the training rates)
 RATES_MM_S: tuple[float, ...] = (0.5, 2.0, 8.0)
-VALIDATION_RATE_MM_S = 4.0
+VALIDATION_RATES_MM_S: tuple[float, ...] = (0.25, 16.0)
 
 
 def loading_unloading(
@@ -94,10 +96,10 @@ def write_csv(path: str | Path, series: dict[str, np.ndarray]) -> Path:
 
 
 def write_tests(out: str | Path, sample_hz: float = 50.0) -> list[Path]:
-    """The three rates plus the validation rate, one CSV each (seeds differ per file)."""
+    """The three rates plus the validation rates, one CSV each (seeds differ per file)."""
     out = Path(out)
     paths = []
-    for i, r in enumerate((*RATES_MM_S, VALIDATION_RATE_MM_S)):
+    for i, r in enumerate((*RATES_MM_S, *VALIDATION_RATES_MM_S)):
         paths.append(write_csv(out / f"rate_{r:g}.csv",
                                loading_unloading(r, sample_hz=sample_hz, seed=i + 1)))  # fmt: skip
     return paths
