@@ -160,11 +160,14 @@ impl PeriodSync {
         if !self.locked {
             return Plan::Park;
         }
-        let due = self.grid + self.period;
-        let wake = (due - self.margin_ns() as f64).max(now_ns as f64);
-        // Spin at most half a period past the due time: a loop that overran its step sends
-        // one period later, and the next plan sleeps until then.
-        let give_up = due.max(now_ns as f64) + self.period * 0.5;
+        // The next grid slot whose give-up time is still ahead: after a slot that came to
+        // nothing (the loop overran, or sends late) the grid stays where the sends put it, and
+        // the plan moves on to the next slot. Spin at most half a period past the due time.
+        let now = now_ns as f64;
+        let behind = ((now - self.grid - 0.5 * self.period) / self.period).floor() + 1.0;
+        let due = self.grid + self.period * behind.max(1.0);
+        let wake = (due - self.margin_ns() as f64).max(now);
+        let give_up = due.max(now) + self.period * 0.5;
         Plan::Sleep {
             wake_ns: wake as u64,
             give_up_ns: give_up as u64,
@@ -183,16 +186,15 @@ impl PeriodSync {
         self.late_q = self.late_q.clamp(0.0, 10_000_000.0);
     }
 
-    /// The spin after a planned sleep ran to `give_up_ns` without a message: the step was
-    /// skipped by the loop, or the loop stopped. After [`MISS_LIMIT`] in a row, unlock.
+    /// The spin after a planned sleep ran to `give_up_ns` without a message: the loop skipped
+    /// the step, sends late, or stopped. The grid stays (the next message places itself on it);
+    /// after [`MISS_LIMIT`] in a row, unlock.
     pub fn missed(&mut self) {
         self.missed_wakes += 1;
         if !self.locked {
             return;
         }
         self.misses += 1;
-        self.grid += self.period;
-        self.base_periods += 1.0;
         if self.misses >= MISS_LIMIT {
             self.relearn();
         }
@@ -210,7 +212,9 @@ impl PeriodSync {
         let sent = (timestamp_ns as i64 + self.offset) as f64;
         if self.locked {
             self.track(sent);
-        } else {
+        }
+        if !self.locked {
+            // (also right after `track` let go: this message starts the next learning run)
             self.learn(timestamp_ns, seq);
         }
         self.last_ts = timestamp_ns;
@@ -275,7 +279,10 @@ impl PeriodSync {
         // A send comes after its grid time, by the loop's wake-up latency and work (up to
         // three quarters of a period is still read as late, not as the next step).
         let k = ((sent - self.grid) / self.period + 0.25).floor();
-        if !(0.0..=GAP_PERIODS).contains(&k) {
+        // k == 0: a second message within the same period, so the loop does not run at the
+        // learnt period (it sent sparsely while learning, e.g. while it held the server for
+        // gone, and now sends every step): learn again rather than sleep through its steps.
+        if !(1.0..=GAP_PERIODS).contains(&k) {
             self.relearn();
             return;
         }
@@ -389,6 +396,58 @@ mod tests {
         assert!(s.is_locked());
         assert!((s.period_ns() as f64 - 200_000.0).abs() < 500.0);
         assert!(s.relearns >= 1);
+    }
+
+    #[test]
+    fn a_send_later_than_the_give_up_keeps_the_lock_and_the_grid() {
+        let mut s = PeriodSync::new();
+        feed(&mut s, 0..500, 100_000, |_| 1_000);
+        let grid = s.grid;
+        // Step 500 comes 70 us late: the planned spin gives up at due + 50 us first.
+        let Plan::Sleep { give_up_ns, .. } = s.plan(grid as u64) else {
+            panic!("locked")
+        };
+        s.missed();
+        let Plan::Sleep { wake_ns, .. } = s.plan(give_up_ns) else {
+            panic!("still locked")
+        };
+        assert!(
+            wake_ns as f64 > grid + 150_000.0,
+            "the plan moved on to the next slot"
+        );
+        feed(&mut s, 500..501, 100_000, |_| 70_000);
+        assert!(s.is_locked());
+        assert!(
+            (s.grid - (grid + 100_000.0)).abs() < 2_000.0,
+            "grid {}",
+            s.grid - grid
+        );
+        feed(&mut s, 501..2000, 100_000, |_| 1_000);
+        assert!(s.is_locked());
+        assert_eq!(s.relearns, 0);
+    }
+
+    #[test]
+    fn a_loop_that_sends_faster_than_the_learnt_period_is_learnt_again() {
+        let mut s = PeriodSync::new();
+        // Every 100th step of a 10 kHz loop (10 ms apart), then every step.
+        for n in 0..300u64 {
+            let t = 1_000_000 + n * 10_000_000;
+            s.observe(t, n + 1, t + 500);
+        }
+        assert!(s.is_locked());
+        assert!((s.period_ns() as f64 - 10_000_000.0).abs() < 10_000.0);
+        let t0 = 1_000_000 + 300 * 10_000_000u64;
+        for n in 0..200u64 {
+            let t = t0 + n * 100_000;
+            s.observe(t, 301 + n, t + 500);
+        }
+        assert!(s.is_locked());
+        assert!(
+            (s.period_ns() as f64 - 100_000.0).abs() < 500.0,
+            "period {}",
+            s.period_ns()
+        );
     }
 
     #[test]
