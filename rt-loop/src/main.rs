@@ -544,6 +544,24 @@ fn print_summary(s: &rt_loop::run::RunSummary) {
             c.sent, c.answered, c.late, c.no_server, c.flagged, c.ring_full, c.stale_discarded, c.server_lost, c.attachments_seen
         );
     }
+    if let (Some(l), Some(r)) = (&s.ladder, &s.degraded_reasons) {
+        eprintln!(
+            "rt-loop: ladder: {} on time, {} late one, {} held, {} fallback; max transition step {:.4} N over {} transition steps",
+            l.on_time, l.late_one, l.held, l.fallback, s.max_transition_step_n, s.transition_steps
+        );
+        eprintln!(
+            "rt-loop: not on time because: {} late, {} no server, {} flagged, {} ring full, {} server lost, {} hung, {} rejected",
+            r.late, r.no_server, r.flagged, r.ring_full, r.server_lost, r.hung, r.rejected
+        );
+    }
+    if s.long_steps > 0 {
+        eprintln!(
+            "rt-loop: {} long steps (over {} periods; filters took bounded updates), longest {:.2} ms",
+            s.long_steps,
+            rt_loop::rig::LONG_STEP_FACTOR,
+            s.max_step_ms
+        );
+    }
     if let Some(r) = &s.round_trip_us {
         eprintln!(
             "rt-loop: round trip (send to matching answer): p50 {:.2} us, p99 {:.2} us, p99.9 {:.2} us, max {:.1} us over {} answers",
