@@ -339,7 +339,7 @@ def write_manifest_entry(
     except ValueError:
         rel = str(rp)
     recs[name] = {"path": rel, "role": role, "source": source, "notes": notes}
-    lines = ["# dataset manifest (haptics-train --manifest); roles: train, validation, test", ""]
+    lines = ["# dataset manifest (haptics-train --manifest); roles: train, validation, test"]
     for k in ("name", "notes"):
         if k in doc:
             lines.append(f"{k} = {json.dumps(str(doc[k]))}")
