@@ -189,10 +189,12 @@ def test_fidelity_keys_follow_the_numbers_and_the_recommendation(tmp_path: Path)
     assert doc["felt_model"] == "dnn_fb_six"
     assert (doc["felt_rmse_n"], doc["felt_fast_rmse_n"]) == (0.3, 0.7)
     assert (doc["oracle_felt_rmse_n"], doc["sd_poly2_felt_rmse_n"]) == (0.05, 1.5)
+    assert doc["felt_friction_compensation"] == "off"
     # the pipeline's recommendation wins over the study's best, and its keys are kept
     path.write_text(json.dumps({"recommended": "rf_memory", "free_run_rmse_n": 0.2}))
-    doc = write_fidelity(path, rows, fast)
+    doc = write_fidelity(path, rows, fast, "on")
     assert doc["felt_model"] == "rf_memory" and doc["felt_rmse_n"] == 0.4
+    assert doc["felt_friction_compensation"] == "on"
     assert doc["felt_fast_rmse_n"] == 0.6 and doc["free_run_rmse_n"] == 0.2
     assert json.loads(path.read_text()) == doc
 

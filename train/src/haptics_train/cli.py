@@ -281,6 +281,7 @@ def cmd_study(a: argparse.Namespace) -> None:
             bench_models_dir=Path(a.bench_models_dir) if a.bench_models_dir else None,
             clock=a.clock,
             fidelity=Path(a.fidelity) if a.fidelity else None,
+            headline=a.headline,
         )
     except StudyError as e:
         raise RuntimeError(str(e)) from None
@@ -389,7 +390,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--bench",
         help="bench file (rt-loop identify-friction): every reproduction also runs with the "
-        "friction compensated, which becomes the headline setting",
+        "friction compensated (see --headline)",
     )
     s.add_argument(
         "--bench-models-dir",
@@ -397,6 +398,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument(
         "--clock", choices=("lockstep", "realtime"), default="lockstep", help="rt-loop's clock"
+    )
+    s.add_argument(
+        "--headline",
+        choices=("off", "on"),
+        default="off",
+        help="friction setting of the goal lines and docs/fidelity.json (on needs --bench; "
+        "default %(default)s: as scripts/up.sh renders)",
     )
     s.add_argument(
         "--fidelity",

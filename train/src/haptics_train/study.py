@@ -236,6 +236,9 @@ def run_loop(
                 server.terminate()
                 server.wait(timeout=10)
     wall = time.perf_counter() - t0
+    if not note and loop.returncode != 0 and server is not None and server.returncode:
+        # The server refused the model after attaching: the loop saw it go away first.
+        note = "infer-server refused the model: " + _last_line(server.stderr)
     s = _summary(summary)
     model = s.get("model") or {}
     run = Run(
@@ -325,11 +328,14 @@ def run_study(
     bench_models_dir: Path | None = None,
     clock: str = "lockstep",
     fidelity: Path | None = None,
+    headline: str = "off",
 ) -> Path:
     """The study. With `bench` (a bench file of `rt-loop identify-friction`) every reproduction
     runs twice: without friction compensation and with it (`--bench`, in the reference too),
     the latter with the models of `bench_models_dir` (trained on recordings made with the same
-    bench file) when given. The figures of the compensated setting are the headline then."""
+    bench file) when given. `headline` picks the setting of the goal lines, the plots, the fast
+    hand, the position replay and docs/fidelity.json: `off` (default) is how the product renders
+    today (no bench file in scripts/up.sh), `on` the compensated setting."""
     t_start = time.perf_counter()
     tools = find_tools(root, rt_loop, infer_server)
     files = study_models(models_dir, names)
@@ -337,6 +343,8 @@ def run_study(
         raise StudyError(f"no material file {material}")
     if bench is not None and not bench.is_file():
         raise StudyError(f"no bench file {bench} (rt-loop identify-friction --out {bench})")
+    if headline not in ("off", "on") or (headline == "on" and bench is None):
+        raise StudyError(f"headline must be off, or on with a bench file (got {headline})")
     if clock not in ("lockstep", "realtime"):
         raise StudyError(f"clock must be lockstep or realtime (got {clock})")
     if not trajectory.is_file():
@@ -353,16 +361,16 @@ def run_study(
     settings["off"] = _reproduce_all(
         tools, files, work, "", STUDY_HAND, seed, shadow_predictions, say, common, clock
     )
-    primary = "off"
+    primary = headline
     extra = common
     if bench is not None:
-        extra = [*common, "--bench", str(bench)]
+        extra_on = [*common, "--bench", str(bench)]
         files_on = study_models(bench_models_dir, names) if bench_models_dir else files
         settings["on"] = _reproduce_all(
-            tools, files_on, work, "fc_", STUDY_HAND, seed, shadow_predictions, say, extra, clock
+            tools, files_on, work, "fc_", STUDY_HAND, seed, shadow_predictions, say, extra_on, clock
         )
-        primary = "on"
-        files = files_on
+        if primary == "on":
+            extra, files = extra_on, files_on
     ref, rows = settings[primary]
 
     # The same presses, 2.5 times faster, for the best learned models, the spring-dampers and
@@ -433,7 +441,7 @@ def run_study(
     doc["friction"] = {k: _floor_summary(v[1]) for k, v in settings.items()}
     (out_dir / "results.json").write_text(json.dumps(doc, indent=1))
     if fidelity is not None:
-        write_fidelity(fidelity, rows, fast_rows)
+        write_fidelity(fidelity, rows, fast_rows, primary)
         say(f"fidelity keys -> {fidelity}")
     say(f"report -> {readme} ({total:.0f} s)")
     return readme
@@ -602,7 +610,7 @@ def _nan_to_none(v: float) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def write_fidelity(path: Path, rows: list[Row], fast_rows: list[Row]) -> dict:
+def write_fidelity(path: Path, rows: list[Row], fast_rows: list[Row], setting: str = "off") -> dict:
     """Merges the study's keys into docs/fidelity.json (the pipeline writes the others):
     the oracle's and sd_poly2's felt force, and the felt force (normal and fast hand) of the
     recommended model when the pipeline has named one (`recommended`) and it was in the study,
@@ -623,6 +631,7 @@ def write_fidelity(path: Path, rows: list[Row], fast_rows: list[Row]) -> dict:
     doc["felt_rmse_n"] = _nan_to_none(_felt(model))
     doc["felt_fast_rmse_n"] = _nan_to_none(_felt(fast))
     doc["felt_model"] = model.name if model is not None else None
+    doc["felt_friction_compensation"] = setting
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(doc, indent=1) + "\n")
     return doc
