@@ -942,7 +942,12 @@ def _write_readme(
     L.append("## Reproduce\n")
     L.append(
         "```\nbash scripts/reproduction-study.sh   # builds release, runs, writes docs/study/\n"
-        ".venv/bin/haptics-train study --names rf_memory,sd_poly2   # a subset\n```\n"
+        ".venv/bin/haptics-train study --names rf_memory,sd_poly2   # a subset\n"
+        "# issue 11 from nothing for one material: identify the friction (bench.toml), record\n"
+        "# and train without and with it, then this study with --bench/--bench-models-dir\n"
+        "bash scripts/fidelity-study.sh [--material materials/foam-b.toml]\n"
+        "# flags: --material FILE, --bench FILE, --bench-models-dir DIR, --headline off|on,\n"
+        "#        --clock lockstep|realtime, --fidelity FILE ('' to skip)\n```\n"
     )
     L.append(
         "Raw recordings stay in `data/study/` (not committed); `results.json` here has "
