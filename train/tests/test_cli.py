@@ -115,6 +115,11 @@ def test_manifest_validation_selection_and_baselines(tmp_path, capsys):
     rows = [e["rows"] for e in res["dnn_fb_six"]["test"]]
     mse = sum(p["mse"] * n for p, n in zip(per, rows, strict=True)) / sum(rows)
     assert pool["mse"] == pytest.approx(mse, rel=1e-9)
+    rec = json.loads((models / "recommendation.json").read_text())
+    assert rec["validation"] == ["v"] and rec["recommended"] == rec["ranking"][0]["model"]
+    v = {r["model"]: r["validation_free_run_rmse_n"] for r in rec["ranking"]}
+    assert v[rec["recommended"]] == min(v.values())
+    assert v["dnn_fb_six"] == res["dnn_fb_six"]["validation_pooled"]["closed_loop"]["rmse"]
     base = json.loads((models / "baselines.json").read_text())
     assert set(base) == {"persistence", "mean", "sd_poly2"}
     # persistence wins one-step by far and loses free run: both printed, free run first

@@ -147,3 +147,15 @@ def score_baselines(
                 entry[f"{split}_pooled"] = pooled_metrics(recs, plist, cfg.target)
         out[b] = entry
     return out
+
+
+def ranking(results: dict, split: str = "validation") -> list[tuple[str, float]]:
+    """Models by pooled free-run RMSE on `split`, best first (diverged last); never one-step."""
+    scored = [
+        (n, ((r.get(f"{split}_pooled") or {}).get("closed_loop") or {}).get("rmse"))
+        for n, r in results.items()
+    ]
+    return sorted(
+        ((n, float(v)) for n, v in scored if v is not None),
+        key=lambda nv: (not np.isfinite(nv[1]), nv[1]),
+    )

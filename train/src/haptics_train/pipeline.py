@@ -3,8 +3,11 @@
 Layout of the models folder:
   <name>.joblib   the trained framework model (ForceModel object)
   <name>.onnx     the exported model (docs/model-contract.md)
-  results.json    per model: hyperparameters, training info, parity, one-step and
-                  closed-loop metrics on every test recording
+  results.json    per model: hyperparameters, training info, parity, free-run and one-step
+                  metrics on every validation and test recording, and pooled
+  baselines.json  the same for persistence, mean and sd_poly2
+  recommendation.json  the model with the lowest validation free-run RMSE (when there is a
+                  validation recording), and the ranking
   predictions/<name>.npz  test-set predictions (for the report's plots)
 """
 
@@ -20,7 +23,7 @@ import onnx
 
 from .contract import ContractError
 from .data import Dataset
-from .evaluate import BASELINES, evaluate, pooled_metrics, score_baselines
+from .evaluate import BASELINES, evaluate, pooled_metrics, ranking, score_baselines
 from .export import parity, provenance, save_onnx, to_contract_onnx
 from .models import ForceModel, TrainConfig, parse_spec
 
@@ -230,6 +233,21 @@ def evaluate_models(
         trained_sd = next((m for m, _ in models if m.name == "sd_poly2"), None)
         base = score_baselines(dataset, cfg, trained_sd)
         (folder / "baselines.json").write_text(json.dumps(base, indent=1, default=float))
+        rank = ranking(results, "validation")
+        rec_path = folder / "recommendation.json"
+        if rank and dataset.validation:
+            # the model to render: lowest free-run RMSE on the validation recordings (the test
+            # recordings play no part in it)
+            rec_path.write_text(json.dumps({
+                "recommended": rank[0][0],
+                "metric": "free-run RMSE pooled over the validation recordings, N",
+                "validation": [r.name for r in dataset.validation],
+                "ranking": [{"model": n, "validation_free_run_rmse_n": v} for n, v in rank],
+            }, indent=1, default=float))  # fmt: skip
+            print(f"[evaluate] recommended (validation free run): {rank[0][0]} "
+                  f"({_fmt(rank[0][1])} N) -> {rec_path}", flush=True)  # fmt: skip
+        else:
+            rec_path.unlink(missing_ok=True)
         print(comparison_table(results, base, [m.name for m, _ in models]), flush=True)
     return results
 

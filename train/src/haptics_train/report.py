@@ -13,6 +13,7 @@ import numpy as np  # noqa: E402
 
 from .analysis import DPI, md_table  # noqa: E402
 from .data import Dataset  # noqa: E402
+from .evaluate import ranking  # noqa: E402
 
 #: Test-set figures the thesis reports (SPEC section 6): model name -> (table, RMSE, R2).
 THESIS: dict[str, tuple[str, float, float | None]] = {
@@ -175,13 +176,6 @@ FORCE_COLS: tuple[tuple[str, str], ...] = (
 
 def _pooled(entry: dict, split: str, kind: str) -> dict:
     return (entry.get(f"{split}_pooled") or {}).get(kind) or {}
-
-
-def ranking(results: dict, split: str = "validation") -> list[tuple[str, float]]:
-    """Models by pooled free-run RMSE on `split`, best first (diverged last)."""
-    scored = [(n, _pooled(r, split, "closed_loop").get("rmse")) for n, r in results.items()]
-    scored = [(n, float(v)) for n, v in scored if v is not None]
-    return sorted(scored, key=lambda nv: (not np.isfinite(nv[1]), nv[1]))
 
 
 def baseline_section(results: dict, base: dict, dataset: Dataset) -> list[str]:
