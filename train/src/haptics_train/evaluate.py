@@ -13,7 +13,7 @@ import onnx
 
 from .closed_loop import OnnxStepper, contact_thresholds, simulate
 from .data import Dataset, Recording
-from .features import F_PREVIOUS, FEEDBACK_FEATURES
+from .features import F_PREVIOUS, FEEDBACK_FEATURES, TARGET_DEFAULT
 from .metrics import force_metrics, pooled
 from .models.base import ForceModel, TrainConfig, stacked
 
@@ -111,8 +111,12 @@ def baseline_predictions(
             out[b][split] = []
         for rec in dataset.split(split):
             y = rec.target(cfg.target)
+            # F(t-1) of the previous control step (exact from the ratio features) for the
+            # RFOB target; the previous row of any other target column
+            prev = (rec.column(F_PREVIOUS) if cfg.target == TARGET_DEFAULT
+                    else np.concatenate([[0.0], y[:-1]]))  # fmt: skip
             out["persistence"][split].append(
-                {"one_step": rec.column(F_PREVIOUS), "closed_loop": np.full(len(y), y[0])}
+                {"one_step": prev, "closed_loop": np.full(len(y), y[0])}
             )
             m = np.full(len(y), mean)
             out["mean"][split].append({"one_step": m, "closed_loop": m})
