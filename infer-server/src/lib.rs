@@ -24,6 +24,7 @@
 pub mod attachment;
 pub mod backend;
 pub mod contract;
+pub mod contract_check;
 pub mod engine;
 pub mod handoff;
 pub mod latency;
