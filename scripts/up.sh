@@ -9,7 +9,9 @@
 # Settings (environment): HAPTICS_MODEL (default rf_six), HAPTICS_AUTOSTART (default shadow:
 # the simulated hand presses the simulated sponge while the model predicts alongside; or
 # abstraction, reproduction, none), HAPTICS_HTTP (127.0.0.1:8080), HAPTICS_GRPC
-# (127.0.0.1:50051), HAPTICS_INSTANCE (default), HAPTICS_TOKEN (unset: no token).
+# (127.0.0.1:50051), HAPTICS_INSTANCE (default), HAPTICS_TOKEN (unset: no token), HAPTICS_PROFILE
+# (infer-server's wait profile: auto, chosen from the machine and printed at start; or dedicated,
+# period, shared).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -18,6 +20,7 @@ autostart=${HAPTICS_AUTOSTART:-shadow}
 http=${HAPTICS_HTTP:-127.0.0.1:8080}
 grpc=${HAPTICS_GRPC:-127.0.0.1:50051}
 instance=${HAPTICS_INSTANCE:-default}
+profile=${HAPTICS_PROFILE:-auto}
 
 say() { printf '\n==> %s\n' "$*"; }
 
@@ -64,8 +67,8 @@ loop_args=(serve --clock realtime --instance "$instance")
 [ "$autostart" != none ] && loop_args+=(--autostart "$autostart")
 target/release/rt-loop "${loop_args[@]}" &
 pids+=($!)
-target/release/infer-server serve --instance "$instance" --models models --model "$model.onnx" \
-  --grpc "$grpc" --http "$http" &
+target/release/infer-server serve --profile "$profile" --instance "$instance" --models models \
+  --model "$model.onnx" --grpc "$grpc" --http "$http" &
 pids+=($!)
 
 # Wait for the page to answer before printing its address; stop if either process died.

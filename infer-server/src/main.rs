@@ -627,7 +627,7 @@ fn report_stats(server: &Server) {
     let s = server.stats();
     let l = server.latency().snapshot();
     eprintln!(
-        "infer-server: answered {} (model {}, no model {}, errors {}, schema mismatch {}, non-finite {}, bad features {}, undecodable {}), resets {}, attachments {}; period-sync period {} ns margin {} ns locks {} relearns {} missed wake-ups {}; ring-to-ring p50 {} ns p99 {} ns p99.9 {} ns max {} ns",
+        "infer-server: answered {} (model {}, no model {}, errors {}, schema mismatch {}, non-finite {}, bad features {}, undecodable {}), resets {}, attachments {}; period-sync period {} ns margin {} ns locks {} relearns {} (quiet {}, faster {}, gap {}, restart {}) missed wake-ups {}; ring-to-ring p50 {} ns p99 {} ns p99.9 {} ns max {} ns",
         s.answered,
         s.predicted,
         s.no_model,
@@ -642,6 +642,10 @@ fn report_stats(server: &Server) {
         s.sync_margin_ns,
         s.sync_locks,
         s.sync_relearns,
+        s.sync_let_go[0],
+        s.sync_let_go[1],
+        s.sync_let_go[2],
+        s.sync_let_go[3],
         s.sync_missed_wakes,
         l.quantile(0.5),
         l.quantile(0.99),

@@ -88,6 +88,18 @@ pub struct PeriodSync {
     pub locks: u64,
     pub relearns: u64,
     pub missed_wakes: u64,
+    /// Why it let go: the loop went quiet (MISS_LIMIT), sent twice within a period, left a gap
+    /// of more than GAP_PERIODS, or restarted (timestamps or sequence went back).
+    pub let_go: LetGo,
+}
+
+/// Counts of the reasons [`PeriodSync`] let go of a lock (for the statistics line).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LetGo {
+    pub quiet: u64,
+    pub faster: u64,
+    pub gap: u64,
+    pub restart: u64,
 }
 
 impl Default for PeriodSync {
@@ -117,6 +129,7 @@ impl PeriodSync {
             locks: 0,
             relearns: 0,
             missed_wakes: 0,
+            let_go: LetGo::default(),
         }
     }
 
@@ -196,6 +209,7 @@ impl PeriodSync {
         }
         self.misses += 1;
         if self.misses >= MISS_LIMIT {
+            self.let_go.quiet += 1;
             self.relearn();
         }
     }
@@ -205,6 +219,7 @@ impl PeriodSync {
     pub fn observe(&mut self, timestamp_ns: u64, seq: u64, arrival_ns: u64) {
         if self.have_last && (timestamp_ns <= self.last_ts || seq <= self.last_seq) {
             // A new loop (its clock origin and sequence restart): learn it afresh.
+            self.let_go.restart += u64::from(self.locked);
             self.relearn();
         }
         let lag = arrival_ns as i64 - timestamp_ns as i64;
@@ -278,11 +293,22 @@ impl PeriodSync {
     fn track(&mut self, sent: f64) {
         // A send comes after its grid time, by the loop's wake-up latency and work (up to
         // three quarters of a period is still read as late, not as the next step).
-        let k = ((sent - self.grid) / self.period + 0.25).floor();
+        let mut k = ((sent - self.grid) / self.period + 0.25).floor();
+        // ...but a send that would pull the grid back by more than a tenth of a period is a
+        // late send of the slot before (a loop that woke more than 3/4 period late), not an
+        // early one of this slot.
+        if k >= 2.0 && sent - (self.grid + k * self.period) < -0.1 * self.period {
+            k -= 1.0;
+        }
         // k == 0: a second message within the same period, so the loop does not run at the
         // learnt period (it sent sparsely while learning, e.g. while it held the server for
         // gone, and now sends every step): learn again rather than sleep through its steps.
         if !(1.0..=GAP_PERIODS).contains(&k) {
+            if k < 1.0 {
+                self.let_go.faster += 1;
+            } else {
+                self.let_go.gap += 1;
+            }
             self.relearn();
             return;
         }
@@ -448,6 +474,17 @@ mod tests {
             "period {}",
             s.period_ns()
         );
+    }
+
+    #[test]
+    fn a_send_late_by_most_of_a_period_is_not_taken_for_the_next_slot() {
+        let mut s = PeriodSync::new();
+        feed(&mut s, 0..500, 100_000, |_| 1_000);
+        // Step 500 is sent 85 us late, step 501 on time: neither is a reason to let go.
+        feed(&mut s, 500..501, 100_000, |_| 85_000);
+        feed(&mut s, 501..1000, 100_000, |_| 1_000);
+        assert!(s.is_locked());
+        assert_eq!(s.relearns, 0);
     }
 
     #[test]

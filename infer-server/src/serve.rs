@@ -112,6 +112,9 @@ pub struct ServerStats {
     pub sync_locks: AtomicU64,
     pub sync_relearns: AtomicU64,
     pub sync_missed_wakes: AtomicU64,
+    /// Why the period-synchronised wait let go of its lock ([`crate::period_sync::LetGo`]):
+    /// the loop went quiet, sent faster than the learnt period, left a gap, restarted.
+    pub sync_let_go: [AtomicU64; 4],
 }
 
 #[inline(always)]
@@ -146,6 +149,8 @@ pub struct StatsSnapshot {
     pub sync_locks: u64,
     pub sync_relearns: u64,
     pub sync_missed_wakes: u64,
+    /// quiet, faster, gap, restart.
+    pub sync_let_go: [u64; 4],
 }
 
 impl ServerStats {
@@ -176,6 +181,7 @@ impl ServerStats {
             sync_locks: l(&self.sync_locks),
             sync_relearns: l(&self.sync_relearns),
             sync_missed_wakes: l(&self.sync_missed_wakes),
+            sync_let_go: [0, 1, 2, 3].map(|i| l(&self.sync_let_go[i])),
         }
     }
 }
@@ -565,6 +571,14 @@ fn recv_synced(
     stats
         .sync_missed_wakes
         .store(sync.missed_wakes, Ordering::Relaxed);
+    let g = sync.let_go;
+    for (counter, value) in stats
+        .sync_let_go
+        .iter()
+        .zip([g.quiet, g.faster, g.gap, g.restart])
+    {
+        counter.store(value, Ordering::Relaxed);
+    }
     result
 }
 
