@@ -415,11 +415,24 @@ impl Registry {
     /// answered. When the attached loop sends no steps right now, the step reported is the next
     /// one. FAILED_PRECONDITION when no loop is attached: nothing changes then.
     pub fn activate(&self, name: &str, load_if_needed: bool) -> Result<Activation, ControlError> {
-        let _ops = self.lock_ops();
-        self.collect_returned();
         validate_model_name(name)?;
         let name = self.canonical_name(name);
         let name = name.as_str();
+        // A directory model not in memory yet is loaded first, like `load`: off the lock and
+        // within the time limit, so a slow model does not hold up other swaps meanwhile.
+        if load_if_needed && self.server.attached() {
+            let in_memory = self.lock().entries.get(name).is_some_and(|e| {
+                matches!(e.state, ModelState::Loaded | ModelState::Active)
+                    || matches!(e.source, Source::Upload(_))
+            });
+            if !in_memory && self.dir.join(name).is_file() {
+                self.load(ModelSource::Directory {
+                    name: name.to_string(),
+                })?;
+            }
+        }
+        let _ops = self.lock_ops();
+        self.collect_returned();
         if !self.server.attached() {
             return Err(ControlError::FailedPrecondition(format!(
                 "no loop is attached to take {name} (is rt-loop running?); nothing changed"
