@@ -4,6 +4,7 @@ import { mkdtemp, rm } from "node:fs/promises";
 import { existsSync, readdirSync, readFileSync } from "node:fs";
 import { tmpdir } from "node:os";
 import { join } from "node:path";
+import { createServer } from "node:net";
 import { chromium } from "playwright-core";
 
 export const CHROMIUM = process.env.CHROMIUM_PATH ?? "/usr/bin/chromium";
@@ -54,6 +55,18 @@ export async function openBrowser({ width = 1440, height = 1000, args = [] } = {
 export function missing(why) {
   if (process.env.CI === "true") throw new Error(`${why} (CI=true: a test that cannot run fails)`);
   return why;
+}
+
+/** A TCP port free on 127.0.0.1 right now (for a server the test starts). */
+export async function freePort() {
+  return new Promise((res, rej) => {
+    const s = createServer();
+    s.once("error", rej);
+    s.listen(0, "127.0.0.1", () => {
+      const p = s.address().port;
+      s.close(() => res(p));
+    });
+  });
 }
 
 export const sleep = (ms) => new Promise((r) => setTimeout(r, ms));

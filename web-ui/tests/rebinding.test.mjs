@@ -19,11 +19,10 @@ import assert from "node:assert/strict";
 import { spawn, spawnSync } from "node:child_process";
 import { existsSync } from "node:fs";
 import { mkdtemp, rm } from "node:fs/promises";
-import { createServer } from "node:net";
 import { tmpdir } from "node:os";
 import { dirname, join, resolve } from "node:path";
 import { fileURLToPath } from "node:url";
-import { hook, missing, openBrowser, sleep, waitFor } from "./harness.mjs";
+import { freePort, hook, missing, openBrowser, sleep, waitFor } from "./harness.mjs";
 
 const here = dirname(fileURLToPath(import.meta.url));
 const repo = resolve(here, "..", "..");
@@ -31,17 +30,6 @@ const binDir = process.env.HAPTICS_BIN_DIR ? resolve(process.env.HAPTICS_BIN_DIR
 const server = join(binDir, "infer-server");
 const python = join(repo, ".venv", "bin", "python");
 const makeModels = join(repo, "infer-server", "tests", "fixtures", "make_models.py");
-
-async function freePort() {
-  return new Promise((res, rej) => {
-    const s = createServer();
-    s.once("error", rej);
-    s.listen(0, "127.0.0.1", () => {
-      const p = s.address().port;
-      s.close(() => res(p));
-    });
-  });
-}
 
 /** What the attacker's page does, run inside the page: every mutating call and the socket. */
 async function attack() {

@@ -20,11 +20,10 @@ import assert from "node:assert/strict";
 import { spawn, spawnSync } from "node:child_process";
 import { existsSync } from "node:fs";
 import { mkdir, mkdtemp, rm } from "node:fs/promises";
-import { createServer } from "node:net";
 import { cpus, loadavg, tmpdir } from "node:os";
 import { dirname, join, resolve } from "node:path";
 import { fileURLToPath } from "node:url";
-import { enclosedArea, finite, hook, measureFrames, missing, openBrowser, sleep, waitFor } from "./harness.mjs";
+import { enclosedArea, finite, freePort, hook, measureFrames, missing, openBrowser, sleep, waitFor } from "./harness.mjs";
 
 // How the processes are started: the one place to change when their command lines change.
 // Every flag is passed: a flag the program does not know fails the run (it is not left out).
@@ -52,17 +51,6 @@ function loudSkip(t, why) {
 function checkServe(name) {
   const r = spawnSync(bin(name), ["serve", "--help"], { encoding: "utf8", timeout: 10000 });
   if (r.status !== 0) throw new Error(`${bin(name)} serve --help failed (${r.status}): ${(r.stderr || r.stdout || "").trim().split("\n")[0]}`);
-}
-
-async function freePort() {
-  return new Promise((res, rej) => {
-    const s = createServer();
-    s.once("error", rej);
-    s.listen(0, "127.0.0.1", () => {
-      const p = s.address().port;
-      s.close(() => res(p));
-    });
-  });
 }
 
 function fill(args, vars) {
