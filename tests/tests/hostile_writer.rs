@@ -97,7 +97,7 @@ impl Mapped {
     /// Writes `value` at the 8-aligned `offset` (an atomic store: the segment's words are
     /// atomics in both other processes too).
     fn write(&self, offset: usize, value: u64) {
-        let offset = offset % self.len & !7;
+        let offset = (offset % self.len) & !7;
         // SAFETY: inside the mapping, 8-aligned (the mapping is page-aligned).
         let cell = unsafe { &*self.ptr.add(offset).cast::<AtomicU64>() };
         cell.store(value, Ordering::Relaxed);
@@ -181,7 +181,11 @@ fn random_writes_into_a_live_segment_never_crash_the_loop_or_the_server() {
         if let Some(m) = Mapped::open(&path) {
             for _ in 0..BURST {
                 // Half of the writes into the header and control blocks (first 8 KiB).
-                let span = if rng.next() % 2 == 0 { 8192 } else { m.len };
+                let span = if rng.next().is_multiple_of(2) {
+                    8192
+                } else {
+                    m.len
+                };
                 let offset = (rng.next() % span as u64) as usize;
                 m.write(offset, rng.next());
                 writes += 1;
@@ -226,7 +230,8 @@ fn random_writes_into_a_live_segment_never_crash_the_loop_or_the_server() {
     for r in &rows {
         let i: f64 = r[i_motor].parse().unwrap_or(f64::NAN);
         max_i = max_i.max(i.abs());
-        if !(i.abs() <= I_MAX + 1e-12) {
+        // NaN counts as over the limit too
+        if i.is_nan() || i.abs() > I_MAX + 1e-12 {
             over += 1;
         }
     }
