@@ -5,7 +5,7 @@
 // Prints the figures and, last, one JSON object; asserts nothing (speed is not a test).
 //
 //   node bench/page-cpu.mjs --url http://127.0.0.1:8080 [--seconds 20]
-//   node bench/page-cpu.mjs --url ... --hold     # keep the page open (visible) until SIGTERM,
+//   node bench/page-cpu.mjs --url ... --hold     # keep the page open (visible) until SIGUSR2,
 //                                                # then print the figures (scripts/bench-loaded.sh)
 //   node bench/page-cpu.mjs --url ... --no-data  # a server without a loop: nothing new arrives
 // Headless Chromium keeps a tab "visible" when another is brought to the front (the JSON's
@@ -34,10 +34,8 @@ try {
   const c0 = await hook.counts(b.page);
   const f0 = (await hook.frameTimes(b.page)).length;
   if (hold) {
-    await new Promise((resolve) => {
-      process.once("SIGTERM", resolve);
-      process.once("SIGINT", resolve);
-    });
+    // SIGUSR2: playwright closes the browser itself on SIGTERM/SIGINT, before we could read it.
+    await new Promise((resolve) => process.once("SIGUSR2", resolve));
   } else {
     await sleep(seconds * 1000);
   }

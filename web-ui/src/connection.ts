@@ -18,7 +18,8 @@ export class TelemetryConnection {
   readonly maxDelayMs = 5000;
 
   constructor(
-    private readonly url: string,
+    /** The address, asked again on each (re)open (it carries the rate the page wants now). */
+    private readonly url: string | (() => string),
     private readonly ev: ConnEvents,
     /** Subprotocols offered on each (re)open: they carry the token when the server needs one. */
     private readonly protocols: () => string[] = () => [],
@@ -36,12 +37,18 @@ export class TelemetryConnection {
     this.open();
   }
 
+  /** Sends a text frame if the socket is open (dropped otherwise: the next open's address says it). */
+  send(text: string): void {
+    if (this.ws && this.ws.readyState === WebSocket.OPEN) this.ws.send(text);
+  }
+
   private open(): void {
     this.ev.onState("connecting", { attempt: this.attempt });
     let ws: WebSocket;
     try {
       const protocols = this.protocols();
-      ws = protocols.length ? new WebSocket(this.url, protocols) : new WebSocket(this.url);
+      const url = typeof this.url === "string" ? this.url : this.url();
+      ws = protocols.length ? new WebSocket(url, protocols) : new WebSocket(url);
     } catch {
       this.scheduleRetry();
       return;

@@ -1,6 +1,9 @@
 // The page: wires the telemetry connection, the history store, the plots, the live figures, the
-// model list and the experiment controls together. One requestAnimationFrame loop draws; the
-// WebSocket only appends to the store, so pausing the plots never stops data reception.
+// model list and the experiment controls together. The plots are drawn in a requestAnimationFrame
+// callback asked for at most DRAW_FPS times a second, and only when something new is to be drawn
+// (new data, a view change); a hidden tab draws nothing (the browser runs no animation frames)
+// and asks the server for one telemetry frame a second instead of DRAW_FPS. The WebSocket only
+// appends to the store, so pausing the plots never stops data reception.
 import "uplot/dist/uPlot.min.css";
 import "./style.css";
 import { api, getToken, setToken, setTokenPrompt, wsProtocols, type ExperimentRequest } from "./api";
@@ -78,6 +81,13 @@ const frameDeltas: number[] = [];
 const drawTimes: number[] = [];
 const FRAME_LOG = 2000;
 let lastRaf = 0;
+/** Most plot draws per second: `?fps=N` in the page's address (1-60), default 30. */
+const DRAW_FPS = ((v: number) => (Number.isFinite(v) && v >= 1 ? Math.min(60, Math.round(v)) : 30))(
+  Number(new URLSearchParams(location.search).get("fps")),
+);
+/** Telemetry frames per second asked of the server while the tab is hidden. */
+const HIDDEN_FPS = 1;
+let drawRequested = false;
 let dataFramesThisSecond = 0;
 let rafThisSecond = 0;
 let secondStart = performance.now();
@@ -232,22 +242,13 @@ function renderXY(t1: number): void {
 }
 
 function frame(now: number): void {
+  drawRequested = false;
   if (lastRaf) {
     frameDeltas.push(now - lastRaf);
     if (frameDeltas.length > FRAME_LOG) frameDeltas.splice(0, frameDeltas.length - FRAME_LOG);
   }
   lastRaf = now;
   rafThisSecond++;
-  if (now - secondStart >= 1000) {
-    $("fps").textContent = `${Math.round((rafThisSecond * 1000) / (now - secondStart))} fps · ${Math.round((dataFramesThisSecond * 1000) / (now - secondStart))} data/s`;
-    rafThisSecond = 0;
-    dataFramesThisSecond = 0;
-    secondStart = now;
-    updateConnView();
-    // The server pushes the status about twice a second; should those text frames stop while
-    // the socket is open, ask for it instead so the figures never go stale silently.
-    if (conn === "open" && now - lastStatusAt > 2000) void pollStatus();
-  }
   if (dirty) {
     dirty = false;
     const t = performance.now();
@@ -255,8 +256,30 @@ function frame(now: number): void {
     drawTimes.push(performance.now() - t);
     if (drawTimes.length > FRAME_LOG) drawTimes.splice(0, drawTimes.length - FRAME_LOG);
   }
-  requestAnimationFrame(frame);
 }
+
+/** The draw clock: at most DRAW_FPS animation frames a second, none while nothing is new. */
+function drawTick(): void {
+  if (dirty && !drawRequested && document.visibilityState === "visible") {
+    drawRequested = true;
+    requestAnimationFrame(frame);
+  }
+}
+
+function everySecond(): void {
+  const now = performance.now();
+  $("fps").textContent = `${Math.round((rafThisSecond * 1000) / (now - secondStart))} fps · ${Math.round((dataFramesThisSecond * 1000) / (now - secondStart))} data/s`;
+  rafThisSecond = 0;
+  dataFramesThisSecond = 0;
+  secondStart = now;
+  updateConnView();
+  // The server pushes the status about twice a second; should those text frames stop while
+  // the socket is open, ask for it instead so the figures never go stale silently.
+  if (conn === "open" && now - lastStatusAt > 2000) void pollStatus();
+}
+
+/** The telemetry rate the server should send at now: what the page draws. */
+const wantedFps = () => (document.visibilityState === "visible" ? DRAW_FPS : HIDDEN_FPS);
 
 // ---------------------------------------------------------------------------------------------
 // Pause, zoom, window, clear, export
@@ -390,6 +413,11 @@ function updateFigures(): void {
   setText("f-inf", lat(s.inference_latency));
   setText("f-miss", fmtInt(s.deadline_misses), (s.deadline_misses ?? 0) > 0 ? "bad" : "");
   setText("f-fallback", fmtInt(s.fallbacks), (s.fallbacks ?? 0) > 0 ? "bad" : "");
+  // The degradation ladder: anything below "on time" is counted; the fallback rung is the bad one.
+  const rungs = [s.on_time, s.late_one, s.held, s.fallback];
+  setText("f-ladder", rungs.every((v) => v === undefined) ? "–" : rungs.map(fmtInt).join(" / "), (s.fallback ?? 0) > 0 ? "bad" : (s.late_one ?? 0) + (s.held ?? 0) > 0 ? "warn" : "");
+  setText("f-transition", typeof s.max_transition_step_n === "number" ? `${s.max_transition_step_n.toFixed(3)} N` : "–", (s.max_transition_step_n ?? 0) > 0.05 ? "bad" : "");
+  setText("f-corrupt", fmtInt(s.corrupt), (s.corrupt ?? 0) > 0 ? "bad" : "");
   setText("f-model", s.active_model ? `${s.active_model.name}${s.active_model.kind ? ` (${s.active_model.kind})` : ""}` : s.loop_alive === undefined ? "–" : "none (fallback)");
   const expDetail = s.mode && s.mode !== "idle" ? [s.experiment_cycle ? `cycle ${s.experiment_cycle}` : "", s.experiment_phase ?? ""].filter(Boolean).join(", ") : "";
   setText("f-mode", s.mode ? `${s.mode}${expDetail ? ` (${expDetail})` : ""}` : "–");
@@ -413,11 +441,6 @@ function viewState(now: number): ViewState {
   if (status.loop_alive === false) return "loop-gone";
   if (now - lastStatusAt > 5000 && now - lastDataAt > 2000) return "no-data";
   if (now - lastDataAt > 2000) return "no-data";
-  // The degradation ladder: anything below "on time" is counted; the fallback rung is the bad one.
-  const rungs = [s.on_time, s.late_one, s.held, s.fallback];
-  setText("f-ladder", rungs.every((v) => v === undefined) ? "–" : rungs.map(fmtInt).join(" / "), (s.fallback ?? 0) > 0 ? "bad" : (s.late_one ?? 0) + (s.held ?? 0) > 0 ? "warn" : "");
-  setText("f-transition", typeof s.max_transition_step_n === "number" ? `${s.max_transition_step_n.toFixed(3)} N` : "–", (s.max_transition_step_n ?? 0) > 0.05 ? "bad" : "");
-  setText("f-corrupt", fmtInt(s.corrupt), (s.corrupt ?? 0) > 0 ? "bad" : "");
   return "live";
 }
 
@@ -474,7 +497,7 @@ function onStatus(raw: unknown): void {
   if (status.token_required && !getToken()) $("token-btn").classList.add("primary");
 }
 
-const wsUrl = `${location.protocol === "https:" ? "wss:" : "ws:"}//${location.host}/ws/telemetry?fps=60`;
+const wsUrl = () => `${location.protocol === "https:" ? "wss:" : "ws:"}//${location.host}/ws/telemetry?fps=${wantedFps()}`;
 const connection = new TelemetryConnection(wsUrl, {
   onBinary(buf) {
     try {
@@ -511,6 +534,10 @@ const connection = new TelemetryConnection(wsUrl, {
   },
 }, wsProtocols);
 $("retry").addEventListener("click", () => connection.retryNow());
+document.addEventListener("visibilitychange", () => {
+  connection.send(JSON.stringify({ fps: wantedFps() }));
+  drawTick();
+});
 
 async function pollStatus(): Promise<void> {
   try {
@@ -685,7 +712,9 @@ Object.defineProperty(window, "__haptics", {
     xy() {
       return { x: [...xyPoints.x], y: [...xyPoints.y], area: enclosedArea(xyPoints.x, xyPoints.y) };
     },
-    /** requestAnimationFrame deltas (ms), the last 2000. */
+    /** Most plot draws per second (`?fps=`, default 30). */
+    drawFps: DRAW_FPS,
+    /** Deltas between the animation frames that were asked for to draw (ms), the last 2000. */
     frameTimes: () => [...frameDeltas],
     /** Time spent drawing each frame that had new data (ms), the last 2000. */
     drawTimes: () => [...drawTimes],
@@ -717,4 +746,6 @@ setInterval(() => {
   // through gRPC (hapticctl) without a change of active model.
   if (conn === "open") void refreshModels();
 }, 5000);
-requestAnimationFrame(frame);
+setInterval(everySecond, 1000);
+setInterval(drawTick, 1000 / DRAW_FPS);
+drawTick();
