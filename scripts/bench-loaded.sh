@@ -84,33 +84,36 @@ last_cpu=$(($(nproc) - 1))
 hog_cpu=${server_cpu:-0}
 [ "$hog_cpu" = "$last_cpu" ] && hog_cpu=0
 
+# The simulated hand presses for 5 s per repetition (rt-loop's HandConfig); every run uses the
+# same programme, long enough for the longest run (the swaps), and stops at its --duration.
+hand_repeats=$(((secs > 60 ? secs : 60) / 5 + 1))
+printf '# bench-loaded: the hand programme of every run\n[hand]\nrepeats = %d\n' "$hand_repeats" >"$work/hand.toml"
 run_loop() { # name clock duration [extra rt-loop args]
   local name=$1 clock=$2 dur=$3
   shift 3
-  target/release/rt-loop run --experiment reproduction --clock "$clock" --model shm --instance "$instance" \
-    --seed 1 --duration "$dur" --record "$work/$name.parquet" --overwrite --summary-json "$work/$name.json" \
-    --no-progress "$@" >"$work/$name.out" 2>&1
+  target/release/rt-loop run --config "$work/hand.toml" --experiment reproduction --clock "$clock" \
+    --model shm --instance "$instance" --seed 1 --duration "$dur" --record "$work/$name.parquet" --overwrite \
+    --summary-json "$work/$name.json" --no-progress "$@" >"$work/$name.out" 2>&1
 }
 
 say "references: the same hand programme rendered in lockstep, and on the simulated real sponge (shadow)"
-ref_secs=$((secs > 60 ? secs : 60))
-run_loop lockstep lockstep "$ref_secs"
-target/release/rt-loop run --experiment shadow --clock lockstep --seed 1 --duration "$ref_secs" \
+run_loop lockstep lockstep 1000
+target/release/rt-loop run --config "$work/hand.toml" --experiment shadow --clock lockstep --seed 1 \
   --record "$work/shadow.parquet" --overwrite --no-progress >"$work/shadow.out" 2>&1
 
 say "idle ($secs s)"
 run_loop idle realtime "$secs"
 
 say "page open in headless Chromium ($secs s)"
-(cd web-ui && exec node bench/page-cpu.mjs --url "$http" --hold) >"$work/page.out" 2>&1 &
+(cd web-ui && exec node bench/page-cpu.mjs --url "$http" --hold) >"$work/page-cpu.out" 2>&1 &
 page=$!
 pids+=($page)
 run_loop page realtime "$secs" &
 loop=$!
 wait "$loop"
-kill -TERM "$page" 2>/dev/null || true
+kill -USR2 "$page" 2>/dev/null || true
 wait "$page" || true
-cat "$work/page.out" >&2
+cat "$work/page-cpu.out" >&2
 
 say "CPU hog (stress-ng) on CPU $hog_cpu, not the loop's CPU $last_cpu ($secs s)"
 stress-ng --cpu 1 --taskset "$hog_cpu" --timeout $((secs + 10))s >"$work/hog.stress.out" 2>&1 &
@@ -122,13 +125,16 @@ kill -TERM "$hog" 2>/dev/null || true
 wait "$hog" 2>/dev/null || true
 
 say "$swaps hot swaps (hapticctl swap) during a realtime run"
-run_loop swap realtime 120 &
+run_loop swap realtime 1000 &
 loop=$!
 sleep 2
 : >"$work/swaps.jsonl"
 for i in $(seq 1 "$swaps"); do
   if [ $((i % 2)) = 1 ]; then name="${model}_b"; else name="$model"; fi
-  target/release/hapticctl swap --addr "http://$grpc" --json "$name" >>"$work/swaps.jsonl"
+  if ! target/release/hapticctl swap --addr "http://$grpc" --json "$name" >>"$work/swaps.jsonl"; then
+    echo "bench-loaded: swap $i failed (see above); the loop ran $(tail -n 3 "$work/swap.out")" >&2
+    break
+  fi
   sleep 0.05 # steps away from swaps, too
 done
 sleep 0.5
@@ -140,6 +146,7 @@ wait "$loop" || true
 """Reads the runs' summaries and recordings; prints the table and the JSON line."""
 import json
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -222,7 +229,7 @@ for name in ["idle", "page", "hog", "swap"]:
     rows[name] = row
 
 page_cpu = None
-for line in (work / "page.out").read_text().splitlines():
+for line in (work / "page-cpu.out").read_text().splitlines():
     if line.startswith("{"):
         page_cpu = json.loads(line).get("visible_cpu_per_s")
 
@@ -231,7 +238,7 @@ def f(x, d=2):
     return "n/a" if x is None else (f"{x:.{d}f}" if isinstance(x, float) else str(x))
 
 
-print(f"bench-loaded ({work})")
+print(f"bench-loaded ({work}); load average now {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
 print(f"machine floor: {floor['floor_round_trips']} round trips, p50 {floor['floor_p50_us']:.2f} us p99.9 {floor['floor_p999_us']:.2f} us, misses {floor['floor_miss_pm']:.0f} per million")
 print(f"in-process ONNX Runtime call: p50 {floor['inprocess_p50_us']:.2f} us")
 print(f"lockstep reference vs shadow (the model's own felt-force error): {lock_vs_shadow:.4f} N RMS")
