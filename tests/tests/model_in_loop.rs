@@ -196,8 +196,14 @@ fn lockstep_reproduction_renders_exactly_what_onnx_runtime_computes() {
             assert!(differ > 5, "step {i}: rendered {got}, ONNX Runtime {e}");
         }
     }
-    assert_eq!(differ, 0, "every rendered force equals ONNX Runtime's, clamped");
-    eprintln!("{clamped} of {} steps clamped (out of contact or pulling)", f_pred.len());
+    assert_eq!(
+        differ, 0,
+        "every rendered force equals ONNX Runtime's, clamped"
+    );
+    eprintln!(
+        "{clamped} of {} steps clamped (out of contact or pulling)",
+        f_pred.len()
+    );
 
     // lockstep waits for every answer: a second run against the same server is identical
     let rec2 = dir.join("repro2.csv");
