@@ -87,7 +87,10 @@ hog_cpu=${server_cpu:-0}
 # The simulated hand presses for 5 s per repetition (rt-loop's HandConfig); every run uses the
 # same programme, long enough for the longest run (the swaps), and stops at its --duration.
 hand_repeats=$(((secs > 60 ? secs : 60) / 5 + 1))
-printf '# bench-loaded: the hand programme of every run\n[hand]\nrepeats = %d\n' "$hand_repeats" >"$work/hand.toml"
+# Every press to the same depth (by default each presses 2 mm deeper: 13 of them would reach the
+# position limit).
+printf '# bench-loaded: the hand programme of every run\n[hand]\nrepeats = %d\ndepth_step_m = 0.0\n' \
+  "$hand_repeats" >"$work/hand.toml"
 run_loop() { # name clock duration [extra rt-loop args]
   local name=$1 clock=$2 dur=$3
   shift 3
