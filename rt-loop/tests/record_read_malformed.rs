@@ -1,13 +1,22 @@
 //! A malformed Parquet recording is refused with an error, never a panic: the parquet crate
-//! panics on this file (an `unwrap` in its thrift metadata decoder), found by the `recording`
-//! fuzz target (fuzz/corpus/recording/parquet-thrift-panic: its first byte picks the format,
-//! the rest is the file). rt-loop's reader contains the panic (`parquet_guard`).
+//! panics on these files (an `unwrap` in its thrift metadata decoder; a capacity overflow from a
+//! length in the schema), found by the `recording` fuzz target (fuzz/corpus/recording/parquet-*:
+//! the first byte picks the format, the rest is the file). rt-loop's reader contains the panic
+//! (`parquet_guard`).
 
 use rt_loop::record::read;
 
 #[test]
-fn a_parquet_file_that_makes_the_parquet_crate_panic_is_refused_with_an_error() {
-    let input = include_bytes!("../../fuzz/corpus/recording/parquet-thrift-panic");
+fn parquet_files_that_make_the_parquet_crate_panic_are_refused_with_an_error() {
+    refused(include_bytes!(
+        "../../fuzz/corpus/recording/parquet-thrift-panic"
+    ));
+    refused(include_bytes!(
+        "../../fuzz/corpus/recording/parquet-capacity-overflow"
+    ));
+}
+
+fn refused(input: &[u8]) {
     let path = std::env::temp_dir().join(format!("malformed-{}.parquet", std::process::id()));
     std::fs::write(&path, &input[1..]).unwrap();
     let names = read::column_names(&path);
