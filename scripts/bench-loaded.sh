@@ -141,7 +141,9 @@ for i in $(seq 1 "$swaps"); do
   sleep 0.05 # steps away from swaps, too
 done
 sleep 0.5
-kill -INT "$loop" 2>/dev/null || true
+# $loop is the subshell running run_loop: stop its rt-loop (SIGINT: the run ends at the next
+# step, recording and summary complete).
+pkill -INT -P "$loop" 2>/dev/null || true
 wait "$loop" || true
 
 # ---- figures ------------------------------------------------------------------------------
