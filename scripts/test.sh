@@ -77,30 +77,44 @@ cargo fmt --all -- --check
 step "cargo clippy --all-targets -D warnings"
 cargo clippy --workspace --all-targets -- -D warnings
 
+# Each test step runs to its end and is counted even when it fails; the script goes on to the
+# next step (one failure should not hide the others) and exits non-zero at the end.
+failed_steps=()
+# run_counted NAME COUNTER CMD...: runs CMD, tees its output to target/test-NAME.log, counts it.
+run_counted() {
+  local name=$1 counter=$2
+  shift 2
+  local rc=0
+  "$@" 2>&1 | tee "target/test-$name.log" || rc=$?
+  "$counter" <"target/test-$name.log"
+  if [ "$rc" != 0 ]; then
+    failed_steps+=("$name (exit $rc)")
+  fi
+}
+
 step "cargo test (workspace, release: real-time tests need optimised code)"
-cargo test --workspace --release 2>&1 | tee target/test-rust.log
-count_rust <target/test-rust.log
+run_counted rust count_rust cargo test --workspace --release --no-fail-fast
 
 step "loom models of the shm-ring protocol (separate target dir: --cfg loom changes every crate)"
-RUSTFLAGS="--cfg loom" CARGO_TARGET_DIR=target/loom cargo test -p shm-ring --release --test loom 2>&1 |
-  tee target/test-loom.log
-count_rust <target/test-loom.log
+run_counted loom count_rust env RUSTFLAGS="--cfg loom" CARGO_TARGET_DIR=target/loom \
+  cargo test -p shm-ring --release --test loom
 
 step "fuzz targets, a few seconds each (fuzz/: libFuzzer; scripts/fuzz.sh runs the long one)"
-bash scripts/fuzz.sh --seconds 4 --no-hostile 2>&1 | tee target/test-fuzz.log
-count_rust <target/test-fuzz.log
+run_counted fuzz count_rust bash scripts/fuzz.sh --seconds 4 --no-hostile
 
 if [ -f train/pyproject.toml ]; then
   step "ruff + pytest (train/)"
-  (cd train && "$root/.venv/bin/ruff" check . && "$root/.venv/bin/python" -m pytest -q -rs) 2>&1 |
-    tee target/test-python.log
-  count_pytest <target/test-python.log
+  run_counted python count_pytest bash -c \
+    'cd train && "$0/.venv/bin/ruff" check . && "$0/.venv/bin/python" -m pytest -q -rs' "$root"
 fi
 
 if [ -f web-ui/package.json ] && [ -d web-ui/tests ]; then
   step "browser tests (headless Chromium)"
-  (cd web-ui && npm test) 2>&1 | tee target/test-browser.log
-  count_node <target/test-browser.log
+  run_counted browser count_node bash -c 'cd web-ui && npm test'
 fi
 
+if [ ${#failed_steps[@]} -gt 0 ]; then
+  step "FAILED steps: ${failed_steps[*]}"
+  exit 1
+fi
 step "all tests passed"
