@@ -208,18 +208,24 @@ async fn uploads_in_flight_are_capped_in_total() {
         ..test_config()
     };
     let s = start_with(config, SimBackend::with_two_models(RATE_HZ)).await;
-    let a = stalled_upload(&s, "x.onnx", 1000).await;
-    let b = stalled_upload(&s, "y.onnx", 1000).await;
-    // Give the server the moment it needs to read both heads and reserve.
-    let t0 = std::time::Instant::now();
-    let refused = loop {
-        let (code, e) =
-            http_json(&s, "POST", "/api/models/z.onnx/load", &[], vec![b' '; 500]).await;
-        if code == 413 || t0.elapsed() > Duration::from_secs(5) {
-            break (code, e);
+    // The two stalled uploads must hold their reservations before the probe arrives: a probe
+    // that the server reads first reserves its own 500 bytes, and then the second stalled upload
+    // is the one refused (which is the cap working, but not this test's scenario). So each try
+    // gives the server longer to read both heads, and starts over if the probe got in first.
+    let mut refused = (0, serde_json::Value::Null);
+    let mut stalled = None;
+    for attempt in 1..=10u64 {
+        let a = stalled_upload(&s, "x.onnx", 1000).await;
+        let b = stalled_upload(&s, "y.onnx", 1000).await;
+        tokio::time::sleep(Duration::from_millis(50 * attempt)).await;
+        refused = http_json(&s, "POST", "/api/models/z.onnx/load", &[], vec![b' '; 500]).await;
+        if refused.0 == 413 {
+            stalled = Some((a, b));
+            break;
         }
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    };
+        drop((a, b));
+        tokio::time::sleep(Duration::from_millis(100)).await; // their reservations come back
+    }
     assert_eq!(refused.0, 413, "{}", refused.1);
     assert!(
         refused.1["error"]
@@ -241,8 +247,8 @@ async fn uploads_in_flight_are_capped_in_total() {
     assert!(err.message().contains("too many model uploads"), "{err}");
 
     // The stalled uploads give up: their reservations come back.
+    let (a, mut b) = stalled.expect("a refused probe means both uploads are held");
     drop(a);
-    let mut b = b;
     b.shutdown().await.unwrap();
     let mut rest = Vec::new();
     let _ = tokio::time::timeout(Duration::from_secs(5), b.read_to_end(&mut rest)).await;

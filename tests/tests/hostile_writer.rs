@@ -34,19 +34,8 @@ const RATE_HZ: f64 = 1000.0;
 /// Largest motor current the loop may command (the rig's limit, A).
 const I_MAX: f64 = 0.59;
 
-/// The loop's schema (docs/recording-format.md plus F(t-1)).
-const SCHEMA: [&str; 10] = [
-    "position_x",
-    "velocity",
-    "acceleration",
-    "f_previous_x",
-    "f_previous_v",
-    "f_previous_a",
-    "cycle_no",
-    "deformation",
-    "area_fx",
-    "f_previous",
-];
+/// The loop's schema (docs/recording-format.md plus F(t-1)): rt-loop's one list.
+const SCHEMA: [&str; 10] = rt_loop::features::SCHEMA_NAMES;
 
 /// xorshift64: reproducible from the printed seed, no dependency.
 struct Rng(u64);

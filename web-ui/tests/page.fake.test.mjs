@@ -125,6 +125,17 @@ describe("page against the fake server", () => {
     await page.click("#pause");
     assert.equal(await hook.paused(page), true);
     assert.equal(await page.getAttribute("#pause", "aria-pressed"), "true");
+    // Pausing freezes the range shown at the click and draws it once, at the next frame (the
+    // page draws at most 30 times a second, later on a loaded machine): wait for that draw.
+    await waitFor(
+      async () => {
+        const p1 = await hook.points(page, "rtob_force");
+        await sleep(150);
+        const p2 = await hook.points(page, "rtob_force");
+        return JSON.stringify(p1.t) === JSON.stringify(p2.t);
+      },
+      { timeoutMs: 3000, what: "the frozen range drawn" },
+    );
     const a = await hook.points(page, "rtob_force");
     const ca = await hook.counts(page);
     await sleep(1000);
