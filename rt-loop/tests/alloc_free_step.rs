@@ -1,37 +1,16 @@
 //! The loop step allocates nothing: a counting global allocator around `Rig::step` (and the
 //! recorder ring push) for every experiment.
 
+#[path = "support/alloc_count.rs"]
+mod alloc_count;
 mod common;
 
 use rt_loop::config::ExperimentKind;
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicU64, Ordering};
-
-struct Counting;
-
-static ALLOCS: AtomicU64 = AtomicU64::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        System.alloc(l)
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        System.dealloc(p, l)
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        System.realloc(p, l, n)
-    }
-}
-
-#[global_allocator]
-static A: Counting = Counting;
 
 fn count_step_allocs(cfg: &rt_loop::config::RunConfig, steps: usize) -> (u64, usize) {
     let mut rig = rt_loop::run::build_rig(cfg, None).unwrap();
     let (mut prod, mut cons) = rtrb::RingBuffer::<rt_loop::record::Row>::new(1024);
-    let before = ALLOCS.load(Ordering::SeqCst);
+    alloc_count::start();
     let mut done = 0;
     for _ in 0..steps {
         match rig.step() {
@@ -46,7 +25,7 @@ fn count_step_allocs(cfg: &rt_loop::config::RunConfig, steps: usize) -> (u64, us
             while cons.pop().is_ok() {}
         }
     }
-    (ALLOCS.load(Ordering::SeqCst) - before, done)
+    (alloc_count::stop(), done)
 }
 
 // One test function only: the counter is global, parallel tests would pollute it.
@@ -82,8 +61,8 @@ fn step_allocates_nothing_in_any_experiment() {
     }
 
     // the counter itself works: a Vec allocates
-    let before = ALLOCS.load(Ordering::SeqCst);
+    alloc_count::start();
     let v = vec![1u8; 10];
-    assert!(ALLOCS.load(Ordering::SeqCst) > before);
+    assert!(alloc_count::stop() > 0);
     drop(v);
 }

@@ -2,33 +2,13 @@
 //! friction-compensated observer, inside `Rig::step` of a reproduction run, counted by a global
 //! allocator (one test function: the counter is global).
 
+#[path = "support/alloc_count.rs"]
+mod alloc_count;
+
 use rt_loop::config::{ExperimentKind, RunConfig};
 use rt_loop::friction::Friction;
 use rt_loop::material::Material;
 use rt_loop::oracle::OracleModel;
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicU64, Ordering};
-
-struct Counting;
-
-static ALLOCS: AtomicU64 = AtomicU64::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        System.alloc(l)
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        System.dealloc(p, l)
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        System.realloc(p, l, n)
-    }
-}
-
-#[global_allocator]
-static A: Counting = Counting;
 
 #[test]
 fn oracle_reproduction_with_friction_compensation_allocates_nothing() {
@@ -46,7 +26,7 @@ fn oracle_reproduction_with_friction_compensation_allocates_nothing() {
     let (m, _) = Material::load(&cfg.material).unwrap();
     let oracle = OracleModel::new(&m, cfg.rate_hz, 1.0);
     let mut rig = rt_loop::run::build_rig(&cfg, Some(Box::new(oracle))).unwrap();
-    let before = ALLOCS.load(Ordering::SeqCst);
+    alloc_count::start();
     let mut pushed = 0.0f64;
     let mut done = 0;
     // 3 s: the hand presses into the virtual sponge, so the oracle and the compensation work
@@ -59,7 +39,7 @@ fn oracle_reproduction_with_friction_compensation_allocates_nothing() {
             Err(_) => break,
         }
     }
-    let n = ALLOCS.load(Ordering::SeqCst) - before;
+    let n = alloc_count::stop();
     assert_eq!(done, 30_000);
     assert_eq!(n, 0, "the oracle reproduction step allocated {n} times");
     assert!(pushed > 1.0, "the oracle rendered a press: {pushed} N");

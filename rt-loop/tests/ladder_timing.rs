@@ -3,6 +3,8 @@
 //! nothing, the loop surviving 10-20 ms stalls in a realtime run without a current slam, 0 A
 //! and the watchdog before any wait for a server, and range-checked flags and settings.
 
+#[path = "support/alloc_count.rs"]
+mod alloc_count;
 mod common;
 
 use rt_loop::board::{Board, BoardStop, Snapshot};
@@ -13,37 +15,9 @@ use rt_loop::model::{Answer, ForceModel, Miss, SpringDamper};
 use rt_loop::shm_io::create_segment;
 use rt_loop::shm_model::{AnswerWait, ShmModel};
 use shm_ring::{ForceMsg, RecvError, Segment, WaitStrategy};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-
-// ---- allocation counter (this thread only, like tests/shm_no_alloc.rs) ----
-struct Counting;
-static ALLOCS: AtomicU64 = AtomicU64::new(0);
-thread_local! {
-    static COUNT_HERE: Cell<bool> = const { Cell::new(false) };
-}
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        if COUNT_HERE.with(|c| c.get()) {
-            ALLOCS.fetch_add(1, Ordering::Relaxed);
-        }
-        System.alloc(l)
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        System.dealloc(p, l)
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        if COUNT_HERE.with(|c| c.get()) {
-            ALLOCS.fetch_add(1, Ordering::Relaxed);
-        }
-        System.realloc(p, l, n)
-    }
-}
-#[global_allocator]
-static A: Counting = Counting;
 
 fn feats(i: u64) -> Features {
     Features {
@@ -270,14 +244,12 @@ fn ladder_render_allocates_nothing() {
     let mut m = Script(script);
     let mut l = ladder();
     let fs: Vec<Features> = (0..20_000).map(feats).collect();
-    COUNT_HERE.with(|c| c.set(true));
-    let before = ALLOCS.load(Ordering::Relaxed);
+    alloc_count::start();
     let mut sum = 0.0;
     for (k, f) in fs.iter().enumerate() {
         sum += l.render(&mut m, k as u64, k as f64 * T, f).force;
     }
-    let n = ALLOCS.load(Ordering::Relaxed) - before;
-    COUNT_HERE.with(|c| c.set(false));
+    let n = alloc_count::stop();
     assert_eq!(n, 0, "the ladder allocated {n} times");
     assert!(sum.is_finite());
     let r = l.report();

@@ -1,42 +1,16 @@
 //! `ShmClient::exchange` (the loop's side of every served step) allocates nothing: counted on
 //! the loop thread only, against an echo server thread on a real segment.
 
+#[path = "support/alloc_count.rs"]
+mod alloc_count;
+
 use rt_loop::features::Features;
 use rt_loop::shm_io::create_segment;
 use rt_loop::shm_model::AnswerWait;
 use shm_ring::{ForceMsg, RecvError, Segment, WaitStrategy};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
-
-struct Counting;
-static ALLOCS: AtomicU64 = AtomicU64::new(0);
-thread_local! {
-    static COUNT_HERE: Cell<bool> = const { Cell::new(false) };
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        if COUNT_HERE.with(|c| c.get()) {
-            ALLOCS.fetch_add(1, Ordering::Relaxed);
-        }
-        System.alloc(l)
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        System.dealloc(p, l)
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        if COUNT_HERE.with(|c| c.get()) {
-            ALLOCS.fetch_add(1, Ordering::Relaxed);
-        }
-        System.realloc(p, l, n)
-    }
-}
-
-#[global_allocator]
-static A: Counting = Counting;
 
 #[test]
 fn exchange_allocates_nothing() {
@@ -85,7 +59,7 @@ fn exchange_allocates_nothing() {
         "SCHED_OTHER (test)",
         Some(std::path::Path::new("/tmp/some/recording.parquet")),
     );
-    COUNT_HERE.with(|c| c.set(true));
+    alloc_count::start();
     let mut answered = 0;
     for step in 0..5000u64 {
         let f = Features {
@@ -102,7 +76,7 @@ fn exchange_allocates_nothing() {
             io.publish_status();
         }
     }
-    COUNT_HERE.with(|c| c.set(false));
+    let allocs = alloc_count::stop();
     assert_eq!(answered, 5000);
     let st = io.link().loop_status().expect("published");
     assert_eq!(
@@ -111,11 +85,7 @@ fn exchange_allocates_nothing() {
     );
     assert_eq!(st.round_trip.count, 4501, "{st:?}");
     assert_eq!(st.scheduling.as_str(), "SCHED_OTHER (test)");
-    assert_eq!(
-        ALLOCS.load(Ordering::Relaxed),
-        0,
-        "allocations on the loop thread"
-    );
+    assert_eq!(allocs, 0, "allocations on the loop thread");
     stop.store(true, Ordering::Relaxed);
     server.join().unwrap();
 }
