@@ -14,38 +14,18 @@
 # Existing files are kept (delete one to record it again).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-material=materials/sponge.toml
-bench_args=()
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --material) material=${2:?--material needs a file}; shift 2 ;;
-    --bench) bench_args=(--bench "${2:?--bench needs a file}"); shift 2 ;;
-    -h|--help) sed -n 2,15p "$0"; exit 0 ;;
-    -*) echo "record-dataset: unknown option $1" >&2; exit 2 ;;
-    *) break ;;
-  esac
-done
-[ -f "$material" ] || { echo "record-dataset: no material file $material" >&2; exit 2; }
-out=${1:-data/dataset}
-decimate=${DECIMATE:-1}
+who=record-dataset help_lines=2,15
+# shellcheck source=scripts/record-lib.sh
+source scripts/record-lib.sh
+record_options "$@"
+out=${rest[0]:-data/dataset}
 seed=${SEED:-1}
 mkdir -p "$out"
-# shellcheck disable=SC1091
-source scripts/env.sh
-haptics_build
-bin=target/release/rt-loop
+record_build
 
 record() { # name ramp_rate seed
-  local file="$out/$1.parquet"
-  if [ -f "$file" ]; then
-    echo "record-dataset: $file exists, skipped"
-    return
-  fi
-  local t0=$SECONDS
-  "$bin" run --experiment abstraction --clock lockstep --rate-hz 10000 --seed "$3" \
-    --material "$material" "${bench_args[@]}" --ramp-rate "$2" --cycles 14 --f-max-start 1 \
-    --f-max-step 1 --decimate "$decimate" --record "$file" --no-progress
-  echo "record-dataset: $file: $(du -h "$file" | cut -f1), $((SECONDS - t0)) s"
+  record_run "$1" "$3" --experiment abstraction --ramp-rate "$2" --cycles 14 --f-max-start 1 \
+    --f-max-step 1
 }
 
 record train_0.8 0.8 "$seed"

@@ -16,51 +16,25 @@
 # Env:   DECIMATE (default 1). Existing files are kept (delete one to record it again).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-material=materials/sponge.toml
-bench_args=()
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --material) material=${2:?--material needs a file}; shift 2 ;;
-    --bench) bench_args=(--bench "${2:?--bench needs a file}"); shift 2 ;;
-    -h|--help) sed -n 2,18p "$0"; exit 0 ;;
-    -*) echo "record-ood: unknown option $1" >&2; exit 2 ;;
-    *) break ;;
-  esac
-done
-[ -f "$material" ] || { echo "record-ood: no material file $material" >&2; exit 2; }
-out=${1:-data/ood}
-decimate=${DECIMATE:-1}
+who=record-ood help_lines=2,18
+# shellcheck source=scripts/record-lib.sh
+source scripts/record-lib.sh
+record_options "$@"
+out=${rest[0]:-data/ood}
 mkdir -p "$out"
-# shellcheck disable=SC1091
-source scripts/env.sh
-haptics_build
-bin=target/release/rt-loop
+record_build
 start=$SECONDS
 
-record() { # name seed rt-loop-run-args...
-  local name=$1 seed=$2
-  shift 2
-  local file="$out/$name.parquet"
-  if [ -f "$file" ]; then
-    echo "record-ood: $file exists, skipped"
-    return
-  fi
-  local t0=$SECONDS
-  "$bin" run --clock lockstep --rate-hz 10000 --seed "$seed" --material "$material" \
-    "${bench_args[@]}" --decimate "$decimate" --record "$file" --no-progress "$@"
-  echo "record-ood: $file: $(du -h "$file" | cut -f1), $((SECONDS - t0)) s"
-}
-
 abstraction=(--experiment abstraction)
-record fmax_shuffled 11 "${abstraction[@]}" --ramp-rate 2.1 \
+record_run fmax_shuffled 11 "${abstraction[@]}" --ramp-rate 2.1 \
   --f-max-list 7,2,12,5,14,1,9,4,11,3,13,6,10,8
-record minor_loops 12 "${abstraction[@]}" --ramp-rate 2.1 --cycles 7 --f-max-start 2 \
+record_run minor_loops 12 "${abstraction[@]}" --ramp-rate 2.1 --cycles 7 --f-max-start 2 \
   --f-max-step 2 --minor-loops 2 --minor-depth 0.5
-record long_holds 13 "${abstraction[@]}" --ramp-rate 2.1 --cycles 4 --f-max-start 3 \
+record_run long_holds 13 "${abstraction[@]}" --ramp-rate 2.1 --cycles 4 --f-max-start 3 \
   --f-max-step 3 --hold-max 20 --hold-zero 20
-record ramp_0.4 14 "${abstraction[@]}" --ramp-rate 0.4 --cycles 5 --f-max-start 2 \
+record_run ramp_0.4 14 "${abstraction[@]}" --ramp-rate 0.4 --cycles 5 --f-max-start 2 \
   --f-max-step 3
-record ramp_12 15 "${abstraction[@]}" --ramp-rate 12 --cycles 14 --f-max-start 1 \
+record_run ramp_12 15 "${abstraction[@]}" --ramp-rate 12 --cycles 14 --f-max-start 1 \
   --f-max-step 1
 
 # Position-controlled presses: a cosine press profile written as a trajectory (time, x).
@@ -77,14 +51,14 @@ awk 'BEGIN {
     t += 1.5; printf "%.4f,%.6f\n", t, 0
   }
 }' > "$traj"
-record position_presses 16 --experiment position-replay --trajectory "$traj"
+record_run position_presses 16 --experiment position-replay --trajectory "$traj"
 
 # Hand presses: [hand] tables (rt-loop's HandConfig) of several speeds and stiffnesses.
 hand() { # name seed stiffness damping press_s release_s depth_m
   local cfg="$out/$1.hand.toml"
   printf '[hand]\nstiffness = %s\ndamping = %s\npress_s = %s\nrelease_s = %s\nhold_s = 0.5\nrest_s = 0.5\ndepth_m = %s\ndepth_step_m = 0.003\nrepeats = 3\n' \
     "$3" "$4" "$5" "$6" "$7" > "$cfg"
-  record "$1" "$2" --config "$cfg" --experiment shadow
+  record_run "$1" "$2" --config "$cfg" --experiment shadow
 }
 hand hand_slow 17 1500 15 2.5 2.5 0.028
 hand hand_fast 18 1500 15 0.3 0.3 0.028

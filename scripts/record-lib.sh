@@ -1,0 +1,50 @@
+# Sourced by the recording scripts (record-dataset.sh, record-ood.sh): their shared options and
+# the one way a recording is made, so the two cannot drift apart.
+#
+# Before sourcing, the script sets `who` (its name in messages) and `help_lines` (the lines of
+# its header comment that --help prints); it calls `record_options "$@"`, then uses:
+#   material, bench_args    the simulated object and the bench file (--material, --bench)
+#   rest                    the remaining arguments (the output folder)
+#   record_run NAME SEED ARGS...   records $out/NAME.parquet with `rt-loop run ARGS` on the
+#                                  lockstep clock at 10 kHz, unless the file exists
+# and the environment: DECIMATE (default 1: every step).
+
+# shellcheck disable=SC2034  # material, bench_args, rest and decimate are the caller's
+record_options() {
+  material=materials/sponge.toml
+  bench_args=()
+  while [ $# -gt 0 ]; do
+    case "$1" in
+      --material) material=${2:?--material needs a file}; shift 2 ;;
+      --bench) bench_args=(--bench "${2:?--bench needs a file}"); shift 2 ;;
+      -h|--help) sed -n "${help_lines}p" "$0"; exit 0 ;;
+      -*) echo "$who: unknown option $1" >&2; exit 2 ;;
+      *) break ;;
+    esac
+  done
+  [ -f "$material" ] || { echo "$who: no material file $material" >&2; exit 2; }
+  rest=("$@")
+  decimate=${DECIMATE:-1}
+}
+
+# Builds rt-loop (the project's one build command) and sets `bin`.
+record_build() {
+  # shellcheck disable=SC1091
+  source scripts/env.sh
+  haptics_build
+  bin=target/release/rt-loop
+}
+
+record_run() { # name seed rt-loop-run-args...
+  local name=$1 seed=$2
+  shift 2
+  local file="$out/$name.parquet"
+  if [ -f "$file" ]; then
+    echo "$who: $file exists, skipped"
+    return
+  fi
+  local t0=$SECONDS
+  "$bin" run --clock lockstep --rate-hz 10000 --seed "$seed" --material "$material" \
+    "${bench_args[@]}" --decimate "$decimate" --record "$file" --no-progress "$@"
+  echo "$who: $file: $(du -h "$file" | cut -f1), $((SECONDS - t0)) s"
+}
