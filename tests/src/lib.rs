@@ -3,7 +3,10 @@
 //! when a test fails, the project's Python, and small ONNX models written with the `onnx`
 //! package.
 
+pub mod csv_table;
 pub mod skip;
+
+pub use csv_table::CsvTable;
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};

@@ -15,8 +15,9 @@
 //!
 //! Needs the release binaries and the project's `.venv` (like the other system tests).
 
-use haptics_system_tests::{bin, instance, start_infer_server, temp_dir, write_linear_model, Proc};
-use std::collections::HashMap;
+use haptics_system_tests::{
+    bin, instance, start_infer_server, temp_dir, write_linear_model, CsvTable, Proc,
+};
 use std::os::fd::AsRawFd;
 use std::path::Path;
 use std::process::Command;
@@ -100,22 +101,6 @@ impl Drop for Mapped {
             libc::munmap(self.ptr.cast(), self.len);
         }
     }
-}
-
-fn csv_columns(path: &Path) -> (HashMap<String, usize>, Vec<Vec<String>>) {
-    let text = std::fs::read_to_string(path).expect("read recording");
-    let mut lines = text.lines();
-    let cols = lines
-        .next()
-        .expect("header")
-        .split(',')
-        .enumerate()
-        .map(|(i, n)| (n.to_string(), i))
-        .collect();
-    let rows = lines
-        .map(|l| l.split(',').map(str::to_string).collect())
-        .collect();
-    (cols, rows)
 }
 
 #[test]
@@ -211,13 +196,11 @@ fn random_writes_into_a_live_segment_never_crash_the_loop_or_the_server() {
     assert!(recoveries > 0, "the loop re-created the segment:\n{out}");
 
     // Every recorded step's current within the limit (the fallback renders the damaged time).
-    let (cols, rows) = csv_columns(&rec);
-    let col = |name: &str| cols[name];
-    let (t, i_motor, fallback) = (col("time"), col("I_motor"), col("fallback"));
+    let table = CsvTable::read(&rec);
     let mut over = 0;
     let mut max_i = 0.0f64;
-    for r in &rows {
-        let i: f64 = r[i_motor].parse().unwrap_or(f64::NAN);
+    for v in table.col("I_motor") {
+        let i: f64 = v.parse().unwrap_or(f64::NAN);
         max_i = max_i.max(i.abs());
         // NaN counts as over the limit too
         if i.is_nan() || i.abs() > I_MAX + 1e-12 {
@@ -226,13 +209,13 @@ fn random_writes_into_a_live_segment_never_crash_the_loop_or_the_server() {
     }
     assert_eq!(over, 0, "steps over the current limit (max |I| {max_i} A)");
     // Back on the model after the last burst: the last second is mostly served.
-    let last: Vec<&Vec<String>> = rows
-        .iter()
-        .filter(|r| r[t].parse::<f64>().unwrap_or(0.0) > run_s - 1.0)
+    let (times, fallback) = (table.col("time"), table.col("fallback"));
+    let last: Vec<usize> = (0..times.len())
+        .filter(|&k| times[k].parse::<f64>().unwrap_or(0.0) > run_s - 1.0)
         .collect();
     let served = last
         .iter()
-        .filter(|r| matches!(r[fallback].as_str(), "false" | "0"))
+        .filter(|&&k| matches!(fallback[k], "false" | "0"))
         .count();
     assert!(!last.is_empty(), "the recording covers the last second");
     let served_frac = served as f64 / last.len() as f64;

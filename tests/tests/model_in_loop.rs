@@ -11,9 +11,8 @@
 //! builds them) and the project's `.venv` (`bash scripts/setup.sh`).
 
 use haptics_system_tests::{
-    bin, instance, shm_entries, start_infer_server, temp_dir, write_linear_model, Proc,
+    bin, instance, shm_entries, start_infer_server, temp_dir, write_linear_model, CsvTable, Proc,
 };
-use std::collections::HashMap;
 use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
@@ -42,48 +41,6 @@ fn write_spring_model(dir: &Path) {
         &[400.0, 20.0, 0.0, 0.0, 0.0, 0.0, 0.05, 10.0, 1.0, 0.1],
         0.02,
     );
-}
-
-/// A recording written as CSV: columns by name.
-struct Table {
-    cols: HashMap<String, usize>,
-    rows: Vec<Vec<String>>,
-}
-
-impl Table {
-    fn read(path: &Path) -> Table {
-        let text = std::fs::read_to_string(path).expect("read recording");
-        let mut lines = text.lines();
-        let header = lines.next().expect("header");
-        let cols = header
-            .split(',')
-            .enumerate()
-            .map(|(i, n)| (n.to_string(), i))
-            .collect();
-        let rows = lines
-            .map(|l| l.split(',').map(str::to_string).collect())
-            .collect();
-        Table { cols, rows }
-    }
-    fn col(&self, name: &str) -> Vec<&str> {
-        let i = self.cols[name];
-        self.rows.iter().map(|r| r[i].as_str()).collect()
-    }
-    fn f64s(&self, name: &str) -> Vec<f64> {
-        self.col(name)
-            .iter()
-            .map(|v| match *v {
-                "NaN" | "nan" | "" => f64::NAN,
-                _ => v.parse().unwrap_or_else(|e| panic!("{name}: {v:?}: {e}")),
-            })
-            .collect()
-    }
-    fn bools(&self, name: &str) -> Vec<bool> {
-        self.col(name)
-            .iter()
-            .map(|v| matches!(*v, "true" | "1" | "True"))
-            .collect()
-    }
 }
 
 fn summary(path: &Path) -> serde_json::Value {
@@ -129,8 +86,8 @@ fn lockstep_reproduction_renders_exactly_what_onnx_runtime_computes() {
     assert_eq!(s["shm"]["late"], 0);
     assert!(out.contains("0 fallbacks"), "the count is reported:\n{out}");
 
-    let t = Table::read(&rec);
-    assert_eq!(t.rows.len() as u64, steps);
+    let t = CsvTable::read(&rec);
+    assert_eq!(t.len() as u64, steps);
     assert!(t.bools("fallback").iter().all(|f| !f), "no step fell back");
     let f_pred = t.f64s("F_pred");
     let f_ref = t.f64s("F_ref");
@@ -152,7 +109,7 @@ fn lockstep_reproduction_renders_exactly_what_onnx_runtime_computes() {
     let pred_text = t.col("F_pred");
     let mut csv = SCHEMA.join(",");
     csv.push('\n');
-    for i in 0..t.rows.len() {
+    for i in 0..t.len() {
         for c in &cols {
             csv.push_str(c[i]);
             csv.push(',');
@@ -307,7 +264,7 @@ fn server_killed_mid_run_loop_finishes_on_fallback_and_resumes_with_a_new_server
         "kill test: {steps} steps, {served} served, {fallbacks} fallbacks, shm {}",
         s["shm"]
     );
-    let t = Table::read(&rec);
+    let t = CsvTable::read(&rec);
     let fb = t.bools("fallback");
     let first_fb = fb.iter().position(|&f| f).expect("a fallback step");
     let last_fb = fb.iter().rposition(|&f| f).unwrap();
