@@ -2,8 +2,11 @@
 # Installs everything the project needs from the package registries, idempotently:
 #   - .venv with the train/ package (and onnxruntime, whose wheel ships libonnxruntime.so)
 #   - .ort/libonnxruntime.so, the library `ort` loads dynamically (ORT_DYLIB_PATH)
-#   - web-ui's npm packages and Debian's chromium (for the browser tests; skipped with
-#     HAPTICS_NO_BROWSER=1, as scripts/up.sh does)
+#   - web-ui's npm packages (`npm ci`: exactly package-lock.json) and Debian's chromium (for the
+#     browser tests; skipped with HAPTICS_NO_BROWSER=1, as scripts/up.sh does)
+#   - the page itself, web-ui/dist (a build output, not committed): control-plane's build.rs
+#     embeds it when cargo compiles infer-server, so scripts/test.sh and scripts/up.sh run this
+#     script BEFORE any cargo command; rebuilt when a source of the page is newer than it
 # Nothing is downloaded from anywhere but crates.io, PyPI, npm and Debian's archive.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -58,5 +61,13 @@ if [ -f web-ui/package.json ]; then
     else
       sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
     fi
+  fi
+  # The page. `npm run build` rewrites dist/index.html, so it is the build's time stamp; cargo
+  # sees the new files (build.rs: rerun-if-changed on dist/) and embeds them at its next build.
+  built=web-ui/dist/index.html
+  if [ ! -f "$built" ] || [ -n "$(find web-ui/src web-ui/index.html web-ui/vite.config.ts \
+    web-ui/tsconfig.json web-ui/package-lock.json -newer "$built" -print -quit)" ]; then
+    echo "setup: building the page (web-ui/dist, embedded by infer-server at its build)"
+    (cd web-ui && npm run build --silent)
   fi
 fi
