@@ -17,6 +17,26 @@ if [ -f train/pyproject.toml ]; then
     python3 -m venv .venv
   fi
   stamp=.venv/.train-installed
+  # The exact pins of train/pyproject.toml (onnxruntime: the library infer-server loads; torch;
+  # onnx; skl2onnx) must be what .venv holds: a venv kept from before a pin changed is reinstalled.
+  if [ -f "$stamp" ] && ! .venv/bin/python - <<'PY'; then
+import re, sys
+from importlib.metadata import PackageNotFoundError, version
+pins = re.findall(r'"([A-Za-z0-9_.-]+)==([^"]+)"', open("train/pyproject.toml").read())
+bad = []
+for name, want in pins:
+    try:
+        have = version(name)
+    except PackageNotFoundError:
+        have = "missing"
+    if have.split("+")[0] != want:
+        bad.append(f"{name} {have} (pinned {want})")
+if bad:
+    print("setup: .venv differs from the pins: " + ", ".join(bad))
+    sys.exit(1)
+PY
+    rm -f "$stamp"
+  fi
   if [ ! -f "$stamp" ] || [ train/pyproject.toml -nt "$stamp" ]; then
     echo "setup: installing train/ into .venv (first time: PyTorch is large, a few minutes)"
     .venv/bin/python -m pip install -q --upgrade pip
