@@ -1102,7 +1102,7 @@ async fn a_hundred_swaps_lose_no_step_and_each_takes_effect_at_its_reported_step
 }
 
 /// A gRPC client that is not ours: Python grpcio with no .proto and no stubs
-/// (control-plane/tests/py/grpc_reflection_client.py), against the real server: services
+/// (infer-server/control-plane/tests/py/grpc_reflection_client.py), against the real server: services
 /// through reflection v1 and v1alpha, GetStatus, ListModels, the token rule, an activation
 /// with its effective step, a bad name, health.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -1116,7 +1116,7 @@ async fn a_python_grpc_client_uses_the_real_server_through_reflection() {
     let stepper = StepLoop::start(loop_with(&segment, &[0, 1, 2, 3]));
     let server = ServerProcess::start("py", &dir, &segment, &["--token", "py-token"]);
     stepper.wait_for(10);
-    let script = common::repo_root().join("control-plane/tests/py/grpc_reflection_client.py");
+    let script = common::repo_root().join("infer-server/control-plane/tests/py/grpc_reflection_client.py");
     let out = Command::new(common::python())
         .arg(&script)
         .arg(server.grpc.trim_start_matches("http://"))

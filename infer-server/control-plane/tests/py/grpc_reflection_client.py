@@ -3,7 +3,7 @@
 It lists the services through server reflection (v1alpha and v1), builds the message classes
 from the descriptors the server reflects, calls haptics.v1.LoopService/GetStatus and
 ListModels, checks the token rule on ActivateModel, and calls grpc.health.v1 Check. It prints
-one JSON object for the Rust test that started the server (control-plane/tests/python_client.rs).
+one JSON object for the Rust test that started the server (infer-server/control-plane/tests/python_client.rs).
 
 Usage: grpc_reflection_client.py HOST:PORT TOKEN
 """

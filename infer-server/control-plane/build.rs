@@ -12,7 +12,7 @@ fn main() {
 }
 
 fn compile_proto(manifest: &Path, out: &Path) {
-    let proto_root = manifest.join("../proto");
+    let proto_root = manifest.join("../../proto");
     let file = proto_root.join("haptics/v1/haptics.proto");
     println!("cargo:rerun-if-changed={}", proto_root.display());
     let fds = protox::compile([&file], [&proto_root]).unwrap_or_else(|e| panic!("proto: {e}"));
@@ -32,7 +32,7 @@ fn compile_proto(manifest: &Path, out: &Path) {
 /// Writes `web_assets.rs`: a table of (path, bytes) with `include_bytes!` for each file of
 /// `web-ui/dist`, or an empty table when the page was not built.
 fn embed_web_ui(manifest: &Path, out: &Path) {
-    let web = manifest.join("../web-ui");
+    let web = manifest.join("../../web-ui");
     let dist = web.join("dist");
     println!("cargo:rerun-if-env-changed=HAPTICS_WEB_DIST");
     let dist = std::env::var_os("HAPTICS_WEB_DIST")
