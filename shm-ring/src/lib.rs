@@ -79,7 +79,7 @@ mod header;
 #[cfg(not(loom))]
 mod loop_status;
 #[cfg(not(loom))]
-mod os;
+pub mod os;
 #[cfg(not(loom))]
 mod segment;
 
