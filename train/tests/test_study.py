@@ -18,7 +18,6 @@ from haptics_train.study import (
     Row,
     Run,
     Tools,
-    _floor_section,
     align,
     compare,
     ratio,
@@ -26,6 +25,7 @@ from haptics_train.study import (
     write_config,
     write_fidelity,
 )
+from haptics_train.study.report import floor_section
 
 
 def test_align_identical_grid_is_identity() -> None:
@@ -204,14 +204,14 @@ def test_floor_section_is_computed_from_the_numbers() -> None:
     good = [_row(ORACLE, 0.08, False), _row("sd_poly2", 1.6, False), _row("m", 0.1, True)]
     bad = [_row(ORACLE, 0.3, False), _row("sd_poly2", 1.2, False), _row("m", 0.9, True)]
     text = "\n".join(
-        _floor_section({"off": (ref, bad), "on": (ref, good)}, {"headline": "on"}, "-")
+        floor_section({"off": (ref, bad), "on": (ref, good)}, {"headline": "on"}, "-")
     )
     assert "| on | 0.080 | 1.600 | - | `m` 0.100 | 1.25x |" in text
     assert "| off | 0.300 | 1.200 | - | `m` 0.900 | 3.00x |" in text
     assert "Best learned at most 0.20 N: **met** (0.100 N)" in text
     assert "Within 1.5x of the oracle's floor: **met** (1.25x)" in text
     assert "Floor at most 0.10 N with friction compensated: **met** (0.080 N)" in text
-    text = "\n".join(_floor_section({"off": (ref, bad)}, {"headline": "off"}, "-"))
+    text = "\n".join(floor_section({"off": (ref, bad)}, {"headline": "off"}, "-"))
     assert "Best learned at most 0.20 N: **not met** (0.900 N)" in text
     assert "no bench file given" in text
 

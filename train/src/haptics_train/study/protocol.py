@@ -1,0 +1,43 @@
+"""What the study does, fixed in one place: the thesis's numbers and goals, the hands' press
+programmes, the model groups, the recording columns it reads. The runner, the scoring and the
+report read these; nothing here runs or computes anything."""
+
+from __future__ import annotations
+
+#: Thesis Table 6.18 (position-replay validation) and Table 6.19 (reproduction).
+THESIS_REPLAY = {"r2": 0.95, "mae": 0.42, "mse": 0.33, "rmse": 0.57}
+THESIS_REPRO_RF = {"r2": 0.76, "mae": 0.84, "mse": 1.46, "rmse": 1.21}
+THESIS_REPRO_SD = {"r2": -71.58, "mae": 8.71, "mse": 438.83, "rmse": 20.95}
+GOAL_RMSE = 1.21
+GOAL_RATIO = 10.0
+SPRING_DAMPERS = ("sd_const", "sd_poly1", "sd_poly2")
+
+#: The study's hand: three presses to 28, 31 and 34 mm set-points, 9.5 s of loop time.
+STUDY_HAND = {
+    "stiffness": 1500.0,
+    "damping": 15.0,
+    "depth_m": 0.028,
+    "depth_step_m": 0.003,
+    "press_s": 1.0,
+    "hold_s": 0.5,
+    "release_s": 1.0,
+    "rest_s": 0.5,
+    "repeats": 3,
+}
+
+#: The sensitivity run: the same depths, pressed and released 2.5 times faster.
+FAST_HAND = {**STUDY_HAND, "press_s": 0.4, "release_s": 0.4}
+FAST_BEST = 3
+BUILTIN = "rt-loop builtin spring-damper"
+#: rt-loop's oracle model: the material's own physics driven by the measured motion, rendered
+#: through the same force loop: the rendering floor no learned model can beat.
+ORACLE = "oracle"
+DEFAULT_MATERIAL = "materials/sponge.toml"
+#: docs/fidelity.json keys the study fills (the pipeline fills the others).
+FIDELITY_KEYS = ("oracle_felt_rmse_n", "sd_poly2_felt_rmse_n", "felt_rmse_n", "felt_fast_rmse_n")
+
+SERIES = ("time", "position_x", "F_true", "F_pred", "rtob_force", "fallback")
+
+
+class StudyError(RuntimeError):
+    """A step of the study that cannot run, with the reason."""

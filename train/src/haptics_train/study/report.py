@@ -1,0 +1,390 @@
+"""The study's written outputs: docs/study/README.md (every sentence computed from the
+numbers), results.json and the study's keys of docs/fidelity.json."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from .processes import Run
+from .protocol import (
+    DEFAULT_MATERIAL,
+    FAST_BEST,
+    FAST_HAND,
+    GOAL_RATIO,
+    GOAL_RMSE,
+    ORACLE,
+    STUDY_HAND,
+)
+from .score import (
+    Row,
+    best_row,
+    felt_rmse,
+    floor_summary,
+    named_row,
+    nan_to_none,
+    rankable,
+    ratio,
+    repro_rmse,
+    sd2_row,
+)
+
+
+def fmt(v: float | None, nd: int = 3) -> str:
+    if v is None or not math.isfinite(v):
+        return "-"
+    return f"{v:.{nd}f}"
+
+
+def load_results(models_dir: Path) -> dict:
+    try:
+        return json.loads((models_dir / "results.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+
+
+def offline_rmse(results: dict, name: str) -> str:
+    """`one-step / closed-loop` test RMSE of docs/report for a model, '-' if not evaluated."""
+    res = results.get(name) if isinstance(results, dict) else None
+    tests = res.get("test") if isinstance(res, dict) else None
+    if not isinstance(tests, list) or not tests or not isinstance(tests[0], dict):
+        return "-"
+    one = (tests[0].get("one_step") or {}).get("rmse")
+    cl = (tests[0].get("closed_loop") or {}).get("rmse")
+    return f"{fmt(one)} / {fmt(cl)}"
+
+
+def write_fidelity(path: Path, rows: list[Row], fast_rows: list[Row], setting: str = "off") -> dict:
+    """Merges the study's keys into docs/fidelity.json (the pipeline writes the others):
+    the oracle's and sd_poly2's felt force, and the felt force (normal and fast hand) of the
+    recommended model when the pipeline has named one (`recommended`) and it was in the study,
+    else of the best learned model (`felt_model` says which)."""
+    try:
+        doc = json.loads(path.read_text())
+        if not isinstance(doc, dict):
+            doc = {}
+    except (OSError, json.JSONDecodeError):
+        doc = {}
+    rec = doc.get("recommended")
+    model = named_row(rows, rec) if isinstance(rec, str) else None
+    if model is None or not rankable(model):
+        model = best_row(rows, True)
+    fast = named_row(fast_rows, model.name) if model is not None else None
+    doc["oracle_felt_rmse_n"] = nan_to_none(felt_rmse(named_row(rows, ORACLE)))
+    doc["sd_poly2_felt_rmse_n"] = nan_to_none(felt_rmse(sd2_row(rows)))
+    doc["felt_rmse_n"] = nan_to_none(felt_rmse(model))
+    doc["felt_fast_rmse_n"] = nan_to_none(felt_rmse(fast))
+    doc["felt_model"] = model.name if model is not None else None
+    doc["felt_friction_compensation"] = setting
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(doc, indent=1) + "\n")
+    return doc
+
+
+def metric_cells(m: dict[str, float] | None) -> list[str]:
+    if m is None:
+        return ["-", "-", "-", "-"]
+    return [fmt(m["r2"]), fmt(m["mae"]), fmt(m["mse"]), fmt(m["rmse"])]
+
+
+def write_readme(
+    out: Path,
+    ref: Run,
+    rows: list[Row],
+    replay: dict[str, dict[str, float]],
+    rep: Run,
+    trajectory: Path,
+    results: dict,
+    total_s: float,
+    seed: int,
+    fast_ref: Run | None = None,
+    fast_rows: list[Row] | None = None,
+    settings: dict[str, tuple[Run, list[Row]]] | None = None,
+    setup: dict | None = None,
+) -> Path:
+    setup = setup or {"material": DEFAULT_MATERIAL, "bench": None, "clock": "lockstep"}
+    best = best_row(rows, True)
+    sd2 = sd2_row(rows)
+    sd2_rmse = sd2.repro["rmse"] if sd2 and sd2.repro else float("nan")
+    best_rmse = best.repro["rmse"] if best and best.repro else float("nan")
+    k = ratio(sd2_rmse, best_rmse)
+    met_rmse = best_rmse <= GOAL_RMSE
+    met_ratio = math.isfinite(k) and k >= GOAL_RATIO
+    h = STUDY_HAND
+    dur = h["rest_s"] + h["repeats"] * (h["press_s"] + h["hold_s"] + h["release_s"] + h["rest_s"])
+    L: list[str] = []
+    L.append("# Reproduction study (thesis 6.4.3 and 6.4.4) on the simulated bench\n")
+    L.append(
+        "Written by `bash scripts/reproduction-study.sh` (`haptics-train study`). Everything "
+        f"below was measured by the real processes: `rt-loop run` ({setup['clock']} clock, seed "
+        f"{seed}, material `{setup['material']}`, bench file "
+        f"{'`' + str(setup['bench']) + '`' if setup.get('bench') else 'none'}) "
+        "and, per model, `infer-server serve --model models/NAME.onnx` beside "
+        "`rt-loop run --experiment reproduction --model shm`, exchanging features and forces "
+        "over shared memory every control step (10 kHz loop time).\n"
+    )
+    L.append("## Set-up\n")
+    L.append(
+        f"- **The hand** (rt-loop `[hand]`): stiffness {h['stiffness']:.0f} N/m, damping "
+        f"{h['damping']:.0f} N s/m, {h['repeats']} presses (press {h['press_s']} s, hold "
+        f"{h['hold_s']} s, release {h['release_s']} s, rest {h['rest_s']} s) to set-points of "
+        + ", ".join(
+            f"{1000 * (h['depth_m'] + i * h['depth_step_m']):.0f}" for i in range(int(h["repeats"]))
+        )
+        + f" mm: {dur:.1f} s of loop time, {ref.steps} control steps per run.\n"
+        "- **Reference**: `shadow`, the hand presses the simulated object "
+        f"(`{setup['material']}`) through a transparent motor (F_cmd = 0).\n"
+        "- **Oracle** (`rt-loop run --model oracle`): the object's own physics (a separate "
+        "instance of the same material model) driven by the measured motion, rendered through "
+        "the same force loop: the rendering floor.\n"
+        "- **Friction compensation**: with a bench file (`rt-loop identify-friction`), the RFOB "
+        "subtracts the identified friction (`--bench`) in the reference and in every "
+        "reproduction alike; `off` = without (the thesis code's `friction_model` = 0).\n"
+        "- **Reproduction**: no sponge; the motor renders F_cmd = -F_pred of the served model; "
+        "the features' previous force is the model's own previous prediction.\n"
+        "- **Felt force** = the recording's `F_true`, which in both `shadow` and "
+        "`reproduction` is the force the simulated hand pushes with (docs/rt-loop.md), i.e. "
+        "what the operator feels, including the motor's friction and inertia on both sides. "
+        "Both runs have the same seed and programme, so their time stamps are identical; the "
+        "run is interpolated onto the reference's time stamps anyway (`study.align`), and a "
+        "run that stopped early is scored only on the time it covered (`coverage`) and left "
+        "out of the ranking.\n"
+        "- Metrics: R2, MAE, MSE, RMSE (thesis eqs. 7.15-7.19) of the felt force against the "
+        "reference's at every control step.\n"
+    )
+
+    L.append("## Result against the goal\n")
+    L.append(
+        "| | thesis (Table 6.19) | this study |\n|---|---|---|\n"
+        "| best learned model | random forest: RMSE 1.21 N, R2 0.76 | "
+        f"`{best.name if best else '-'}`: RMSE {fmt(best_rmse)} N, "
+        f"R2 {fmt(best.repro['r2'] if best and best.repro else None)} |\n"
+        "| 2nd-order spring-damper | RMSE 20.95 N, R2 -71.58 | "
+        f"`sd_poly2`: RMSE {fmt(sd2_rmse)} N, "
+        f"R2 {fmt(sd2.repro['r2'] if sd2 and sd2.repro else None)} |\n"
+        f"| spring-damper RMSE / best RMSE | 17.3x | {fmt(k, 2)}x |\n"
+    )
+    L.append(
+        f"- Best learned model at or below 1.21 N RMSE: **{'met' if met_rmse else 'not met'}** "
+        f"({fmt(best_rmse)} N).\n"
+        f"- At least ten times closer than the 2nd-order spring-damper: "
+        f"**{'met' if met_ratio else 'not met'}** ({fmt(k, 2)}x).\n"
+    )
+    pb = best_row(rows, True, key="shadow")
+    if pb is not None and pb.shadow is not None and sd2 is not None and sd2.shadow is not None:
+        L.append(
+            "The thesis's Table 6.19 itself compared the forces *predicted* along a real "
+            "interaction (model and spring-damper) with the measured one. The same here "
+            "(`pred along real` below: each model fed the hand-on-sponge run, F_pred vs the "
+            f"felt force): best learned `{pb.name}` RMSE {fmt(pb.shadow['rmse'])} N "
+            f"(R2 {fmt(pb.shadow['r2'])}), `sd_poly2` {fmt(sd2.shadow['rmse'])} N "
+            f"(R2 {fmt(sd2.shadow['r2'])}): "
+            f"{fmt(ratio(sd2.shadow['rmse'], pb.shadow['rmse']), 2)}x.\n"
+        )
+    fast_note = "not run."
+    if fast_rows:
+        fb, fsd = best_row(fast_rows, True), sd2_row(fast_rows)
+        if fb and fsd and fb.repro and fsd.repro:
+            fast_note = (
+                f"{fmt(ratio(fsd.repro['rmse'], fb.repro['rmse']), 2)}x (sensitivity run below)."
+            )
+    L.extend(floor_section(settings or {}, setup, fast_note))
+    L.append("## Felt force: every served model against the simulated sponge\n")
+    L.append(
+        "`repro` = reproduction (the hand on the virtual sponge) vs the reference's felt force. "
+        "`pred along real` = the thesis's own 6.4.4 comparison: `shadow --model shm`, the model "
+        "predicting along the real interaction from its own previous predictions, F_pred vs "
+        "the felt force F_true of that run. `one-step` / `closed-loop` = the offline "
+        "test-set RMSE of docs/report (held-out 2.1 N/s ramps). Wall = seconds for the "
+        "reproduction run (both processes, start to end).\n"
+    )
+    L.append(
+        "| model | how | repro R2 | repro MAE | repro MSE | repro RMSE | pred along real RMSE "
+        "| pred along real R2 | offline one-step / closed-loop RMSE | served / fallbacks "
+        "| stop | wall s |"
+    )
+    L.append("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    order = sorted(rows, key=lambda r: (not rankable(r), r.repro["rmse"] if r.repro else math.inf))
+    for r in order:
+        off = offline_rmse(results, r.name)
+        stop = r.run.stop or "-"
+        if r.repro is not None and r.repro["coverage"] < 0.999:
+            stop += f" (covers {100 * r.repro['coverage']:.0f} %)"
+        if r.run.note:
+            stop += f": {r.run.note}"
+        L.append(
+            f"| `{r.name}` | {r.how} | " + " | ".join(metric_cells(r.repro)) + " | "
+            f"{fmt(r.shadow['rmse'] if r.shadow else None)} | "
+            f"{fmt(r.shadow['r2'] if r.shadow else None)} | {off} | "
+            f"{r.run.served} / {r.run.fallbacks} | {stop} | {r.run.wall_s:.1f} |"
+        )
+    L.append("")
+    L.append("![felt-force RMSE per model](rmse.png)\n")
+    L.append(
+        "The best three learned models and `sd_poly2` against the simulated sponge, over "
+        "time (felt force and depth):\n"
+    )
+    L.append("![felt force over time](felt_force_time.png)\n")
+    L.append("and over depth (felt force against the probe's depth):\n")
+    L.append("![felt force over depth](felt_force_depth.png)\n")
+
+    rf = replay["rtob_force"]
+    tf = replay["F_true"]
+    px = replay["position_x"]
+    L.append("## Position-replay validation (thesis 6.4.3, Table 6.18)\n")
+    L.append(
+        f"The held-out recording `{trajectory.name}` (force-controlled ramps at 2.1 N/s, "
+        f"14 cycles) gives the position reference; `rt-loop run --experiment position-replay` "
+        "follows it with the thesis's PID (C_p 700, C_d 12, C_i 1000, current = PID M_n/K_fn, "
+        f"plus the DOB estimate) on the simulated sponge, from a fresh sponge as the recording "
+        f"started: {rep.steps} steps in {rep.wall_s:.1f} s of wall time. The force response "
+        "(RFOB estimate, what the thesis measured) and the true contact force of the replay are "
+        "compared with the recording's at the same time.\n"
+    )
+    L.append("| quantity | R2 | MAE | MSE | RMSE |\n|---|---|---|---|---|")
+    L.append("| thesis Table 6.18 (force response) | 0.95 | 0.42 | 0.33 | 0.57 |")
+    L.append("| force response F_res (RFOB) | " + " | ".join(metric_cells(rf)) + " |")
+    L.append("| true contact force F_true | " + " | ".join(metric_cells(tf)) + " |")
+    L.append(
+        f"| depth x (mm) | {fmt(px['r2'])} | {fmt(1000 * px['mae'])} | - | "
+        f"{fmt(1000 * px['rmse'])} |\n"
+    )
+    L.append(
+        f"Depth tracking {fmt(1000 * px['rmse'])} mm RMS; force response (RFOB) RMSE "
+        f"{fmt(rf['rmse'])} N against the true contact force's {fmt(tf['rmse'])} N. The "
+        "models' predictions along this same trajectory (closed loop, each fed its own "
+        "previous predictions) are in docs/report/README.md.\n"
+    )
+    L.append("![position replay](position_replay.png)\n")
+    if fast_ref is not None and fast_rows:
+        fh = FAST_HAND
+        L.append("## Sensitivity: a faster hand (not part of the goal)\n")
+        L.append(
+            f"The same three presses with press and release in {fh['press_s']} s instead of "
+            f"{h['press_s']} s (the reference re-run with that hand too), for the "
+            f"{FAST_BEST} best learned models above and the spring-dampers. Reported whatever "
+            "it shows. Fallbacks are steps whose served force was refused (beyond "
+            "`reproduction.max_force_n`, late or missing): the loop rendered its built-in "
+            "fallback instead.\n"
+        )
+        L.append("| model | R2 | MAE | MSE | RMSE | served / fallbacks | stop |")
+        L.append("|---|---|---|---|---|---|---|")
+        for r in sorted(fast_rows, key=lambda r: (not rankable(r), repro_rmse(r))):
+            L.append(
+                f"| `{r.name}` | " + " | ".join(metric_cells(r.repro)) + " | "
+                f"{r.run.served} / {r.run.fallbacks} | {r.run.stop or '-'} {r.run.note} |"
+            )
+        fb = best_row(fast_rows, True)
+        fsd = sd2_row(fast_rows)
+        if fb and fsd and fb.repro and fsd.repro:
+            L.append(
+                f"\nFaster hand: best learned `{fb.name}` {fmt(fb.repro['rmse'])} N, "
+                f"`sd_poly2` {fmt(fsd.repro['rmse'])} N: "
+                f"{fmt(ratio(fsd.repro['rmse'], fb.repro['rmse']), 2)}x.\n"
+            )
+        else:
+            L.append("")
+    L.append("## Timings\n")
+    L.append(
+        f"Whole study: {total_s:.0f} s of wall time on the shared 2-core machine (builds not "
+        f"included). Reference run {ref.wall_s:.2f} s; per model, reproduction and "
+        "prediction-along-real runs of the loop and infer-server together: see the `wall s` "
+        "column (lockstep: the loop waits for every answer, the server parks between "
+        "messages).\n"
+    )
+    L.append("## Reproduce\n")
+    L.append(
+        "```\nbash scripts/reproduction-study.sh   # builds release, runs, writes docs/study/\n"
+        ".venv/bin/haptics-train study --names rf_memory,sd_poly2   # a subset\n"
+        "# issue 11 from nothing for one material: identify the friction (bench.toml), record\n"
+        "# and train without and with it, then this study with --bench/--bench-models-dir\n"
+        "bash scripts/fidelity-study.sh [--material materials/foam-b.toml]\n"
+        "# flags: --material FILE, --bench FILE, --bench-models-dir DIR, --headline off|on,\n"
+        "#        --clock lockstep|realtime, --fidelity FILE ('' to skip)\n```\n"
+    )
+    L.append(
+        "Raw recordings stay in `data/study/` (not committed); `results.json` here has "
+        "every number of the tables.\n"
+    )
+    path = out / "README.md"
+    path.write_text("\n".join(L))
+    return path
+
+
+def floor_section(
+    settings: dict[str, tuple[Run, list[Row]]], setup: dict, fast_note: str
+) -> list[str]:
+    """The rendering floor (oracle) beside sd_poly2, the builtin and the best learned model,
+    per friction setting; every sentence computed from the numbers."""
+    L = ["## Rendering floor and friction compensation\n"]
+    if not settings:
+        return L + ["Not measured in this run.\n"]
+    L.append(
+        "Felt-force RMSE (N) against the reference of the same setting. `off`: no friction "
+        "model in the RFOB; `on`: the bench file's friction subtracted "
+        f"({setup.get('bench') or '-'}).\n"
+    )
+    L.append("| setting | oracle (floor) | sd_poly2 | builtin | best learned | best / oracle |")
+    L.append("|---|---|---|---|---|---|")
+    for key, (_, rows) in settings.items():
+        f = floor_summary(rows)
+        o, b = float(f["oracle_felt_rmse_n"]), float(f["best_learned_felt_rmse_n"])  # type: ignore[arg-type]
+        L.append(
+            f"| {key} | {fmt(o)} | {fmt(float(f['sd_poly2_felt_rmse_n']))} | "  # type: ignore[arg-type]
+            f"{fmt(float(f['builtin_felt_rmse_n']))} | "  # type: ignore[arg-type]
+            f"{'`' + str(f['best_learned']) + '` ' if f['best_learned'] else ''}{fmt(b)} | "
+            f"{fmt(b / o if o > 0 else math.nan, 2)}x |"
+        )
+    L.append("")
+    for key, (_, rows) in settings.items():
+        o = felt_rmse(named_row(rows, ORACLE))
+        sd = felt_rmse(sd2_row(rows))
+        if math.isfinite(o) and math.isfinite(sd) and o > 0:
+            L.append(
+                f"- `{key}`: sd_poly2 renders {fmt(sd / o, 1)}x the floor's error; a model "
+                f"at the floor would be {fmt(sd / o, 1)}x closer than sd_poly2.\n"
+            )
+    L.append(f"- Faster hand, best learned vs sd_poly2: {fast_note}\n")
+    head = settings.get(str(setup.get("headline", "off"))) or next(iter(settings.values()))
+    o, b = felt_rmse(named_row(head[1], ORACLE)), felt_rmse(best_row(head[1], True))
+    on = settings.get("on")
+    floor_on = felt_rmse(named_row(on[1], ORACLE)) if on else math.nan
+
+    def met(ok: bool) -> str:
+        return "**met**" if ok else "**not met**"
+
+    L.append("Issue 11 goals (felt force, the headline setting):\n")
+    L.append(f"- Best learned at most 0.20 N: {met(b <= 0.20)} ({fmt(b)} N).\n")
+    L.append(
+        f"- Within 1.5x of the oracle's floor: {met(o > 0 and b / o <= 1.5)} "
+        f"({fmt(b / o if o > 0 else math.nan, 2)}x).\n"
+    )
+    L.append(
+        f"- Floor at most 0.10 N with friction compensated: {met(floor_on <= 0.10)} "
+        f"({fmt(floor_on)} N{'' if on else ', no bench file given'}).\n"
+    )
+    return L
+
+
+def results_json(
+    rows: list[Row], replay: dict, total_s: float, fast_rows: list[Row] | None = None
+) -> dict:
+    return {
+        "total_wall_s": total_s,
+        "position_replay": replay,
+        "fast_hand": {r.name: r.repro for r in fast_rows or []},
+        "models": {
+            r.name: {
+                "how": r.how,
+                "reproduction": r.repro,
+                "prediction_along_real": r.shadow,
+                "served": r.run.served,
+                "fallbacks": r.run.fallbacks,
+                "stop": r.run.stop,
+                "note": r.run.note,
+                "wall_s": r.run.wall_s,
+            }
+            for r in rows
+        },
+    }

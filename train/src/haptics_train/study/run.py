@@ -1,0 +1,273 @@
+"""Running the study: the reference, the oracle, every served model and the builtin
+spring-damper with the same hand, seed and material (and again with friction compensation, and
+with a faster hand), the position replay; then the scores, figures and report."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from ..metrics import regression_metrics
+from .plot import write_plots
+from .processes import Run, Tools, find_tools, read_series, run_loop, write_config
+from .protocol import (
+    BUILTIN,
+    DEFAULT_MATERIAL,
+    FAST_BEST,
+    FAST_HAND,
+    ORACLE,
+    SPRING_DAMPERS,
+    STUDY_HAND,
+    StudyError,
+)
+from .report import fmt, load_results, results_json, write_fidelity, write_readme
+from .score import Row, compare, floor_summary, rankable, repro_rmse, score_run
+
+
+def study_models(models_dir: Path, names: list[str] | None) -> list[Path]:
+    files = sorted(models_dir.glob("*.onnx"))
+    if names:
+        wanted = set(names)
+        files = [f for f in files if f.stem in wanted]
+        missing = wanted - {f.stem for f in files}
+        if missing:
+            raise StudyError(f"no such model in {models_dir}: {', '.join(sorted(missing))}")
+    if not files:
+        raise StudyError(f"no *.onnx model in {models_dir} (train them: haptics-train pipeline)")
+    return files
+
+
+def run_study(
+    root: Path,
+    models_dir: Path,
+    out_dir: Path,
+    work: Path,
+    trajectory: Path,
+    names: list[str] | None = None,
+    seed: int = 1,
+    replay_seed: int = 2,
+    rt_loop: str | None = None,
+    infer_server: str | None = None,
+    shadow_predictions: bool = True,
+    log: bool = True,
+    material: Path = Path(DEFAULT_MATERIAL),
+    bench: Path | None = None,
+    bench_models_dir: Path | None = None,
+    clock: str = "lockstep",
+    fidelity: Path | None = None,
+    headline: str = "off",
+) -> Path:
+    """The study. With `bench` (a bench file of `rt-loop identify-friction`) every reproduction
+    runs twice: without friction compensation and with it (`--bench`, in the reference too),
+    the latter with the models of `bench_models_dir` (trained on recordings made with the same
+    bench file) when given. `headline` picks the setting of the goal lines, the plots, the fast
+    hand, the position replay and docs/fidelity.json: `off` (default) is how the product renders
+    today (no bench file in scripts/up.sh), `on` the compensated setting."""
+    t_start = time.perf_counter()
+    tools = find_tools(root, rt_loop, infer_server)
+    files = study_models(models_dir, names)
+    if not material.is_file():
+        raise StudyError(f"no material file {material}")
+    if bench is not None and not bench.is_file():
+        raise StudyError(f"no bench file {bench} (rt-loop identify-friction --out {bench})")
+    if headline not in ("off", "on") or (headline == "on" and bench is None):
+        raise StudyError(f"headline must be off, or on with a bench file (got {headline})")
+    if clock not in ("lockstep", "realtime"):
+        raise StudyError(f"clock must be lockstep or realtime (got {clock})")
+    if not trajectory.is_file():
+        raise StudyError(f"no trajectory recording {trajectory} (scripts/record-dataset.sh)")
+    work.mkdir(parents=True, exist_ok=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    def say(msg: str) -> None:
+        if log:
+            print(f"[study] {msg}", flush=True)
+
+    common = ["--material", str(material)]
+    settings: dict[str, tuple[Run, list[Row]]] = {}
+    settings["off"] = _reproduce_all(
+        tools, files, work, "", STUDY_HAND, seed, shadow_predictions, say, common, clock
+    )
+    primary = headline
+    extra = common
+    if bench is not None:
+        extra_on = [*common, "--bench", str(bench)]
+        files_on = study_models(bench_models_dir, names) if bench_models_dir else files
+        settings["on"] = _reproduce_all(
+            tools, files_on, work, "fc_", STUDY_HAND, seed, shadow_predictions, say, extra_on, clock
+        )
+        if primary == "on":
+            extra, files = extra_on, files_on
+    ref, rows = settings[primary]
+
+    # The same presses, 2.5 times faster, for the best learned models, the spring-dampers and
+    # the oracle (in the headline setting).
+    ranked = sorted((r for r in rows if r.learned and rankable(r)), key=repro_rmse)
+    keep = {r.name for r in ranked[:FAST_BEST]} | set(SPRING_DAMPERS)
+    fast_files = [f for f in files if f.stem in keep]
+    fast_ref, fast_rows = _reproduce_all(
+        tools, fast_files, work, "fast_", FAST_HAND, seed, False, say, extra, clock
+    )
+
+    rep = run_loop(
+        tools,
+        "position replay",
+        "replay",
+        [
+            "--experiment",
+            "position-replay",
+            "--clock",
+            "lockstep",
+            "--seed",
+            str(replay_seed),
+            "--trajectory",
+            str(trajectory),
+            *extra,
+        ],
+        work / "replay.parquet",
+    )
+    if not rep.ok:
+        raise StudyError(f"the position replay failed: {rep.note or rep.stop}")
+    rec = read_series(trajectory, ("time", "position_x", "F_true", "rtob_force"))
+    rep_s = read_series(rep.path, ("time", "position_x", "F_true", "rtob_force"))
+    replay = {
+        c: compare(rec["time"], rec[c], rep_s["time"], rep_s[c])
+        for c in ("rtob_force", "F_true", "position_x")
+    }
+    say(
+        f"position replay: RFOB force RMSE {replay['rtob_force']['rmse']:.3f} N "
+        f"R2 {replay['rtob_force']['r2']:.3f} ({rep.steps} steps in {rep.wall_s:.1f} s)"
+    )
+
+    results = load_results(models_dir)
+    total = time.perf_counter() - t_start
+    write_plots(out_dir, ref, rows, rec, rep_s)
+    setup = {
+        "material": str(material),
+        "bench": str(bench) if bench else None,
+        "clock": clock,
+        "headline": primary,
+    }
+    readme = write_readme(
+        out_dir,
+        ref,
+        rows,
+        replay,
+        rep,
+        trajectory,
+        results,
+        total,
+        seed,
+        fast_ref,
+        fast_rows,
+        settings,
+        setup,
+    )
+    doc = results_json(rows, replay, total, fast_rows)
+    doc["setup"] = setup
+    doc["friction"] = {k: floor_summary(v[1]) for k, v in settings.items()}
+    (out_dir / "results.json").write_text(json.dumps(doc, indent=1))
+    if fidelity is not None:
+        write_fidelity(fidelity, rows, fast_rows, primary)
+        say(f"fidelity keys -> {fidelity}")
+    say(f"report -> {readme} ({total:.0f} s)")
+    return readme
+
+
+def _reproduce_all(
+    tools: Tools,
+    files: list[Path],
+    work: Path,
+    tag: str,
+    hand: dict[str, float],
+    seed: int,
+    shadow_predictions: bool,
+    say: Callable[[str], None],
+    extra: list[str] | None = None,
+    clock: str = "lockstep",
+) -> tuple[Run, list[Row]]:
+    """The reference (shadow on the simulated object), the oracle, then every model's
+    reproduction (and, optionally, its prediction along the real interaction), then the
+    builtin spring-damper, all with the same hand programme, seed, material and bench file
+    (`extra`: rt-loop flags)."""
+    cfg = work / f"{tag}hand.toml"
+    write_config(cfg, seed, hand, clock)
+    base = ["--config", str(cfg), "--clock", clock, "--seed", str(seed), *(extra or [])]
+    ref = run_loop(
+        tools,
+        "sponge",
+        "reference",
+        [*base, "--experiment", "shadow"],
+        work / f"{tag}reference.parquet",
+    )
+    if not ref.ok:
+        raise StudyError(f"the reference (shadow) run failed: {ref.note or ref.stop}")
+    say(f"{tag}reference: simulated sponge, {ref.steps} steps in {ref.wall_s:.1f} s")
+    t_ref, f_ref = ref.series["time"], ref.series["F_true"]
+    rows: list[Row] = []
+    o = run_loop(
+        tools,
+        ORACLE,
+        "reproduction",
+        [*base, "--experiment", "reproduction", "--model", "oracle"],
+        work / f"{tag}repro_oracle.parquet",
+    )
+    ro = score_run(t_ref, f_ref, o)
+    rows.append(Row(o.name, "rt-loop oracle", ro, None, o, None, False))
+    say(f"{tag}oracle: felt-force RMSE {fmt(ro['rmse'] if ro else None)} N (the floor)")
+    pid = os.getpid()
+    for f in files:
+        name = f.stem
+        inst = f"study-{pid}-{name}"
+        r = run_loop(
+            tools,
+            name,
+            "reproduction",
+            [*base, "--experiment", "reproduction"],
+            work / f"{tag}repro_{name}.parquet",
+            server_model=f.resolve(),
+            instance=inst,
+        )
+        repro = score_run(t_ref, f_ref, r)
+        sh = None
+        sh_m = None
+        if shadow_predictions and r.series:
+            sh = run_loop(
+                tools,
+                name,
+                "shadow",
+                [*base, "--experiment", "shadow"],
+                work / f"{tag}shadow_{name}.parquet",
+                server_model=f.resolve(),
+                instance=inst,
+            )
+            if sh.series and sh.served > 0:
+                sh_m = regression_metrics(sh.series["F_true"], sh.series["F_pred"])
+        learned = name not in SPRING_DAMPERS
+        rows.append(Row(name, "served ONNX", repro, sh_m, r, sh, learned=learned))
+        say(
+            f"{tag}{name}: felt-force RMSE {fmt(repro['rmse'] if repro else None)} N, "
+            f"{r.served} served / {r.fallbacks} fallbacks, stop {r.stop or '-'}, "
+            f"{r.wall_s:.1f} s {r.note}"
+        )
+    b = run_loop(
+        tools,
+        BUILTIN,
+        "reproduction",
+        [*base, "--experiment", "reproduction"],
+        work / f"{tag}repro_builtin.parquet",
+    )
+    rb = score_run(t_ref, f_ref, b)
+    rows.append(Row(b.name, "rt-loop builtin", rb, None, b, None, False))
+    say(f"{tag}builtin spring-damper: felt-force RMSE {fmt(rb['rmse'] if rb else None)} N")
+    return ref, rows
+
+
+def clean_work(work: Path) -> None:
+    """Removes the study's raw recordings (kept by default for inspection)."""
+    if work.is_dir():
+        shutil.rmtree(work)

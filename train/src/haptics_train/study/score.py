@@ -1,0 +1,124 @@
+"""Scoring: a run's felt force against the reference's, aligned by time, and the picks the
+report and docs/fidelity.json make from the scores (best learned model, sd_poly2, the oracle's
+floor). Pure functions on arrays and rows: tested on synthetic series."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..metrics import regression_metrics
+from .processes import Run
+from .protocol import BUILTIN, ORACLE
+
+
+def align(
+    t_ref: np.ndarray, t_run: np.ndarray, y_run: np.ndarray, tol: float = 1e-9
+) -> tuple[np.ndarray, np.ndarray]:
+    """`y_run` at the reference's time stamps, and the mask of reference samples it covers.
+
+    Both series start at their own t[0] (lockstep runs of the same programme start at 0). The
+    run is linearly interpolated onto the reference grid; reference samples outside the run's
+    time span (a run that stopped early) are not covered: they get NaN and mask False, so a
+    short run cannot be scored on data it never produced.
+    """
+    t_ref = np.asarray(t_ref, dtype=np.float64) - float(t_ref[0])
+    t_run = np.asarray(t_run, dtype=np.float64) - float(t_run[0])
+    y_run = np.asarray(y_run, dtype=np.float64)
+    if t_run.shape != y_run.shape or t_run.size < 2:
+        raise ValueError("a run needs at least two (time, value) samples of equal length")
+    if np.any(np.diff(t_run) < 0):
+        raise ValueError("run time must be non-decreasing")
+    covered = (t_ref >= t_run[0] - tol) & (t_ref <= t_run[-1] + tol)
+    out = np.full(t_ref.shape, np.nan)
+    out[covered] = np.interp(t_ref[covered], t_run, y_run)
+    return out, covered
+
+
+def compare(
+    t_ref: np.ndarray, f_ref: np.ndarray, t_run: np.ndarray, f_run: np.ndarray
+) -> dict[str, float]:
+    """R2/MAE/MSE/RMSE of a run's force against the reference force, aligned by time, plus
+    `coverage`: the fraction of the reference's duration the run covered."""
+    y_run, covered = align(t_ref, t_run, f_run)
+    if not covered.any():
+        raise ValueError("the run covers none of the reference's time span")
+    m = regression_metrics(np.asarray(f_ref, dtype=np.float64)[covered], y_run[covered])
+    m["coverage"] = float(covered.mean())
+    return m
+
+
+def ratio(sd_rmse: float, best_rmse: float) -> float:
+    """How many times closer to the reference the best model is than the spring-damper."""
+    if not (math.isfinite(sd_rmse) and math.isfinite(best_rmse)) or best_rmse <= 0:
+        return float("nan")
+    return sd_rmse / best_rmse
+
+
+@dataclass
+class Row:
+    name: str
+    how: str  # "served (ONNX)" / "rt-loop builtin"
+    repro: dict[str, float] | None
+    shadow: dict[str, float] | None
+    run: Run
+    shadow_run: Run | None
+    learned: bool
+
+
+def repro_rmse(r: Row) -> float:
+    return r.repro["rmse"] if r.repro else math.inf
+
+
+def score_run(t_ref: np.ndarray, f_ref: np.ndarray, r: Run) -> dict[str, float] | None:
+    if not r.series or r.steps == 0:
+        return None
+    return compare(t_ref, f_ref, r.series["time"], r.series["F_true"])
+
+
+def rankable(r: Row) -> bool:
+    return (
+        r.repro is not None
+        and r.run.ok
+        and r.repro["coverage"] > 0.999
+        and math.isfinite(r.repro["rmse"])
+    )
+
+
+def best_row(rows: list[Row], learned: bool, key: str = "repro") -> Row | None:
+    cand = [r for r in rows if r.learned == learned and rankable(r) and getattr(r, key)]
+    if not cand:
+        return None
+    return min(cand, key=lambda r: getattr(r, key)["rmse"])
+
+
+def sd2_row(rows: list[Row]) -> Row | None:
+    return next((r for r in rows if r.name == "sd_poly2"), None)
+
+
+def named_row(rows: list[Row], name: str) -> Row | None:
+    return next((r for r in rows if r.name == name), None)
+
+
+def felt_rmse(r: Row | None) -> float:
+    return r.repro["rmse"] if r is not None and r.repro and rankable(r) else math.nan
+
+
+def floor_summary(rows: list[Row]) -> dict[str, object]:
+    """Felt-force RMSE of the oracle (floor), sd_poly2, the builtin and the best learned model
+    of one friction setting."""
+    best = best_row(rows, True)
+    return {
+        "oracle_felt_rmse_n": felt_rmse(named_row(rows, ORACLE)),
+        "sd_poly2_felt_rmse_n": felt_rmse(sd2_row(rows)),
+        "builtin_felt_rmse_n": felt_rmse(named_row(rows, BUILTIN)),
+        "best_learned": best.name if best else None,
+        "best_learned_felt_rmse_n": felt_rmse(best),
+        "models": {r.name: felt_rmse(r) for r in rows},
+    }
+
+
+def nan_to_none(v: float) -> float | None:
+    return v if math.isfinite(v) else None
