@@ -18,9 +18,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use infer_server::inference_control::InferenceControl;
+use infer_server::inference_thread::InferenceConfig;
 use infer_server::registry::Registry;
-use infer_server::serve::ServeConfig;
-use infer_server::server::Server;
 use infer_server::{Runtime, SessionConfig};
 use shm_ring::{Config, FeatureMsg, Segment, SegmentName, WaitStrategy};
 
@@ -75,9 +75,9 @@ fn main() {
         .unwrap();
     lp.forces_rx.set_wait_strategy(wait);
     let server = Arc::new(
-        Server::start(
+        InferenceControl::start(
             rt,
-            ServeConfig {
+            InferenceConfig {
                 segment: seg.clone(),
                 wait,
                 cpu: env_usize("BENCH_SERVER_CPU"),
@@ -121,12 +121,12 @@ fn main() {
     };
 
     if let Some(cpu) = env_usize("BENCH_LOOP_CPU") {
-        if let Err(e) = infer_server::serve::pin_current_thread(cpu) {
+        if let Err(e) = infer_server::inference_thread::pin_current_thread(cpu) {
             println!("loop thread not pinned: {e}");
         }
     }
     if let Some(p) = rt_prio {
-        if let Err(e) = infer_server::serve::set_fifo_priority(p) {
+        if let Err(e) = infer_server::inference_thread::set_fifo_priority(p) {
             println!("loop thread not SCHED_FIFO: {e}");
         }
     }

@@ -19,7 +19,7 @@ use common::bench_models;
 use std::time::{Duration, Instant};
 
 use infer_server::handoff;
-use infer_server::serve::{InferenceThread, ServeConfig};
+use infer_server::inference_thread::{InferenceConfig, InferenceThread};
 use infer_server::{FeatureSchema, Runtime, SessionConfig, StepEngine};
 use shm_ring::{Config, FeatureMsg, Segment, SegmentName, WaitStrategy};
 
@@ -73,14 +73,14 @@ fn main() {
     let rt = Runtime::init(None).unwrap_or_else(|e| panic!("{e}"));
     let dir = bench_models();
     if let Some(cpu) = env_usize("BENCH_LOOP_CPU") {
-        if let Err(e) = infer_server::serve::pin_current_thread(cpu) {
+        if let Err(e) = infer_server::inference_thread::pin_current_thread(cpu) {
             println!("loop thread not pinned: {e}");
         }
     }
     let rt_prio = env_usize("BENCH_RT_PRIO").map(|p| p as i32);
     if let Some(p) = rt_prio {
         // The "loop" thread gets the same SCHED_FIFO priority as the inference thread.
-        if let Err(e) = infer_server::serve::set_fifo_priority(p) {
+        if let Err(e) = infer_server::inference_thread::set_fifo_priority(p) {
             println!("loop thread not SCHED_FIFO: {e}");
         }
     }
@@ -138,7 +138,7 @@ fn main() {
         lp.forces_rx.set_wait_strategy(wait);
         let (mut activator, taker) = handoff::channel();
         let thread = InferenceThread::spawn(
-            ServeConfig {
+            InferenceConfig {
                 segment: seg.clone(),
                 wait,
                 cpu: env_usize("BENCH_SERVER_CPU"),

@@ -11,30 +11,31 @@
 //!   just before each step instead of parking (the period-synchronised wait).
 //! - [`profile`]: the wait profiles (dedicated core, period-synchronised, shared) chosen from
 //!   the machine.
-//! - [`serve`]: the inference thread over rt-loop's shared-memory segment.
-//! - [`server`]: [`server::Server`], the control side (validate, activate, revalidate, stats)
-//!   that `serve`, gRPC and the web page call.
+//! - [`inference_thread`]: the inference thread over rt-loop's shared-memory segment.
+//! - [`inference_control`]: [`inference_control::InferenceControl`], the control side of that
+//!   thread (validate, activate, revalidate, stats) that `serve`, gRPC and the web page call.
 //! - [`attachment`]: the segment's telemetry ring, command mailbox and link, shared by the
 //!   inference thread with the rest of the server while it is attached.
 //! - [`registry`]: the model directory and the models in memory (load, activate, unload).
 //! - [`telemetry`]: the thread that drains the telemetry ring into the control plane's
 //!   broadcast, and what it learns about the loop (step, rate, phase, liveness).
-//! - [`backend`]: `control_plane::Backend` over the registry, the telemetry and the mailbox.
+//! - [`control_backend`]: [`control_backend::ControlBackend`], the `control_plane::Backend`
+//!   of this server: the registry, the telemetry and the mailbox behind gRPC and the page.
 
 pub mod attachment;
-pub mod backend;
 pub mod contract;
 pub mod contract_check;
+pub mod control_backend;
 pub mod engine;
 pub mod handoff;
+pub mod inference_control;
+pub mod inference_thread;
 pub mod latency;
 pub mod model;
 pub mod period_sync;
 pub mod profile;
 pub mod registry;
 pub mod runtime;
-pub mod serve;
-pub mod server;
 pub mod telemetry;
 
 pub use contract::{FeatureSchema, ModelKind};

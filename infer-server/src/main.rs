@@ -10,11 +10,11 @@ use std::time::{Duration, Instant};
 
 use clap::{Parser, Subcommand};
 use control_plane::{ControlError, ModelSource, Shutdown, TelemetryHub};
-use infer_server::backend::ServerBackend;
+use infer_server::control_backend::ControlBackend;
+use infer_server::inference_control::InferenceControl;
+use infer_server::inference_thread::InferenceConfig;
 use infer_server::profile::{self, Machine, Profile};
 use infer_server::registry::Registry;
-use infer_server::serve::ServeConfig;
-use infer_server::server::Server;
 use infer_server::telemetry::{LoopObserver, TelemetryThread};
 use infer_server::{FeatureSchema, ModelError, Runtime, RuntimeError, SessionConfig, StepEngine};
 use shm_ring::{SegmentName, WaitStrategy};
@@ -241,7 +241,7 @@ fn main() -> ExitCode {
                 chosen.describe()
             );
             let mlock = chosen.mlock;
-            let cfg = ServeConfig {
+            let cfg = InferenceConfig {
                 segment: name,
                 wait: chosen.wait,
                 cpu: chosen.cpu,
@@ -397,7 +397,7 @@ fn resolve_models(
 struct ServeArgs {
     dir: PathBuf,
     start_model: Option<String>,
-    cfg: ServeConfig,
+    cfg: InferenceConfig,
     session: SessionConfig,
     control: control_plane::Config,
     stats_every: f64,
@@ -431,7 +431,7 @@ fn serve(ort_lib: Option<&Path>, args: ServeArgs) -> ExitCode {
         libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
     }
     let segment = args.cfg.segment.clone();
-    let server = match Server::start(rt, args.cfg, args.session) {
+    let server = match InferenceControl::start(rt, args.cfg, args.session) {
         Ok(s) => Arc::new(s),
         Err(e) => {
             eprintln!("infer-server: {e}");
@@ -473,7 +473,7 @@ fn serve(ort_lib: Option<&Path>, args: ServeArgs) -> ExitCode {
             return ExitCode::from(EXIT_REFUSED);
         }
     };
-    let backend = Arc::new(ServerBackend::new(
+    let backend = Arc::new(ControlBackend::new(
         Arc::clone(&registry),
         hub,
         observer,
@@ -623,7 +623,7 @@ fn serve(ort_lib: Option<&Path>, args: ServeArgs) -> ExitCode {
     exit
 }
 
-fn report_stats(server: &Server) {
+fn report_stats(server: &InferenceControl) {
     let s = server.stats();
     let l = server.latency().snapshot();
     eprintln!(

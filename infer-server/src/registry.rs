@@ -31,8 +31,8 @@ use control_plane::{
 
 use crate::contract::FeatureSchema;
 use crate::engine::{load_bounded, StepEngine};
+use crate::inference_control::InferenceControl;
 use crate::model::ModelError;
-use crate::server::Server;
 
 /// How long `activate` waits for the inference thread to take a new engine. It takes it
 /// between two steps, or within 100 ms when the attached loop sends nothing.
@@ -85,7 +85,7 @@ struct State {
 }
 
 pub struct Registry {
-    server: Arc<Server>,
+    server: Arc<InferenceControl>,
     dir: PathBuf,
     ops: Mutex<()>,
     state: Mutex<State>,
@@ -108,7 +108,7 @@ pub fn control_error(name: &str, e: &ModelError) -> ControlError {
 
 impl Registry {
     /// A registry over `dir` (which need not exist yet: it then lists nothing).
-    pub fn new(server: Arc<Server>, dir: impl Into<PathBuf>) -> Self {
+    pub fn new(server: Arc<InferenceControl>, dir: impl Into<PathBuf>) -> Self {
         Self {
             server,
             dir: dir.into(),
@@ -124,7 +124,7 @@ impl Registry {
         self
     }
 
-    pub fn server(&self) -> &Arc<Server> {
+    pub fn server(&self) -> &Arc<InferenceControl> {
         &self.server
     }
 

@@ -1017,10 +1017,9 @@ async fn a_new_loop_is_served_again_and_the_active_model_revalidated_for_it() {
         .find(|a| a.flags == 0)
         .expect("model answers");
     assert!(first.seq < 1000, "revalidated quickly: {first:?}");
-    assert!(answers
-        .iter()
-        .filter(|a| a.seq < first.seq)
-        .all(|a| a.flags == infer_server::serve::force_flags::SCHEMA_MISMATCH && a.force.is_nan()));
+    assert!(answers.iter().filter(|a| a.seq < first.seq).all(|a| a.flags
+        == infer_server::inference_thread::force_flags::SCHEMA_MISMATCH
+        && a.force.is_nan()));
     check_model_answers(&answers, first.seq, u64::MAX, first.model_id, tree);
     let s = wait_status(&mut l, "second loop alive", |s| s.loop_alive).await;
     assert_eq!(s.active_model.unwrap().name, "tree.onnx");
@@ -1048,10 +1047,9 @@ async fn a_new_loop_is_served_again_and_the_active_model_revalidated_for_it() {
         .await
         .unwrap_err();
     assert_eq!(e.code(), Code::NotFound);
-    assert!(stepper
-        .answers()
-        .iter()
-        .all(|a| a.flags == infer_server::serve::force_flags::SCHEMA_MISMATCH && a.force.is_nan()));
+    assert!(stepper.answers().iter().all(|a| a.flags
+        == infer_server::inference_thread::force_flags::SCHEMA_MISMATCH
+        && a.force.is_nan()));
     drop(stepper.stop());
 }
 
@@ -1116,7 +1114,8 @@ async fn a_python_grpc_client_uses_the_real_server_through_reflection() {
     let stepper = StepLoop::start(loop_with(&segment, &[0, 1, 2, 3]));
     let server = ServerProcess::start("py", &dir, &segment, &["--token", "py-token"]);
     stepper.wait_for(10);
-    let script = common::repo_root().join("infer-server/control-plane/tests/py/grpc_reflection_client.py");
+    let script =
+        common::repo_root().join("infer-server/control-plane/tests/py/grpc_reflection_client.py");
     let out = Command::new(common::python())
         .arg(&script)
         .arg(server.grpc.trim_start_matches("http://"))
@@ -1155,7 +1154,7 @@ async fn a_python_grpc_client_uses_the_real_server_through_reflection() {
         .answers()
         .iter()
         .filter(|a| a.seq < eff)
-        .all(|a| a.flags == infer_server::serve::force_flags::NO_MODEL));
+        .all(|a| a.flags == infer_server::inference_thread::force_flags::NO_MODEL));
     assert_eq!(r["bad_name"], "INVALID_ARGUMENT");
     assert_eq!(r["health"], "SERVING");
     drop(stepper.stop());

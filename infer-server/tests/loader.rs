@@ -10,9 +10,9 @@ use std::time::{Duration, Instant};
 
 use control_plane::{ControlError, ModelSource, ModelState};
 use infer_server::engine::load_bounded;
+use infer_server::inference_control::InferenceControl;
+use infer_server::inference_thread::InferenceConfig;
 use infer_server::registry::Registry;
-use infer_server::serve::ServeConfig;
-use infer_server::server::Server;
 use infer_server::{FeatureSchema, ModelError, SessionConfig, StepEngine};
 use shm_ring::{SegmentName, WaitStrategy};
 
@@ -127,9 +127,9 @@ fn registry(tag: &str, models: &[&str], session: SessionConfig) -> Option<Regist
         std::process::id()
     ))
     .unwrap();
-    let server = Server::start(
+    let server = InferenceControl::start(
         common::runtime(),
-        ServeConfig {
+        InferenceConfig {
             segment,
             wait: WaitStrategy::Park,
             cpu: None,

@@ -7,7 +7,7 @@ use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use infer_server::handoff;
-use infer_server::serve::{force_flags, InferenceThread, ServeConfig};
+use infer_server::inference_thread::{force_flags, InferenceConfig, InferenceThread};
 use shm_ring::{
     monotonic_ns, sleep_until_ns, Config, FeatureMsg, LoopSide, Segment, SegmentName, WaitStrategy,
     MAX_FEATURES,
@@ -25,7 +25,7 @@ fn start(tag: &str, wait: WaitStrategy) -> (LoopSide, InferenceThread) {
     lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
     let (_activator, taker) = handoff::channel();
     let thread = InferenceThread::spawn(
-        ServeConfig {
+        InferenceConfig {
             segment: name,
             wait,
             cpu: None,

@@ -32,7 +32,7 @@ struct Requested {
     rows_then: u64,
 }
 
-pub struct ServerBackend {
+pub struct ControlBackend {
     registry: Arc<Registry>,
     hub: TelemetryHub,
     observer: Arc<LoopObserver>,
@@ -128,7 +128,7 @@ pub fn apply_loop_block(status: &mut LoopStatus, b: &shm_ring::LoopStatus) {
     }
 }
 
-impl ServerBackend {
+impl ControlBackend {
     /// The attached loop's status block, if it published one (a short lock on the endpoints,
     /// then a seqlock read: never waits on the loop).
     fn loop_block(&self, attachment: u64) -> Option<shm_ring::LoopStatus> {
@@ -251,7 +251,7 @@ impl ServerBackend {
     }
 }
 
-impl Backend for ServerBackend {
+impl Backend for ControlBackend {
     fn list_models(&self) -> Result<Vec<ModelInfo>, ControlError> {
         self.registry.list()
     }

@@ -5,7 +5,7 @@
 //! receive from the features ring, pick up a newly activated model if one is pending
 //! ([`crate::handoff`]), reset a stateful model at a run start, run the model
 //! ([`crate::engine::StepEngine::step`]), send the force, record the ring-to-ring latency
-//! ([`crate::latency`]) and bump the counters in [`ServerStats`]. None of this allocates, locks
+//! ([`crate::latency`]) and bump the counters in [`InferenceCounters`]. None of this allocates, locks
 //! or makes a syscall, except the futex wait/wake of the rings' wait strategy, or with
 //! [`WaitStrategy::PeriodSync`] the one absolute sleep per step before the step is due
 //! ([`crate::period_sync`]). Attaching,
@@ -53,7 +53,7 @@ pub mod force_flags {
 
 /// How the inference thread attaches and waits.
 #[derive(Debug, Clone)]
-pub struct ServeConfig {
+pub struct InferenceConfig {
     pub segment: SegmentName,
     /// How the thread waits for features (and for room in the forces ring). Tests use `Park`.
     pub wait: WaitStrategy,
@@ -69,7 +69,7 @@ pub struct ServeConfig {
 /// Counters the inference thread keeps; any thread may read them. Each has a single writer
 /// (the inference thread), so updates are plain relaxed load/store pairs.
 #[derive(Debug, Default)]
-pub struct ServerStats {
+pub struct InferenceCounters {
     /// Feature messages answered (all of them, whatever the answer).
     pub answered: AtomicU64,
     /// Answers computed by a model (flags 0 or NON_FINITE).
@@ -100,7 +100,7 @@ pub struct ServerStats {
     pub pinned_cpu: AtomicI64,
     /// SCHED_FIFO priority obtained, 0 when running on the default scheduler.
     pub rt_priority: AtomicI64,
-    /// Feature messages whose words did not decode: skipped (see [`ServerStats::last_undecodable`]).
+    /// Feature messages whose words did not decode: skipped (see [`InferenceCounters::last_undecodable`]).
     pub undecodable: AtomicU64,
     /// Why the last undecodable message was refused (written with `try_lock`, never waited on).
     pub last_undecodable: Mutex<Option<DecodeError>>,
@@ -122,7 +122,7 @@ fn bump(a: &AtomicU64) {
     a.store(a.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed);
 }
 
-/// A plain snapshot of [`ServerStats`] for reports.
+/// A plain snapshot of [`InferenceCounters`] for reports.
 #[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
 pub struct StatsSnapshot {
     pub answered: u64,
@@ -153,7 +153,7 @@ pub struct StatsSnapshot {
     pub sync_let_go: [u64; 4],
 }
 
-impl ServerStats {
+impl InferenceCounters {
     pub fn snapshot(&self) -> StatsSnapshot {
         let l = |a: &AtomicU64| a.load(Ordering::Relaxed);
         StatsSnapshot {
@@ -187,7 +187,7 @@ impl ServerStats {
 }
 
 #[derive(Debug, thiserror::Error)]
-pub enum ServeError {
+pub enum InferenceError {
     #[error("shared memory: {0}")]
     Segment(#[from] shm_ring::Error),
     #[error("the segment's feature schema is unusable: {0}")]
@@ -200,9 +200,9 @@ pub enum ServeError {
 
 /// Handle on the running inference thread.
 pub struct InferenceThread {
-    handle: Option<JoinHandle<Result<(), ServeError>>>,
+    handle: Option<JoinHandle<Result<(), InferenceError>>>,
     stop: Arc<AtomicBool>,
-    stats: Arc<ServerStats>,
+    stats: Arc<InferenceCounters>,
     latency: LatencyReader,
     schema: Arc<Mutex<Option<FeatureSchema>>>,
     endpoints: Arc<SharedEndpoints>,
@@ -211,9 +211,9 @@ pub struct InferenceThread {
 impl InferenceThread {
     /// Starts the thread. It attaches (and re-attaches) to `cfg.segment` by itself; models
     /// arrive through `taker`'s [`crate::handoff::Activator`].
-    pub fn spawn(cfg: ServeConfig, taker: Taker) -> Result<Self, ServeError> {
+    pub fn spawn(cfg: InferenceConfig, taker: Taker) -> Result<Self, InferenceError> {
         let stop = Arc::new(AtomicBool::new(false));
-        let stats = Arc::new(ServerStats {
+        let stats = Arc::new(InferenceCounters {
             pinned_cpu: AtomicI64::new(-1),
             ..Default::default()
         });
@@ -232,7 +232,7 @@ impl InferenceThread {
         let handle = std::thread::Builder::new()
             .name("inference".into())
             .spawn(move || worker.run())
-            .map_err(ServeError::Spawn)?;
+            .map_err(InferenceError::Spawn)?;
         Ok(Self {
             handle: Some(handle),
             stop,
@@ -248,7 +248,7 @@ impl InferenceThread {
         &self.endpoints
     }
 
-    pub fn stats(&self) -> &ServerStats {
+    pub fn stats(&self) -> &InferenceCounters {
         &self.stats
     }
 
@@ -273,17 +273,17 @@ impl InferenceThread {
     }
 
     /// Asks the thread to stop (it notices within ~100 ms) and waits for it.
-    pub fn stop(mut self) -> Result<(), ServeError> {
+    pub fn stop(mut self) -> Result<(), InferenceError> {
         self.stop.store(true, Ordering::Relaxed);
         self.join_inner()
     }
 
     /// Waits for the thread to end by itself (`exit_when_loop_gone`).
-    pub fn join(mut self) -> Result<(), ServeError> {
+    pub fn join(mut self) -> Result<(), InferenceError> {
         self.join_inner()
     }
 
-    fn join_inner(&mut self) -> Result<(), ServeError> {
+    fn join_inner(&mut self) -> Result<(), InferenceError> {
         match self.handle.take() {
             Some(h) => h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)),
             None => Ok(()),
@@ -306,17 +306,17 @@ const RECV_SLICE: Duration = Duration::from_millis(100);
 const ATTACH_SLICE: Duration = Duration::from_millis(200);
 
 struct Worker {
-    cfg: ServeConfig,
+    cfg: InferenceConfig,
     taker: Taker,
     stop: Arc<AtomicBool>,
-    stats: Arc<ServerStats>,
+    stats: Arc<InferenceCounters>,
     recorder: LatencyRecorder,
     schema: Arc<Mutex<Option<FeatureSchema>>>,
     endpoints: Arc<SharedEndpoints>,
 }
 
 impl Worker {
-    fn run(mut self) -> Result<(), ServeError> {
+    fn run(mut self) -> Result<(), InferenceError> {
         if let Some(cpu) = self.cfg.cpu {
             match pin_current_thread(cpu) {
                 Ok(()) => self.stats.pinned_cpu.store(cpu as i64, Ordering::Relaxed),
@@ -360,7 +360,7 @@ impl Worker {
         &mut self,
         segment: Segment,
         active: &mut Option<Box<Offered>>,
-    ) -> Result<bool, ServeError> {
+    ) -> Result<bool, InferenceError> {
         let shm_ring::ServerSide {
             mut features_rx,
             mut forces_tx,
@@ -534,7 +534,7 @@ impl Worker {
 fn recv_synced(
     rx: &mut Consumer<FeatureMsg>,
     sync: &mut PeriodSync,
-    stats: &ServerStats,
+    stats: &InferenceCounters,
 ) -> Result<FeatureMsg, RecvError> {
     if let Some(m) = rx.try_recv()? {
         return Ok(m);

@@ -6,7 +6,7 @@ mod common;
 use std::time::Duration;
 
 use infer_server::handoff;
-use infer_server::serve::{force_flags, InferenceThread, ServeConfig};
+use infer_server::inference_thread::{force_flags, InferenceConfig, InferenceThread};
 use infer_server::{FeatureSchema, SessionConfig, StepEngine};
 use shm_ring::{Config, FeatureMsg, LoopSide, Segment, SegmentName, WaitStrategy, MAX_FEATURES};
 
@@ -77,7 +77,7 @@ fn serves_every_step_in_order_swaps_models_and_resets_state() {
 
     let (mut activator, taker) = handoff::channel();
     let thread = InferenceThread::spawn(
-        ServeConfig {
+        InferenceConfig {
             segment: name.clone(),
             wait: WaitStrategy::Park, // never busy-spin in tests (two cores)
             cpu: None,
@@ -245,7 +245,7 @@ fn a_model_for_another_schema_is_not_fed_wrong_columns() {
     lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
     let (mut activator, taker) = handoff::channel();
     let thread = InferenceThread::spawn(
-        ServeConfig {
+        InferenceConfig {
             segment: name,
             wait: WaitStrategy::Park,
             cpu: None,
@@ -275,7 +275,7 @@ fn a_model_for_another_schema_is_not_fed_wrong_columns() {
 
 #[test]
 fn server_activates_refuses_and_revalidates_when_a_new_loop_brings_another_schema() {
-    use infer_server::server::{MaintenanceEvent, Server};
+    use infer_server::inference_control::{InferenceControl, MaintenanceEvent};
     let Some(dir) = common::fixtures() else {
         return;
     };
@@ -296,9 +296,9 @@ fn server_activates_refuses_and_revalidates_when_a_new_loop_brings_another_schem
     .loop_side()
     .unwrap();
     lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
-    let server = Server::start(
+    let server = InferenceControl::start(
         rt,
-        ServeConfig {
+        InferenceConfig {
             segment: name.clone(),
             wait: WaitStrategy::Park,
             cpu: None,

@@ -1,6 +1,6 @@
 //! The control side in one object: the inference thread, the active model, validation and
 //! activation. This is what `infer-server serve` runs and what the gRPC and web layers call
-//! (share it as `Arc<Server>`: every method takes `&self`).
+//! (share it as `Arc<InferenceControl>`: every method takes `&self`).
 //!
 //! Activation: load and validate on the caller's thread (never the inference thread), against
 //! the schema of the segment the thread is attached to (the standard nine while detached), then
@@ -16,10 +16,10 @@ use crate::attachment::SharedEndpoints;
 use crate::contract::FeatureSchema;
 use crate::engine::StepEngine;
 use crate::handoff::{self, Activator, Offered};
+use crate::inference_thread::{InferenceConfig, InferenceError, InferenceThread, StatsSnapshot};
 use crate::latency::LatencyReader;
 use crate::model::{ModelError, ModelInfo, SessionConfig};
 use crate::runtime::Runtime;
-use crate::serve::{InferenceThread, ServeConfig, ServeError, StatsSnapshot};
 
 /// The model the control side last activated.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -29,7 +29,7 @@ pub struct ActiveModel {
     pub info: ModelInfo,
 }
 
-/// What [`Server::maintain`] did.
+/// What [`InferenceControl::maintain`] did.
 #[derive(Debug)]
 pub enum MaintenanceEvent {
     /// A loop with another feature schema attached; the active model was revalidated against it
@@ -45,21 +45,21 @@ struct Control {
     active: Option<ActiveModel>,
 }
 
-pub struct Server {
+pub struct InferenceControl {
     rt: &'static Runtime,
     session: SessionConfig,
     thread: InferenceThread,
     control: Mutex<Control>,
 }
 
-impl Server {
+impl InferenceControl {
     /// Starts the inference thread (it attaches to `cfg.segment` by itself, and again whenever
     /// a new loop creates it). No model is active yet.
     pub fn start(
         rt: &'static Runtime,
-        cfg: ServeConfig,
+        cfg: InferenceConfig,
         session: SessionConfig,
-    ) -> Result<Self, ServeError> {
+    ) -> Result<Self, InferenceError> {
         let (activator, taker) = handoff::channel();
         let thread = InferenceThread::spawn(cfg, taker)?;
         Ok(Self {
@@ -159,7 +159,7 @@ impl Server {
     }
 
     /// The model last activated (it becomes the running one at the inference thread's next
-    /// step; [`Server::stats`]`.model_generation` says which one answered last).
+    /// step; [`InferenceControl::stats`]`.model_generation` says which one answered last).
     pub fn active(&self) -> Option<ActiveModel> {
         self.control
             .lock()
@@ -246,7 +246,7 @@ impl Server {
     }
 
     /// The inference thread's counters, read in place (cheap: no snapshot of all of them).
-    pub fn counters(&self) -> &crate::serve::ServerStats {
+    pub fn counters(&self) -> &crate::inference_thread::InferenceCounters {
         self.thread.stats()
     }
 
@@ -264,14 +264,14 @@ impl Server {
         self.thread.is_finished()
     }
 
-    /// Asks the inference thread to stop, without waiting ([`Server::is_finished`] tells when
-    /// it has; for a `Server` shared in an `Arc`).
+    /// Asks the inference thread to stop, without waiting ([`InferenceControl::is_finished`] tells when
+    /// it has; for a `InferenceControl` shared in an `Arc`).
     pub fn request_stop(&self) {
         self.thread.request_stop();
     }
 
     /// Stops the inference thread (or collects its end) and reports how it ended.
-    pub fn shutdown(self) -> Result<(), ServeError> {
+    pub fn shutdown(self) -> Result<(), InferenceError> {
         if self.thread.is_finished() {
             self.thread.join()
         } else {

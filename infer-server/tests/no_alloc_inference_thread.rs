@@ -9,7 +9,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use infer_server::handoff;
-use infer_server::serve::{InferenceThread, ServeConfig};
+use infer_server::inference_thread::{InferenceConfig, InferenceThread};
 use infer_server::{FeatureSchema, SessionConfig, StepEngine};
 use shm_ring::{Config, FeatureMsg, Segment, SegmentName, WaitStrategy};
 
@@ -50,7 +50,7 @@ fn the_inference_thread_allocates_nothing_per_step() {
     lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
     let (mut activator, taker) = handoff::channel();
     let thread = InferenceThread::spawn(
-        ServeConfig {
+        InferenceConfig {
             segment: name,
             wait: WaitStrategy::Park,
             cpu: None,
