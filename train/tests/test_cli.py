@@ -147,9 +147,8 @@ def test_manifest_errors_are_clear(tmp_path, capsys):
 
 def test_defaults_scale_with_the_data(tmp_path):
     """Decimation from the rate, feedback noise from the force range, LSTM horizon in s."""
-    from haptics_train.data import load_recording
-    from haptics_train.models import TrainConfig, make_model
-    from haptics_train.models.base import row_stride
+    from haptics_train.data import load_recording, row_stride
+    from haptics_train.models import TrainConfig, fit_recordings, make_model
     from haptics_train.synthetic import write_recording
 
     rec = load_recording(write_recording(tmp_path / "r.parquet", ramp_rate=6.2, cycles=2))
@@ -159,11 +158,11 @@ def test_defaults_scale_with_the_data(tmp_path):
     slow.columns = {**rec.columns, "time": rec.columns["time"] * 200}  # 50 Hz rows
     assert row_stride(slow, None, 500.0) == 1
     m = make_model("dnn_fb", "six", hyper={"epochs": 1})
-    m.fit([rec], TrainConfig(progress=False))
+    fit_recordings(m, [rec], TrainConfig(progress=False))
     y = rec.target()
     span = np.percentile(y, 99) - np.percentile(y, 1)
-    assert m.train_info["feedback_noise_n"] == pytest.approx(0.2 * span, rel=0.05)
+    assert m.train_info_["feedback_noise_n"] == pytest.approx(0.2 * span, rel=0.05)
     lstm = make_model("lstm", "xva", hyper={"iterations": 1, "streams": 2, "horizon_s": 0.002})
-    lstm.fit([rec], TrainConfig(progress=False))
-    assert lstm.train_info["chunk_steps"] == 20
-    assert lstm.train_info["horizon_s_effective"] == pytest.approx(0.002)
+    fit_recordings(lstm, [rec], TrainConfig(progress=False))
+    assert lstm.train_info_["chunk_steps"] == 20
+    assert lstm.train_info_["horizon_s_effective"] == pytest.approx(0.002)

@@ -9,7 +9,7 @@ import pytest
 
 from haptics_train.export import onnx_predict, provenance, save_onnx, to_contract_onnx
 from haptics_train.features import NINE
-from haptics_train.models import TrainConfig, make_model
+from haptics_train.models import TrainConfig, fit_recordings, make_model
 
 CFG = TrainConfig(decimate=10, progress=False)
 
@@ -26,7 +26,7 @@ def exported(synth, tmp_path_factory):
         ("dnn", "xva_f", {"epochs": 1}),
     ]:
         m = make_model(algo, fs, hyper=hyper)
-        m.fit(synth.train, CFG)
+        fit_recordings(m, synth.train, CFG)
         om = to_contract_onnx(m, provenance(m, CFG, synth, None))
         files[m.name] = (m, om, save_onnx(om, out / f"{m.name}.onnx"))
     return files

@@ -12,7 +12,7 @@ from haptics_train.data import recording_from_columns
 from haptics_train.evaluate import evaluate
 from haptics_train.export import onnx_predict, parity, provenance, to_contract_onnx
 from haptics_train.features import NINE
-from haptics_train.models import TrainConfig, make_model
+from haptics_train.models import TrainConfig, fit_recordings, make_model
 
 CFG = TrainConfig(decimate=5, progress=False)
 SMALL = {
@@ -29,7 +29,7 @@ def trained(synth):
     for algo, fs in [("sd_poly2", "x_v"), ("lr", "six"), ("svr", "six"), ("rf", "six"),
                      ("dnn", "six"), ("lstm", "six"), ("dnn", "xva_f")]:  # fmt: skip
         m = make_model(algo, fs, hyper=SMALL.get(algo))
-        m.fit(synth.train, CFG)
+        fit_recordings(m, synth.train, CFG)
         out[m.name] = (m, to_contract_onnx(m, provenance(m, CFG, synth, None)))
     return out
 
@@ -63,14 +63,14 @@ def test_forest_trained_on_float32_takes_identical_branches(trained, synth):
     m, om = trained["rf_six"]
     x = synth.test[0].matrix(m.features)
     np.testing.assert_allclose(onnx_predict(om, synth.test[0], m.features),
-                               m.predict_matrix(x), atol=1e-5)  # fmt: skip
+                               m.predict(x), atol=1e-5)  # fmt: skip
 
 
 def test_lstm_stateful_export_carries_its_state(trained, synth):
     m, om = trained["lstm_six"]
     rec = synth.test[0]
     x = rec.matrix(m.features)[:500]
-    ref = m.predict_matrix(x)  # torch over the sequence, state carried
+    ref = m.predict(x)  # torch over the sequence, state carried
     st = OnnxStepper(om)
     stepped = np.array([st.step(r) for r in x])
     np.testing.assert_allclose(stepped, ref, atol=1e-4)
@@ -108,7 +108,7 @@ class _FrameworkStepper:
         pass
 
     def step(self, row):
-        return float(self.m.predict_matrix(row[None, :])[0])
+        return float(self.m.predict(row[None, :])[0])
 
 
 def test_spring_damper_recovers_known_coefficients():
@@ -123,12 +123,12 @@ def test_spring_damper_recovers_known_coefficients():
             "acceleration": np.zeros(n), **{c: np.zeros(n) for c in NINE[3:]}}  # fmt: skip
     rec = recording_from_columns("exact", cols)
     m = make_model("sd_poly2")
-    m.fit([rec], TrainConfig(decimate=1, progress=False))
-    np.testing.assert_allclose(m.k, k, rtol=1e-6)
-    np.testing.assert_allclose(m.b, b, rtol=1e-6)
+    fit_recordings(m, [rec], TrainConfig(decimate=1, progress=False))
+    np.testing.assert_allclose(m.k_, k, rtol=1e-6)
+    np.testing.assert_allclose(m.b_, b, rtol=1e-6)
     const = make_model("sd_const")
-    const.fit([rec], TrainConfig(decimate=1, progress=False))
-    assert const.k.shape == (1,) and const.b.shape == (1,)
+    fit_recordings(const, [rec], TrainConfig(decimate=1, progress=False))
+    assert const.k_.shape == (1,) and const.b_.shape == (1,)
     om = onnx.load_from_string(m.to_onnx().SerializeToString())
     from haptics_train.closed_loop import session
 
@@ -160,7 +160,7 @@ def test_network_survives_extreme_ratio_features(trained):
         [0.01, -1e-30, 1e-3, 300.0, -3e30, 3e3],
         [0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
     ])  # fmt: skip
-    ref = m.predict_matrix(x)
+    ref = m.predict(x)
     got = session(om).run(None, {"features": x.astype(np.float32)})[0][:, 0]
     assert np.isfinite(ref).all() and np.isfinite(got).all()
     np.testing.assert_allclose(got, ref, atol=1e-3)
@@ -186,7 +186,7 @@ def test_feedback_noise_training_improves_the_closed_loop(synth):
     res = {}
     for algo in ("dnn", "dnn_fb"):
         m = make_model(algo, "six", hyper={"epochs": 6})
-        m.fit(synth.train, CFG)
+        fit_recordings(m, synth.train, CFG)
         om = to_contract_onnx(m, provenance(m, CFG, synth, None))
         r, _ = evaluate(m, om, synth.test[0], CFG)
         res[algo] = r
@@ -198,13 +198,13 @@ def test_thesis_presets_train_and_export(synth, algo):
     small = {"dnn": {"epochs": 1}, "lstm": {"iterations": 3, "streams": 4, "chunk": 20},
              "svr": {"max_rows": 500}}[algo]  # fmt: skip
     m = make_model(algo, "six", preset="thesis", hyper=small)
-    m.fit(synth.train, TrainConfig(decimate=50, progress=False))
+    fit_recordings(m, synth.train, TrainConfig(decimate=50, progress=False))
     om = to_contract_onnx(m, provenance(m, CFG, synth, None))
     validate_model(om)
     p = parity(m, om, synth.test[0], stateful_limit=500)
     assert p["all_finite"] and p["max_abs_diff"] < 5e-3, p
     if algo == "dnn":
         # 150 sigmoid - dropout - 25 tanh - dropout - 1 sigmoid, output min-max scaled
-        lin = [mod for mod in m.net.body if isinstance(mod, torch.nn.Linear)]
+        lin = [mod for mod in m.net_.body if isinstance(mod, torch.nn.Linear)]
         assert [lin_.out_features for lin_ in lin] == [150, 25, 1]
-        assert isinstance(m.net.body[-1], torch.nn.Sigmoid)
+        assert isinstance(m.net_.body[-1], torch.nn.Sigmoid)

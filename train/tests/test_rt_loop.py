@@ -8,7 +8,7 @@ import pytest
 from haptics_train.closed_loop import replay_features
 from haptics_train.data import load_recording
 from haptics_train.features import F_PREVIOUS, FEEDBACK_FEATURES
-from haptics_train.models import TrainConfig, make_model
+from haptics_train.models import TrainConfig, fit_recordings, make_model
 
 
 def _record(rt_loop, out, decimate=1):
@@ -60,7 +60,7 @@ def test_closed_loop_feature_twin_matches_rt_loop_exactly(recording):
 
 def test_models_train_on_a_real_recording(recording):
     m = make_model("rf", "six", hyper={"n_estimators": 10, "max_depth": 6})
-    m.fit([recording], TrainConfig(decimate=10, progress=False))
-    pred = m.predict_recording(recording)
+    fit_recordings(m, [recording], TrainConfig(decimate=10, progress=False))
+    pred = m.predict(recording.matrix(m.features))
     y = recording.target()
     assert np.sqrt(np.mean((pred - y) ** 2)) < 0.5 * y.std()

@@ -14,9 +14,8 @@ from scipy import stats  # noqa: E402
 from sklearn.decomposition import PCA  # noqa: E402
 from sklearn.feature_selection import f_regression, mutual_info_regression  # noqa: E402
 
-from .data import Dataset, Recording  # noqa: E402
+from .data import Dataset, Recording, row_stride  # noqa: E402
 from .features import NINE, TARGET_DEFAULT  # noqa: E402
-from .models.base import row_stride  # noqa: E402
 
 DPI = 80
 

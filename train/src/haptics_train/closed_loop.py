@@ -30,7 +30,7 @@ import onnx
 import onnxruntime as ort
 from tqdm.auto import tqdm
 
-from .data import Recording
+from .data import Recording, contact_thresholds
 from .features import F_PREVIOUS, FEEDBACK_FEATURES
 
 
@@ -147,23 +147,6 @@ class FeatureTracker:
         self.seg_f = f
         self.prev_force = force
         self.has_prev = True
-
-
-def contact_thresholds(rec: Recording) -> tuple[float, float]:
-    """The recording's feature parameters (haptics.run metadata), else rt-loop's defaults."""
-    run = rec.meta.get("haptics.run")
-    on, off = 0.5, 0.25
-    if isinstance(run, dict):
-        cfg = run.get("config") if isinstance(run.get("config"), dict) else {}
-        for fp in (run.get("features"), cfg.get("features")):
-            if isinstance(fp, dict):
-                on = float(fp.get("contact_on_n", on))
-                off = float(fp.get("contact_off_n", off))
-        params = run.get("params")
-        if isinstance(params, dict) and isinstance(params.get("features"), dict):
-            on = float(params["features"].get("contact_on_n", on))
-            off = float(params["features"].get("contact_off_n", off))
-    return on, off
 
 
 def replay_features(rec: Recording, force: np.ndarray) -> dict[str, np.ndarray]:

@@ -1,6 +1,10 @@
 """Recordings (docs/recording-format.md) as column arrays, and the dataset: which recordings
 train, which validate (every choice is made on them) and which test (scored once).
 
+This is also the one place where recordings become the arrays the models take
+(`training_arrays`): decimated rows for the stateless models, whole sequences for the stateful
+ones (`models.base` describes both layouts); the models never see a `Recording`.
+
 A dataset is either a folder (the bench's own convention: `train_*.parquet`,
 `validation_*.parquet`, `test_*.parquet`) or a TOML manifest naming each recording with its
 role, source and notes (`load_manifest`), for data that did not come from the bench."""
@@ -11,6 +15,7 @@ import hashlib
 import json
 import re
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -125,6 +130,121 @@ def row_step(columns: dict[str, np.ndarray]) -> int:
         return 1
     d = np.diff(st[: min(len(st), 10_000)])
     return max(int(np.median(d)), 1)
+
+
+def contact_thresholds(rec: Recording) -> tuple[float, float]:
+    """The recording's feature parameters (haptics.run metadata), else rt-loop's defaults."""
+    run = rec.meta.get("haptics.run")
+    on, off = 0.5, 0.25
+    if isinstance(run, dict):
+        cfg = run.get("config") if isinstance(run.get("config"), dict) else {}
+        for fp in (run.get("features"), cfg.get("features")):
+            if isinstance(fp, dict):
+                on = float(fp.get("contact_on_n", on))
+                off = float(fp.get("contact_off_n", off))
+        params = run.get("params")
+        if isinstance(params, dict) and isinstance(params.get("features"), dict):
+            on = float(params["features"].get("contact_on_n", on))
+            off = float(params["features"].get("contact_off_n", off))
+    return on, off
+
+
+def row_stride(rec: Recording, decimate: int | None, target_rate_hz: float = 500.0) -> int:
+    """Rows between kept rows: `decimate` control steps, else the recording's row rate over the
+    target rate (at least 1)."""
+    if decimate is not None:
+        return max(1, round(decimate / rec.row_step))
+    rate = rec.sample_rate_hz
+    return max(1, round(rate / target_rate_hz)) if np.isfinite(rate) else 1
+
+
+def to_rows(
+    recs: Sequence[Recording],
+    columns: Sequence[str],
+    target: str = TARGET_DEFAULT,
+    decimate: int | None = None,
+    target_rate_hz: float = 500.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The rows layout: decimated rows of all recordings, X [n, len(columns)] float64 and
+    y [n]; rows with a non-finite value in X or y dropped."""
+    strides = [row_stride(r, decimate, target_rate_hz) for r in recs]
+    xs = [r.matrix(tuple(columns), k) for r, k in zip(recs, strides, strict=True)]
+    ys = [r.target(target, k) for r, k in zip(recs, strides, strict=True)]
+    x = np.concatenate(xs)
+    y = np.concatenate(ys)
+    ok = np.isfinite(x).all(axis=1) & np.isfinite(y)
+    return x[ok], y[ok]
+
+
+@dataclass(frozen=True)
+class SequenceInfo:
+    """What a stateful model needs to know of one training sequence besides its arrays."""
+
+    #: rows per second: the state steps once per row
+    sample_rate_hz: float
+    #: time of the last row minus the first, s
+    duration_s: float
+    #: rows between the rows per-row statistics are taken on (the stateless models' decimation)
+    stride: int
+    #: control steps per row (1 unless rt-loop recorded with --decimate)
+    row_step: int
+    #: the contact-off force threshold of the recording's feature parameters, N
+    contact_off_n: float
+
+
+def to_sequences(
+    recs: Sequence[Recording],
+    columns: Sequence[str],
+    target: str = TARGET_DEFAULT,
+    decimate: int | None = None,
+    target_rate_hz: float = 500.0,
+) -> tuple[list[np.ndarray], list[np.ndarray], list[SequenceInfo]]:
+    """The sequences layout: every recording whole, every row in time order: X_i [n_i,
+    len(columns)], y_i [n_i] and its `SequenceInfo`, one per recording."""
+    xs = [r.matrix(tuple(columns)) for r in recs]
+    ys = [r.target(target) for r in recs]
+    info = [
+        SequenceInfo(
+            sample_rate_hz=r.sample_rate_hz,
+            duration_s=float(r.columns["time"][-1] - r.columns["time"][0]),
+            stride=row_stride(r, decimate, target_rate_hz),
+            row_step=r.row_step,
+            contact_off_n=contact_thresholds(r)[1],
+        )
+        for r in recs
+    ]
+    return xs, ys, info
+
+
+def training_arrays(
+    recs: Sequence[Recording],
+    features: Sequence[str],
+    layout: str,
+    aux_columns: Sequence[str] = (),
+    target: str = TARGET_DEFAULT,
+    decimate: int | None = None,
+    target_rate_hz: float = 500.0,
+) -> tuple[object, object, dict[str, object]]:
+    """(X, y, fit_params) for a model's `fit(X, y, **fit_params)`, in its `layout`:
+
+    - `rows`: `to_rows` of `features` (and `aux_columns`, taken from the same rows and passed
+      as `aux` [n, len(aux_columns)]);
+    - `sequences`: `to_sequences`, with `info` (one `SequenceInfo` per sequence) and, with
+      `aux_columns`, `aux` (one [n_i, len(aux_columns)] array per sequence).
+    """
+    nf = len(features)
+    cols = (*features, *aux_columns)
+    if layout == "rows":
+        xa, y = to_rows(recs, cols, target, decimate, target_rate_hz)
+        params: dict[str, object] = {"aux": xa[:, nf:]} if aux_columns else {}
+        return xa[:, :nf], y, params
+    if layout == "sequences":
+        xas, ys, info = to_sequences(recs, cols, target, decimate, target_rate_hz)
+        params = {"info": info}
+        if aux_columns:
+            params["aux"] = [xa[:, nf:] for xa in xas]
+        return [xa[:, :nf] for xa in xas], ys, params
+    raise ValueError(f"unknown layout {layout!r} (rows|sequences)")
 
 
 def sha256_file(path: Path) -> str:

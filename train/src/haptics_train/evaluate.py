@@ -12,10 +12,10 @@ import numpy as np
 import onnx
 
 from .closed_loop import OnnxStepper, contact_thresholds, simulate
-from .data import Dataset, Recording
+from .data import Dataset, Recording, to_rows
 from .features import F_PREVIOUS, FEEDBACK_FEATURES, TARGET_DEFAULT
 from .metrics import force_metrics, pooled
-from .models.base import ForceModel, TrainConfig, stacked
+from .models.base import ForceModel, TrainConfig, fit_recordings
 
 
 def needs_feedback(model: ForceModel) -> bool:
@@ -42,7 +42,7 @@ def evaluate(
     x = rec.column("position_x")
     contact = contact_thresholds(rec)[1]
     t0 = time.perf_counter()
-    one = model.predict_recording(rec)
+    one = model.predict(rec.matrix(model.features))
     res: dict = {
         "recording": rec.name,
         "rows": int(len(y)),
@@ -101,9 +101,9 @@ def baseline_predictions(
     if sd_poly2 is None:
         from .models import make_model
 
-        sd_poly2 = make_model("sd_poly2")
-        sd_poly2.fit(dataset.train, cfg)
-    _, y_train = stacked(dataset.train, ("position_x",), cfg)
+        sd_poly2 = fit_recordings(make_model("sd_poly2"), dataset.train, cfg)
+    _, y_train = to_rows(dataset.train, ("position_x",), cfg.target, cfg.decimate,
+                         cfg.target_rate_hz)  # fmt: skip
     mean = float(np.mean(y_train))
     out: dict[str, dict[str, list[dict[str, np.ndarray]]]] = {b: {} for b in BASELINES}
     for split in ("validation", "test"):
@@ -120,7 +120,7 @@ def baseline_predictions(
             )
             m = np.full(len(y), mean)
             out["mean"][split].append({"one_step": m, "closed_loop": m})
-            sd = sd_poly2.predict_recording(rec)
+            sd = sd_poly2.predict(rec.matrix(sd_poly2.features))
             out["sd_poly2"][split].append({"one_step": sd, "closed_loop": sd})
     return out
 

@@ -61,7 +61,7 @@ def provenance(
             "dataset": ds,
             "git_commit": git_commit(Path(__file__).parent),
             "hyperparameters": model.hyper,
-            "training": {**cfg.to_dict(), **model.train_info},
+            "training": {**cfg.to_dict(), **model.train_info_},
             "metrics": metrics or {},
             "created": dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             "decimation": cfg.decimate,
@@ -113,7 +113,7 @@ def parity(
 ) -> dict:
     """Max |ONNX - framework| over the test recording (a prefix for stepped stateful models)."""
     limit = stateful_limit if model.kind == "stateful" else None
-    ref = model.predict_matrix(rec.matrix(model.features)[:limit])
+    ref = model.predict(rec.matrix(model.features)[:limit])
     got = onnx_predict(m, rec, model.features, limit)
     diff = np.abs(got - ref)
     return {

@@ -25,7 +25,7 @@ from .contract import ContractError
 from .data import Dataset
 from .evaluate import BASELINES, evaluate, pooled_metrics, ranking, score_baselines
 from .export import parity, provenance, save_onnx, to_contract_onnx
-from .models import ForceModel, TrainConfig, parse_spec
+from .models import ForceModel, TrainConfig, fit_recordings, parse_spec
 
 #: The pipeline's default comparison: Table 6.2 baselines, Table 6.15 algorithms on the six
 #: features, Table 6.10 ablation, and the better-conditioned/memory alternatives.
@@ -64,12 +64,10 @@ def _fit_one(
     for key in (algo.removesuffix("_fb"), algo) if algo.endswith("_fb") else (algo,):
         if hyper and key in hyper:
             m.hyper.update(hyper[key])
-            if hasattr(m, "max_rows") and "max_rows" in hyper[key]:
-                m.max_rows = hyper[key]["max_rows"]  # type: ignore[attr-defined]
     m.hyper.update(extra)
     t0 = time.perf_counter()
-    m.fit(dataset.train, cfg)
-    m.train_info.setdefault("fit_seconds", round(time.perf_counter() - t0, 2))
+    fit_recordings(m, dataset.train, cfg)
+    m.train_info_.setdefault("fit_seconds", round(time.perf_counter() - t0, 2))
     return m
 
 
@@ -92,7 +90,7 @@ def train_models(
     """Fits every spec and saves it. For the feedback-noise networks (`*_fb`), when the dataset
     has validation recordings and candidates are given, each candidate fraction of the force
     range is trained and the one with the lowest free-run RMSE on the validation recordings is
-    kept (the test recordings play no part in the choice; `train_info["selection"]`)."""
+    kept (the test recordings play no part in the choice; `train_info_["selection"]`)."""
     for spec in specs:
         parse_spec(spec, preset)  # an unknown algorithm or feature set stops before any training
     out.mkdir(parents=True, exist_ok=True)
@@ -120,7 +118,7 @@ def train_models(
                         best = (key, cand)
                 assert best is not None
                 m = best[1]
-                m.train_info["selection"] = {
+                m.train_info_["selection"] = {
                     "parameter": "feedback_noise_frac",
                     "metric": "free-run RMSE, pooled over the validation recordings",
                     "validation": [r.name for r in dataset.validation],
@@ -132,7 +130,7 @@ def train_models(
             print(f"[train] {spec} FAILED: {e}", flush=True)
             continue
         joblib.dump({"model": m, "config": cfg}, out / f"{m.name}.joblib")
-        print(f"[train] {m.name}: {m.train_info}", flush=True)
+        print(f"[train] {m.name}: {m.train_info_}", flush=True)
         models.append(m)
     return models
 
@@ -201,7 +199,7 @@ def evaluate_models(
             "features": list(model.features),
             "kind": model.kind,
             "hyperparameters": model.hyper,
-            "training": {**cfg.to_dict(), **model.train_info},
+            "training": {**cfg.to_dict(), **model.train_info_},
         })  # fmt: skip
         preds: dict[str, np.ndarray] = {}
         for split in ("validation", "test"):

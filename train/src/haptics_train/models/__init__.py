@@ -1,9 +1,10 @@
-"""Model registry: algorithm name + feature set + preset -> an untrained ForceModel."""
+"""Model registry: algorithm name + feature set + preset -> an untrained ForceModel (the
+estimator shape and the arrays each model takes: `base`)."""
 
 from __future__ import annotations
 
 from ..features import feature_set
-from .base import ForceModel, TrainConfig
+from .base import ForceModel, NotFittedError, TrainConfig, fit_recordings
 from .networks import DNN_THESIS, LSTM_THESIS, DenseModel, LSTMModel
 from .prony import PronyModel
 from .sklearn_models import RF_THESIS, SVR_THESIS, ForestModel, LinearModel, SVRModel
@@ -18,7 +19,15 @@ ALGOS = ("sd_const", "sd_poly1", "sd_poly2", "lr", "svr", "rf", "dnn", "lstm", "
 #: fixed 2.5 N was tuned; 0.24 N on a 1.2 N elastomer test); `feedback_noise` (N) overrides it.
 FEEDBACK_NOISE_FRAC = 0.2
 
-__all__ = ["ALGOS", "ForceModel", "TrainConfig", "make_model", "parse_spec"]
+__all__ = [
+    "ALGOS",
+    "ForceModel",
+    "NotFittedError",
+    "TrainConfig",
+    "fit_recordings",
+    "make_model",
+    "parse_spec",
+]
 
 
 def make_model(

@@ -1,14 +1,38 @@
-"""The common shape of every force model: fit on recordings, predict one-step, export ONNX."""
+"""The common shape of every force model, scikit-learn's: parameters stored by `__init__`,
+checked by `fit(X, y)`, fitted attributes ending in `_`, `predict(X)` on arrays; and
+`to_onnx()` for infer-server.
+
+Models take arrays, never recordings: `data.training_arrays` turns recordings into the layout a
+model declares (`layout`), and `fit_recordings` below is the one call that does both.
+
+- `layout = "rows"` (the stateless models: spring-dampers, lr, svr, rf, dnn):
+  `fit(X, y)` with X [n, f] float64, the columns `features` in order, one row per kept control
+  step (decimated, from every training recording), y [n] the target force in N.
+- `layout = "sequences"` (the stateful models, lstm and prony, whose state steps once per row):
+  `fit(X, y, info=...)` with X a list of [n_i, f] arrays, one per recording, every row in time
+  order, y the matching list of [n_i] targets, and `info` one `data.SequenceInfo` per sequence
+  (its row rate, duration, decimation stride, control steps per row, contact threshold).
+- Feedback-noise networks (`dnn_fb`, `lstm_fb`, `aux_columns` set) also take `aux`: the
+  previous force F(t-1) and x, v, a of the same rows ([n, 4], or one [n_i, 4] per sequence),
+  to rebuild the previous-force features around a perturbed F(t-1).
+
+`predict(X)` always takes one [n, f] array: independent rows for a stateless model, one
+sequence stepped from zero state for a stateful one (one-step: the recorded features, the
+previous force the measured one). The closed loop, where the previous force is the model's own
+prediction, steps the exported ONNX graph (`closed_loop.simulate`).
+"""
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from typing import Self
 
 import numpy as np
 import onnx
 
-from ..data import Recording
+from ..data import Recording, training_arrays
 from ..features import TARGET_DEFAULT
 
 
@@ -32,55 +56,136 @@ class TrainConfig:
         return asdict(self)
 
 
-def row_stride(rec: Recording, decimate: int | None, target_rate_hz: float = 500.0) -> int:
-    """Rows between kept rows: `decimate` control steps, else the recording's row rate over the
-    target rate (at least 1)."""
-    if decimate is not None:
-        return max(1, round(decimate / rec.row_step))
-    rate = rec.sample_rate_hz
-    return max(1, round(rate / target_rate_hz)) if np.isfinite(rate) else 1
-
-
-def stacked(
-    recs: list[Recording], features: tuple[str, ...], cfg: TrainConfig
-) -> tuple[np.ndarray, np.ndarray]:
-    """Decimated rows of all recordings: X [n, f] float64 and y [n], non-finite rows dropped."""
-    strides = [row_stride(r, cfg.decimate, cfg.target_rate_hz) for r in recs]
-    xs = [r.matrix(features, k) for r, k in zip(recs, strides, strict=True)]
-    ys = [r.target(cfg.target, k) for r, k in zip(recs, strides, strict=True)]
-    x = np.concatenate(xs)
-    y = np.concatenate(ys)
-    ok = np.isfinite(x).all(axis=1) & np.isfinite(y)
-    return x[ok], y[ok]
+class NotFittedError(RuntimeError):
+    """`predict` or `to_onnx` on a model that has not been fitted."""
 
 
 class ForceModel(ABC):
-    """A trained reaction-force model of one algorithm on one feature set."""
+    """A reaction-force model of one algorithm on one feature set.
+
+    Parameters (set by `__init__`, changed only through `set_params` or `hyper`): `features`,
+    `feature_set`, `hyper` (the algorithm's defaults merged with the overrides given: what the
+    provenance records), `seed`, `progress`. Fitted attributes end in `_`: every model has
+    `n_features_in_` and `train_info_` (what the fit saw and did, for the provenance).
+    """
 
     algo: str = ""
     kind: str = "stateless"
+    #: which arrays `fit` takes (see the module docstring)
+    layout: str = "rows"
+    #: columns passed to `fit` as `aux` beside the features (feedback-noise training)
+    aux_columns: tuple[str, ...] = ()
 
-    def __init__(self, features: tuple[str, ...], feature_set: str, hyper: dict) -> None:
+    def __init__(
+        self,
+        features: tuple[str, ...],
+        feature_set: str,
+        hyper: dict,
+        *,
+        seed: int = 0,
+        progress: bool = False,
+    ) -> None:
         self.features = tuple(features)
         self.feature_set = feature_set
         self.hyper = dict(hyper)
-        self.train_info: dict = {}
+        self.seed = seed
+        self.progress = progress
 
     @property
     def name(self) -> str:
         return f"{self.algo}_{self.feature_set}"
 
-    @abstractmethod
-    def fit(self, recs: list[Recording], cfg: TrainConfig) -> None: ...
+    def set_params(self, **params: object) -> Self:
+        """Changes parameters set by `__init__` (scikit-learn's `set_params`)."""
+        for k, v in params.items():
+            if k not in ("features", "feature_set", "hyper", "seed", "progress"):
+                raise ValueError(f"{type(self).__name__} has no parameter {k!r}")
+            setattr(self, k, v)
+        return self
 
     @abstractmethod
-    def predict_matrix(self, x: np.ndarray) -> np.ndarray:
-        """One-step predictions for rows of features (stateless models)."""
+    def fit(self, X: object, y: object, **fit_params: object) -> Self:
+        """Fits on arrays in this model's `layout`; returns the model."""
 
-    def predict_recording(self, rec: Recording) -> np.ndarray:
-        """One-step predictions at every row of a recording, in order (recorded features)."""
-        return self.predict_matrix(rec.matrix(self.features))
+    @abstractmethod
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        """[n] force predictions for X [n, f] (rows, or one sequence from zero state)."""
 
     @abstractmethod
     def to_onnx(self) -> onnx.ModelProto:
         """The graph of docs/model-contract.md (metadata is added by `export`)."""
+
+    def _check_X(self, X: np.ndarray) -> np.ndarray:
+        """X as a 2-D float64 array with this model's feature count."""
+        x = np.asarray(X, dtype=np.float64)
+        if x.ndim != 2 or x.shape[1] != len(self.features):
+            raise ValueError(
+                f"{self.name}: X must be [n, {len(self.features)}] ({', '.join(self.features)}),"
+                f" got shape {x.shape}"
+            )
+        return x
+
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "train_info_"):
+            raise NotFittedError(f"{self.name} is not fitted: call fit(X, y) first")
+
+    def __setstate__(self, state: dict) -> None:
+        # Models pickled (models/*.joblib) before the estimator shape named their fitted
+        # attributes without the trailing underscore; they load as fitted models still.
+        for old in ("train_info", *self._legacy_fitted):
+            if old in state:
+                state[f"{old}_"] = state.pop(old)
+        if "train_info_" in state and "n_features_in_" not in state:
+            state["n_features_in_"] = len(state.get("features", ()))
+        state.setdefault("seed", 0)
+        state.setdefault("progress", False)
+        state.pop("max_rows", None)  # derived from `hyper` in fit now
+        self.__dict__.update(state)
+
+    #: fitted attributes that older pickles hold without the trailing underscore
+    _legacy_fitted: tuple[str, ...] = ()
+
+
+def check_rows(X: object, y: object, n_features: int) -> tuple[np.ndarray, np.ndarray]:
+    """The rows layout checked: X [n, n_features] and y [n] float64, n >= 1."""
+    x = np.asarray(X, dtype=np.float64)
+    yy = np.asarray(y, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != n_features:
+        raise ValueError(f"X must be [n, {n_features}], got shape {x.shape}")
+    if yy.shape != (x.shape[0],):
+        raise ValueError(f"y must be [{x.shape[0]}] (one target per row of X), got {yy.shape}")
+    if x.shape[0] == 0:
+        raise ValueError("no training rows")
+    return x, yy
+
+
+def check_sequences(
+    X: object, y: object, n_features: int, n_info: int | None = None
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The sequences layout checked: lists of [n_i, n_features] and [n_i] float64 arrays."""
+    if isinstance(X, np.ndarray) or isinstance(y, np.ndarray):
+        raise ValueError("X and y must be lists of sequences (one array per recording)")
+    xs = [np.asarray(x, dtype=np.float64) for x in X]  # type: ignore[attr-defined]
+    ys = [np.asarray(v, dtype=np.float64) for v in y]  # type: ignore[attr-defined]
+    if not xs or len(xs) != len(ys):
+        raise ValueError(f"X and y must hold the same number (>= 1) of sequences: {len(xs)}, "
+                         f"{len(ys)}")  # fmt: skip
+    for i, (x, v) in enumerate(zip(xs, ys, strict=True)):
+        if x.ndim != 2 or x.shape[1] != n_features or v.shape != (x.shape[0],):
+            raise ValueError(
+                f"sequence {i}: X must be [n, {n_features}] and y [n], got {x.shape}, {v.shape}"
+            )
+    if n_info is not None and n_info != len(xs):
+        raise ValueError(f"info must hold one SequenceInfo per sequence ({len(xs)}), got {n_info}")
+    return xs, ys
+
+
+def fit_recordings(model: ForceModel, recs: Sequence[Recording], cfg: TrainConfig) -> ForceModel:
+    """Fits `model` on recordings: their arrays in the model's layout (`data.training_arrays`)
+    with the configuration's target, rows and seed."""
+    X, y, params = training_arrays(
+        recs, model.features, model.layout, model.aux_columns, cfg.target, cfg.decimate,
+        cfg.target_rate_hz,
+    )  # fmt: skip
+    model.set_params(seed=cfg.seed, progress=cfg.progress)
+    return model.fit(X, y, **params)

@@ -20,16 +20,25 @@ import torch
 from torch import nn
 from tqdm.auto import tqdm
 
-from ..data import Recording
+from ..data import SequenceInfo
 from ..features import F_PREVIOUS, PREVIOUS_FORCE_FEATURES, RATIO_DIVISORS
-from .base import ForceModel, TrainConfig, stacked
+from .base import ForceModel, check_rows, check_sequences
 from .torch_export import export_stateful, export_stateless
 
 #: |z / s| beyond this is clipped before asinh (asinh(1e15) = 35.2; (1e15)^2 fits float32)
 ASINH_CLIP = 1e15
 
 
+#: The `aux` columns the networks take beside their features (feedback-noise training):
+#: the previous force and the three divisors of the ratio features.
 AUX = ("f_previous", "position_x", "velocity", "acceleration")
+
+
+def _aux_for(model: ForceModel, aux: object, noisy: bool) -> None:
+    if noisy and aux is None:
+        raise ValueError(
+            f"{model.name}: feedback noise needs `aux` ({', '.join(AUX)} of the same rows)"
+        )
 
 
 def perturb_previous_force(
@@ -163,15 +172,19 @@ def _optim(name: str, params: object, lr: float) -> torch.optim.Optimizer:
 
 
 class DenseModel(ForceModel):
+    """Rows layout, with `aux` [n, 4] (`AUX` of the same rows) when the previous force is
+    perturbed (feedback noise). Fitted attribute: `net_`, the network with its scalers."""
+
     algo = "dnn"
+    aux_columns = AUX
+    _legacy_fitted = ("net",)
 
     def __init__(
-        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None
-    ) -> None:
-        h = dict(DNN_DEFAULT)
-        h.update(hyper or {})
-        super().__init__(features, feature_set, h)
-        self.net: DenseNet | None = None
+        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None, *,
+        seed: int = 0, progress: bool = False,
+    ) -> None:  # fmt: skip
+        super().__init__(features, feature_set, {**DNN_DEFAULT, **(hyper or {})}, seed=seed,
+                         progress=progress)  # fmt: skip
 
     def _build(self, x: np.ndarray, y: np.ndarray) -> DenseNet:
         h = self.hyper
@@ -199,18 +212,18 @@ class DenseModel(ForceModel):
             body = nn.Sequential(*layers)
         return DenseNet(inp, body, out)
 
-    def fit(self, recs: list[Recording], cfg: TrainConfig) -> None:
-        torch.manual_seed(cfg.seed)
+    def fit(self, X: np.ndarray, y: np.ndarray, aux: np.ndarray | None = None) -> DenseModel:
+        x, y = check_rows(X, y, len(self.features))
         h = self.hyper
-        nf = len(self.features)
-        xa, y = stacked(recs, self.features + AUX, cfg)
-        x, aux = xa[:, :nf], xa[:, nf:]
-        net = self._build(x, y)
-        xt = torch.tensor(x, dtype=torch.float32)
-        auxt = torch.tensor(aux, dtype=torch.float32)
-        yt = torch.tensor(net.out.encode(y), dtype=torch.float32).unsqueeze(1)
         sigma = resolve_feedback_noise(h, y)
         noisy = sigma > 0 and any(f in PREVIOUS_FORCE_FEATURES for f in self.features)
+        _aux_for(self, aux, noisy)
+        torch.manual_seed(self.seed)
+        net = self._build(x, y)
+        xt = torch.tensor(x, dtype=torch.float32)
+        if noisy:
+            auxt = torch.tensor(check_rows(aux, y, len(AUX))[0], dtype=torch.float32)
+        yt = torch.tensor(net.out.encode(y), dtype=torch.float32).unsqueeze(1)
         # Pre-scale once: the scaler is fixed, only the body learns.
         with torch.no_grad():
             zt = net.inp(xt)
@@ -228,11 +241,11 @@ class DenseModel(ForceModel):
             else None
         )
         lossf = _loss(h["loss"])
-        gen = torch.Generator().manual_seed(cfg.seed)
+        gen = torch.Generator().manual_seed(self.seed)
         t0 = time.perf_counter()
         net.train()
         losses = []
-        bar = tqdm(range(epochs), desc=f"{self.name} epochs", disable=not cfg.progress)
+        bar = tqdm(range(epochs), desc=f"{self.name} epochs", disable=not self.progress)
         for _ in bar:
             perm = torch.randperm(len(y), generator=gen)
             total = 0.0
@@ -260,27 +273,30 @@ class DenseModel(ForceModel):
             if not math.isfinite(losses[-1]):
                 raise FloatingPointError(f"{self.name}: training loss became {losses[-1]}")
         net.eval()
-        self.net = net
-        self.train_info = {
+        self.net_ = net
+        self.n_features_in_ = x.shape[1]
+        self.train_info_ = {
             "rows": int(len(y)),
             "epochs": epochs,
             "feedback_noise_n": sigma,
             "fit_seconds": round(time.perf_counter() - t0, 2),
             "final_train_loss_scaled": losses[-1],
         }
+        return self
 
-    def predict_matrix(self, x: np.ndarray) -> np.ndarray:
-        assert self.net is not None, "not trained"
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        self._check_fitted()
+        x = self._check_X(X)
         out = []
         with torch.no_grad():
             for i in range(0, len(x), 65536):
                 xt = torch.tensor(x[i : i + 65536], dtype=torch.float32)
-                out.append(self.net(xt).numpy()[:, 0])
+                out.append(self.net_(xt).numpy()[:, 0])
         return np.concatenate(out).astype(np.float64) if out else np.zeros(0)
 
     def to_onnx(self) -> onnx.ModelProto:
-        assert self.net is not None, "not trained"
-        return export_stateless(self.net.eval(), len(self.features))
+        self._check_fitted()
+        return export_stateless(self.net_.eval(), len(self.features))
 
 
 class LSTMNet(nn.Module):
@@ -344,33 +360,53 @@ class LSTMModel(ForceModel):
     recordings in consecutive `chunk`-step pieces, carrying (detached) state from chunk to
     chunk; a cursor that reaches the end of its recording restarts at a random place with zero
     state. Rows are never decimated here (the state's time step must be the loop's).
+
+    Sequences layout: `fit(X, y, info, aux=None)`, X a list of [n_i, f] sequences (one per
+    recording, every row), y their [n_i] targets, `info` their `SequenceInfo` (row rate: the
+    chunk in steps; stride: the rows the input and target scalers are fitted on, as a
+    stateless model's), `aux` one [n_i, 4] array (`AUX`) per sequence when the previous force
+    is perturbed. Fitted attribute: `net_`, the network with its scalers.
     """
 
     algo = "lstm"
     kind = "stateful"
+    layout = "sequences"
+    aux_columns = AUX
+    _legacy_fitted = ("net",)
 
     def __init__(
-        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None
-    ) -> None:
-        h = dict(LSTM_DEFAULT)
-        h.update(hyper or {})
-        super().__init__(features, feature_set, h)
-        self.net: LSTMNet | None = None
+        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None, *,
+        seed: int = 0, progress: bool = False,
+    ) -> None:  # fmt: skip
+        super().__init__(features, feature_set, {**LSTM_DEFAULT, **(hyper or {})}, seed=seed,
+                         progress=progress)  # fmt: skip
 
-    def fit(self, recs: list[Recording], cfg: TrainConfig) -> None:
-        torch.manual_seed(cfg.seed)
-        rng = np.random.default_rng(cfg.seed)
+    def fit(
+        self,
+        X: list[np.ndarray],
+        y: list[np.ndarray],
+        info: list[SequenceInfo],
+        aux: list[np.ndarray] | None = None,
+    ) -> LSTMModel:
+        seqs, targets = check_sequences(X, y, len(self.features), len(info))
+        torch.manual_seed(self.seed)
+        rng = np.random.default_rng(self.seed)
         h = self.hyper
         nf = len(self.features)
-        xs, ys = stacked(recs, self.features, cfg)
+        # the scalers' rows: every stride-th of each sequence, non-finite rows dropped
+        xs = np.concatenate([x[:: i.stride] for x, i in zip(seqs, info, strict=True)])
+        ys = np.concatenate([v[:: i.stride] for v, i in zip(targets, info, strict=True)])
+        ok = np.isfinite(xs).all(axis=1) & np.isfinite(ys)
+        xs, ys = xs[ok], ys[ok]
         sigma = resolve_feedback_noise(h, ys)
         noisy = sigma > 0 and any(f in PREVIOUS_FORCE_FEATURES for f in self.features)
-        gen = torch.Generator().manual_seed(cfg.seed)
+        _aux_for(self, aux, noisy)
+        gen = torch.Generator().manual_seed(self.seed)
         net = LSTMNet(
             InputScaler(self.features, xs), int(h["hidden"]),
             TargetScaler(float(ys.mean()), float(ys.std()) or 1.0),
         )  # fmt: skip
-        steps = {r.row_step for r in recs}
+        steps = {i.row_step for i in info}
         if steps != {1}:
             # The served LSTM is stepped once per control step; rows k steps apart teach it a
             # k-times longer time step. Train on full-rate recordings (DECIMATE=1) for serving.
@@ -381,15 +417,17 @@ class LSTMModel(ForceModel):
             )
         series = []
         with torch.no_grad():
-            for r in recs:
-                x = torch.tensor(r.matrix(self.features + AUX), dtype=torch.float32)
-                y = torch.tensor(net.out.encode(r.target(cfg.target)), dtype=torch.float32)
+            for k, (xk, yk) in enumerate(zip(seqs, targets, strict=True)):
+                yt = torch.tensor(net.out.encode(yk), dtype=torch.float32)
                 if noisy:
-                    series.append((x, y))  # raw: scaled per batch after the perturbation
+                    # raw: scaled per batch after the perturbation
+                    xa = np.column_stack([xk, np.asarray(aux[k], dtype=np.float64)])  # type: ignore[index]
+                    series.append((torch.tensor(xa, dtype=torch.float32), yt))
                 else:
-                    series.append((torch.nan_to_num(net.inp(x[:, :nf])), y))
+                    xt = torch.tensor(xk, dtype=torch.float32)
+                    series.append((torch.nan_to_num(net.inp(xt)), yt))
         lengths = np.array([len(s[1]) for s in series])
-        rate = float(np.median([r.sample_rate_hz for r in recs]))
+        rate = float(np.median([i.sample_rate_hz for i in info]))
         if "chunk" in h:  # an explicit step count (older models, or given)
             chunk = int(h["chunk"])
         else:
@@ -412,7 +450,7 @@ class LSTMModel(ForceModel):
         lossf = _loss(h["loss"])
         t0 = time.perf_counter()
         losses = []
-        bar = tqdm(range(iters), desc=f"{self.name} TBPTT", disable=not cfg.progress)
+        bar = tqdm(range(iters), desc=f"{self.name} TBPTT", disable=not self.progress)
         for _ in bar:
             zb = torch.stack([series[k][0][p : p + chunk] for k, p in cursors])
             if noisy:
@@ -443,8 +481,9 @@ class LSTMModel(ForceModel):
             if len(losses) % 50 == 0:
                 bar.set_postfix(loss=f"{np.mean(losses[-50:]):.4g}")
         net.eval()
-        self.net = net
-        self.train_info = {
+        self.net_ = net
+        self.n_features_in_ = nf
+        self.train_info_ = {
             "row_step": sorted(steps),
             "steps_seen": iters * n_streams * chunk,
             "chunk_steps": chunk,
@@ -453,11 +492,13 @@ class LSTMModel(ForceModel):
             "fit_seconds": round(time.perf_counter() - t0, 2),
             "final_train_loss_scaled": float(np.mean(losses[-50:])),
         }
+        return self
 
-    def predict_matrix(self, x: np.ndarray) -> np.ndarray:
+    def predict(self, X: np.ndarray) -> np.ndarray:
         """Runs the rows as one sequence in order from zero state (one-step: recorded inputs)."""
-        assert self.net is not None, "not trained"
-        net = self.net
+        self._check_fitted()
+        x = self._check_X(X)
+        net = self.net_
         out = []
         state = None
         with torch.no_grad():
@@ -468,7 +509,7 @@ class LSTMModel(ForceModel):
         return np.concatenate(out).astype(np.float64) if out else np.zeros(0)
 
     def to_onnx(self) -> onnx.ModelProto:
-        assert self.net is not None, "not trained"
+        self._check_fitted()
         return export_stateful(
-            LSTMStep(self.net).eval(), len(self.features), self.net.lstm.hidden_size
+            LSTMStep(self.net_).eval(), len(self.features), self.net_.lstm.hidden_size
         )

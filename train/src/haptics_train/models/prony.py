@@ -15,6 +15,12 @@ The state steps once per row at the training recordings' period `dt` (in the met
 LSTM it is served once per step and must be trained at the rate it is served at). Exported to
 ONNX as a stateful model: `h_in`/`h_out` carry the K branch states, `c_in`/`c_out` are passed
 through (the contract's second state).
+
+Sequences layout (`models.base`): `fit(X, y, info)` with X one [n_i, 2] array (x, v) per
+recording, every row in time order, y the [n_i] targets and `info` their `SequenceInfo` (row
+rate: `dt`; duration: the longest relaxation time; stride and contact threshold: the rows the
+least squares are fitted on). Fitted attributes: `k_` (spring), `w_` (Prony weights), `taus_`
+(relaxation times, s), `dt_` (the step, s).
 """
 
 from __future__ import annotations
@@ -27,9 +33,8 @@ import torch
 from scipy.optimize import nnls
 from scipy.signal import lfilter
 
-from ..closed_loop import contact_thresholds
-from ..data import Recording
-from .base import ForceModel, TrainConfig, row_stride
+from ..data import SequenceInfo
+from .base import ForceModel, check_sequences
 from .torch_export import export_stateful
 
 PRONY_DEFAULT = {"poly": 3, "tau_min_steps": 5, "tau_min_s": 0.02, "tau_max_s": 30.0, "n_tau": 6}
@@ -68,38 +73,40 @@ class _PronyModule(torch.nn.Module):
 class PronyModel(ForceModel):
     algo = "prony"
     kind = "stateful"
+    layout = "sequences"
+    _legacy_fitted = ("k", "w", "taus", "dt")
 
-    def __init__(self, hyper: dict | None = None) -> None:
-        super().__init__(("position_x", "velocity"), "x_v", {**PRONY_DEFAULT, **(hyper or {})})
-        self.k = np.zeros(int(self.hyper["poly"]))
-        self.w = np.zeros(0)
-        self.taus = np.zeros(0)
-        self.dt = 0.0
+    def __init__(
+        self, hyper: dict | None = None, *, seed: int = 0, progress: bool = False
+    ) -> None:
+        super().__init__(("position_x", "velocity"), "x_v", {**PRONY_DEFAULT, **(hyper or {})},
+                         seed=seed, progress=progress)  # fmt: skip
 
     @property
     def name(self) -> str:
         return "prony"
 
-    def fit(self, recs: list[Recording], cfg: TrainConfig) -> None:
+    def fit(
+        self, X: list[np.ndarray], y: list[np.ndarray], info: list[SequenceInfo]
+    ) -> PronyModel:
+        seqs, targets = check_sequences(X, y, len(self.features), len(info))
         h = self.hyper
-        dts = np.array([1.0 / r.sample_rate_hz for r in recs])
-        self.dt = float(np.median(dts))
-        if np.any(np.abs(dts / self.dt - 1) > 0.01):
+        dts = np.array([1.0 / i.sample_rate_hz for i in info])
+        dt = float(np.median(dts))
+        if np.any(np.abs(dts / dt - 1) > 0.01):
             warnings.warn(f"prony: training recordings at different rates ({1 / dts} Hz); "
-                          f"the model steps at {1 / self.dt:g} Hz", stacklevel=2)  # fmt: skip
-        span = max(float(r.columns["time"][-1] - r.columns["time"][0]) for r in recs)
-        lo = max(float(h["tau_min_steps"]) * self.dt, float(h["tau_min_s"]))
+                          f"the model steps at {1 / dt:g} Hz", stacklevel=2)  # fmt: skip
+        span = max(i.duration_s for i in info)
+        lo = max(float(h["tau_min_steps"]) * dt, float(h["tau_min_s"]))
         hi = max(min(float(h["tau_max_s"]), span), 2 * lo)
-        self.taus = np.geomspace(lo, hi, int(h["n_tau"]))
+        taus = np.geomspace(lo, hi, int(h["n_tau"]))
         rows_a, rows_y = [], []
-        for r in recs:
-            x, v = r.column("position_x"), r.column("velocity")
-            y = r.target(cfg.target)
-            s = branch_states(v, self.dt, self.taus)
-            k = row_stride(r, cfg.decimate, cfg.target_rate_hz)
+        for xv, y, i in zip(seqs, targets, info, strict=True):
+            x, v = xv[:, 0], xv[:, 1]
+            s = branch_states(v, dt, taus)
             keep = np.zeros(len(y), dtype=bool)
-            keep[::k] = True
-            keep &= y > contact_thresholds(r)[1]  # contact rows: the clamp is not fitted
+            keep[:: i.stride] = True
+            keep &= y > i.contact_off_n  # contact rows: the clamp is not fitted
             poly = np.column_stack([x**j for j in range(1, int(h["poly"]) + 1)])
             rows_a.append(np.column_stack([poly, -poly, s])[keep])
             rows_y.append(y[keep])
@@ -109,23 +116,31 @@ class PronyModel(ForceModel):
         coef, res = nnls(a / scale, y, maxiter=50 * a.shape[1])
         coef = coef / scale
         p = int(h["poly"])
-        self.k = coef[:p] - coef[p : 2 * p]
-        self.w = coef[2 * p :]
-        self.train_info = {
+        self.dt_ = dt
+        self.taus_ = taus
+        self.k_ = coef[:p] - coef[p : 2 * p]
+        self.w_ = coef[2 * p :]
+        self.n_features_in_ = len(self.features)
+        self.train_info_ = {
             "rows": int(len(y)),
-            "dt_s": self.dt,
-            "taus_s": self.taus.tolist(),
-            "k": self.k.tolist(),
-            "w": self.w.tolist(),
+            "dt_s": self.dt_,
+            "taus_s": self.taus_.tolist(),
+            "k": self.k_.tolist(),
+            "w": self.w_.tolist(),
             "fit_rmse": float(res / np.sqrt(len(y))),
         }
+        return self
 
-    def predict_matrix(self, x: np.ndarray) -> np.ndarray:
-        s = branch_states(x[:, 1], self.dt, self.taus)
-        spring = sum(self.k[j] * x[:, 0] ** (j + 1) for j in range(len(self.k)))
-        return np.maximum(spring + s @ self.w, 0.0)
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        """One sequence (x, v rows in time order) stepped from zero branch states."""
+        self._check_fitted()
+        x = self._check_X(X)
+        s = branch_states(x[:, 1], self.dt_, self.taus_)
+        spring = sum(self.k_[j] * x[:, 0] ** (j + 1) for j in range(len(self.k_)))
+        return np.maximum(spring + s @ self.w_, 0.0)
 
     def to_onnx(self) -> onnx.ModelProto:
-        e = np.exp(-self.dt / self.taus)
-        mod = _PronyModule(self.k, self.w, e, self.taus * (1.0 - e))
-        return export_stateful(mod, len(self.features), len(self.taus))
+        self._check_fitted()
+        e = np.exp(-self.dt_ / self.taus_)
+        mod = _PronyModule(self.k_, self.w_, e, self.taus_ * (1.0 - e))
+        return export_stateful(mod, len(self.features), len(self.taus_))

@@ -14,8 +14,7 @@ from sklearn.pipeline import Pipeline, make_pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVR
 
-from ..data import Recording
-from .base import ForceModel, TrainConfig, stacked
+from .base import ForceModel, check_rows
 
 #: ai.onnx.ml 3 is what ONNX Runtime 1.2x-1.31 serve for TreeEnsembleRegressor and friends.
 TARGET_OPSET = {"": 17, "ai.onnx.ml": 3}
@@ -31,52 +30,62 @@ def _to_onnx(estimator: object, n_features: int) -> onnx.ModelProto:
 
 
 class SklearnModel(ForceModel):
-    """Shared fit/predict for the scikit-learn regressors."""
-
-    estimator: Pipeline | RandomForestRegressor
+    """Shared fit/predict for the scikit-learn regressors (rows layout). Fitted attribute:
+    `estimator_`, the fitted scikit-learn estimator (or pipeline)."""
 
     #: train on float32 features so that float32 ONNX thresholds take the same branches
     float32_features = False
-    #: at most this many training rows (after decimation); None = all
-    max_rows: int | None = None
+    _legacy_fitted = ("estimator",)
 
-    def _make(self, cfg: TrainConfig) -> Pipeline | RandomForestRegressor:
+    def _make(self) -> Pipeline | RandomForestRegressor:
         raise NotImplementedError
 
-    def fit(self, recs: list[Recording], cfg: TrainConfig) -> None:
-        x, y = stacked(recs, self.features, cfg)
+    def fit(self, X: np.ndarray, y: np.ndarray) -> SklearnModel:
+        x, y = check_rows(X, y, len(self.features))
         n_all = len(y)
-        if self.max_rows is not None and n_all > self.max_rows:
-            rng = np.random.default_rng(cfg.seed)
-            keep = np.sort(rng.choice(n_all, self.max_rows, replace=False))
+        # `max_rows` (hyper): at most this many training rows, a random subsample; None = all
+        max_rows = int(self.hyper["max_rows"]) if self.hyper.get("max_rows") else None
+        if max_rows is not None and n_all > max_rows:
+            rng = np.random.default_rng(self.seed)
+            keep = np.sort(rng.choice(n_all, max_rows, replace=False))
             x, y = x[keep], y[keep]
         if self.float32_features:
             x = x.astype(np.float32)
-        self.estimator = self._make(cfg)
+        est = self._make()
         t0 = time.perf_counter()
-        self.estimator.fit(x, y)
-        self.train_info = {
+        est.fit(x, y)
+        self.estimator_ = est
+        self.n_features_in_ = x.shape[1]
+        self.train_info_ = {
             "rows": int(len(y)),
             "rows_available": int(n_all),
             "fit_seconds": round(time.perf_counter() - t0, 2),
         }
+        return self
 
-    def predict_matrix(self, x: np.ndarray) -> np.ndarray:
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        self._check_fitted()
+        x = self._check_X(X)
         if self.float32_features:
             x = x.astype(np.float32)
-        return np.asarray(self.estimator.predict(x), dtype=np.float64)
+        return np.asarray(self.estimator_.predict(x), dtype=np.float64)
 
     def to_onnx(self) -> onnx.ModelProto:
-        return _to_onnx(self.estimator, len(self.features))
+        self._check_fitted()
+        return _to_onnx(self.estimator_, len(self.features))
 
 
 class LinearModel(SklearnModel):
     algo = "lr"
 
-    def __init__(self, features: tuple[str, ...], feature_set: str) -> None:
-        super().__init__(features, feature_set, {"scaler": "standard"})
+    def __init__(
+        self, features: tuple[str, ...], feature_set: str, *, seed: int = 0,
+        progress: bool = False,
+    ) -> None:  # fmt: skip
+        super().__init__(features, feature_set, {"scaler": "standard"}, seed=seed,
+                         progress=progress)  # fmt: skip
 
-    def _make(self, cfg: TrainConfig) -> Pipeline:
+    def _make(self) -> Pipeline:
         return make_pipeline(StandardScaler(), LinearRegression())
 
 
@@ -95,14 +104,13 @@ class SVRModel(SklearnModel):
     algo = "svr"
 
     def __init__(
-        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None
-    ) -> None:
-        h = dict(SVR_DEFAULT)
-        h.update(hyper or {})
-        super().__init__(features, feature_set, h)
-        self.max_rows = int(h["max_rows"]) if h.get("max_rows") else None
+        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None, *,
+        seed: int = 0, progress: bool = False,
+    ) -> None:  # fmt: skip
+        super().__init__(features, feature_set, {**SVR_DEFAULT, **(hyper or {})}, seed=seed,
+                         progress=progress)  # fmt: skip
 
-    def _make(self, cfg: TrainConfig) -> Pipeline:
+    def _make(self) -> Pipeline:
         h = self.hyper
         return make_pipeline(
             StandardScaler(),
@@ -119,18 +127,18 @@ class ForestModel(SklearnModel):
     float32_features = True
 
     def __init__(
-        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None
-    ) -> None:
-        h = dict(RF_DEFAULT)
-        h.update(hyper or {})
-        super().__init__(features, feature_set, h)
+        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None, *,
+        seed: int = 0, progress: bool = False,
+    ) -> None:  # fmt: skip
+        super().__init__(features, feature_set, {**RF_DEFAULT, **(hyper or {})}, seed=seed,
+                         progress=progress)  # fmt: skip
 
-    def _make(self, cfg: TrainConfig) -> RandomForestRegressor:
+    def _make(self) -> RandomForestRegressor:
         h = self.hyper
         return RandomForestRegressor(
             n_estimators=int(h["n_estimators"]),
             max_depth=None if h.get("max_depth") is None else int(h["max_depth"]),
             min_samples_leaf=int(h.get("min_samples_leaf", 1)),
             n_jobs=2,
-            random_state=cfg.seed,
+            random_state=self.seed,
         )

@@ -1,8 +1,8 @@
 """Spring-damper baselines (thesis 6.1): F = k(x) x + b(x) v with polynomial k and b.
 
 order 0: constant k and b; order 1: k = k0 + k1 x, b = b0 + b1 x; order 2 adds x^2 terms.
-Fitted by linear least squares on the decimated training rows. No intercept: a spring-damper
-exerts no force at rest at x = 0.
+Fitted by linear least squares on the decimated training rows (X = [x, v]). No intercept: a
+spring-damper exerts no force at rest at x = 0.
 """
 
 from __future__ import annotations
@@ -11,8 +11,7 @@ import numpy as np
 import onnx
 import torch
 
-from ..data import Recording
-from .base import ForceModel, TrainConfig, stacked
+from .base import ForceModel, check_rows
 from .torch_export import export_stateless
 
 
@@ -40,34 +39,45 @@ class _SpringDamperModule(torch.nn.Module):
 
 
 class SpringDamper(ForceModel):
-    algo = "sd"
+    """Fitted attributes: `k_`, `b_` (the polynomial coefficients of k(x) and b(x), lowest
+    order first)."""
 
-    def __init__(self, order: int = 2, feature_set: str = "x_v") -> None:
-        if order not in (0, 1, 2):
-            raise ValueError("spring-damper order must be 0, 1 or 2")
-        super().__init__(("position_x", "velocity"), feature_set, {"order": order})
+    algo = "sd"
+    _legacy_fitted = ("k", "b")
+
+    def __init__(
+        self, order: int = 2, feature_set: str = "x_v", *, seed: int = 0, progress: bool = False
+    ) -> None:
+        super().__init__(
+            ("position_x", "velocity"), feature_set, {"order": order}, seed=seed, progress=progress
+        )
         self.order = order
-        self.k = np.zeros(order + 1)
-        self.b = np.zeros(order + 1)
 
     @property
     def name(self) -> str:
         return ("sd_const", "sd_poly1", "sd_poly2")[self.order]
 
-    def fit(self, recs: list[Recording], cfg: TrainConfig) -> None:
-        x, y = stacked(recs, self.features, cfg)
+    def fit(self, X: np.ndarray, y: np.ndarray) -> SpringDamper:
+        if self.order not in (0, 1, 2):
+            raise ValueError("spring-damper order must be 0, 1 or 2")
+        x, y = check_rows(X, y, len(self.features))
         a = design(x[:, 0], x[:, 1], self.order)
         # Column scaling keeps the normal equations well conditioned (x ~ 1e-2, x^3 ~ 1e-6).
         scale = np.abs(a).max(axis=0)
         scale[scale == 0] = 1.0
         coef, *_ = np.linalg.lstsq(a / scale, y, rcond=None)
         coef = coef / scale
-        self.k = coef[: self.order + 1]
-        self.b = coef[self.order + 1 :]
-        self.train_info = {"rows": int(len(y)), "k": self.k.tolist(), "b": self.b.tolist()}
+        self.k_ = coef[: self.order + 1]
+        self.b_ = coef[self.order + 1 :]
+        self.n_features_in_ = x.shape[1]
+        self.train_info_ = {"rows": int(len(y)), "k": self.k_.tolist(), "b": self.b_.tolist()}
+        return self
 
-    def predict_matrix(self, x: np.ndarray) -> np.ndarray:
-        return design(x[:, 0], x[:, 1], self.order) @ np.concatenate([self.k, self.b])
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        self._check_fitted()
+        x = self._check_X(X)
+        return design(x[:, 0], x[:, 1], self.order) @ np.concatenate([self.k_, self.b_])
 
     def to_onnx(self) -> onnx.ModelProto:
-        return export_stateless(_SpringDamperModule(self.k, self.b), len(self.features))
+        self._check_fitted()
+        return export_stateless(_SpringDamperModule(self.k_, self.b_), len(self.features))
