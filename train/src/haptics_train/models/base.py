@@ -75,19 +75,21 @@ class ForceModel(ABC):
     layout: str = "rows"
     #: columns passed to `fit` as `aux` beside the features (feedback-noise training)
     aux_columns: tuple[str, ...] = ()
+    #: the algorithm's default hyperparameters, which `hyper` overrides
+    defaults: dict = {}
 
     def __init__(
         self,
         features: tuple[str, ...],
         feature_set: str,
-        hyper: dict,
+        hyper: dict | None = None,
         *,
         seed: int = 0,
         progress: bool = False,
     ) -> None:
         self.features = tuple(features)
         self.feature_set = feature_set
-        self.hyper = dict(hyper)
+        self.hyper = {**self.defaults, **(hyper or {})}
         self.seed = seed
         self.progress = progress
 

@@ -177,14 +177,8 @@ class DenseModel(ForceModel):
 
     algo = "dnn"
     aux_columns = AUX
+    defaults = DNN_DEFAULT
     _legacy_fitted = ("net",)
-
-    def __init__(
-        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None, *,
-        seed: int = 0, progress: bool = False,
-    ) -> None:  # fmt: skip
-        super().__init__(features, feature_set, {**DNN_DEFAULT, **(hyper or {})}, seed=seed,
-                         progress=progress)  # fmt: skip
 
     def _build(self, x: np.ndarray, y: np.ndarray) -> DenseNet:
         h = self.hyper
@@ -372,14 +366,8 @@ class LSTMModel(ForceModel):
     kind = "stateful"
     layout = "sequences"
     aux_columns = AUX
+    defaults = LSTM_DEFAULT
     _legacy_fitted = ("net",)
-
-    def __init__(
-        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None, *,
-        seed: int = 0, progress: bool = False,
-    ) -> None:  # fmt: skip
-        super().__init__(features, feature_set, {**LSTM_DEFAULT, **(hyper or {})}, seed=seed,
-                         progress=progress)  # fmt: skip
 
     def fit(
         self,

@@ -74,13 +74,13 @@ class PronyModel(ForceModel):
     algo = "prony"
     kind = "stateful"
     layout = "sequences"
+    defaults = PRONY_DEFAULT
     _legacy_fitted = ("k", "w", "taus", "dt")
 
     def __init__(
         self, hyper: dict | None = None, *, seed: int = 0, progress: bool = False
     ) -> None:
-        super().__init__(("position_x", "velocity"), "x_v", {**PRONY_DEFAULT, **(hyper or {})},
-                         seed=seed, progress=progress)  # fmt: skip
+        super().__init__(("position_x", "velocity"), "x_v", hyper, seed=seed, progress=progress)
 
     @property
     def name(self) -> str:

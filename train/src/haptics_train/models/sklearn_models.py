@@ -77,13 +77,7 @@ class SklearnModel(ForceModel):
 
 class LinearModel(SklearnModel):
     algo = "lr"
-
-    def __init__(
-        self, features: tuple[str, ...], feature_set: str, *, seed: int = 0,
-        progress: bool = False,
-    ) -> None:  # fmt: skip
-        super().__init__(features, feature_set, {"scaler": "standard"}, seed=seed,
-                         progress=progress)  # fmt: skip
+    defaults = {"scaler": "standard"}
 
     def _make(self) -> Pipeline:
         return make_pipeline(StandardScaler(), LinearRegression())
@@ -102,13 +96,7 @@ class SVRModel(SklearnModel):
     """
 
     algo = "svr"
-
-    def __init__(
-        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None, *,
-        seed: int = 0, progress: bool = False,
-    ) -> None:  # fmt: skip
-        super().__init__(features, feature_set, {**SVR_DEFAULT, **(hyper or {})}, seed=seed,
-                         progress=progress)  # fmt: skip
+    defaults = SVR_DEFAULT
 
     def _make(self) -> Pipeline:
         h = self.hyper
@@ -125,13 +113,7 @@ RF_DEFAULT = {"n_estimators": 100, "max_depth": 9, "min_samples_leaf": 1}
 class ForestModel(SklearnModel):
     algo = "rf"
     float32_features = True
-
-    def __init__(
-        self, features: tuple[str, ...], feature_set: str, hyper: dict | None = None, *,
-        seed: int = 0, progress: bool = False,
-    ) -> None:  # fmt: skip
-        super().__init__(features, feature_set, {**RF_DEFAULT, **(hyper or {})}, seed=seed,
-                         progress=progress)  # fmt: skip
+    defaults = RF_DEFAULT
 
     def _make(self) -> RandomForestRegressor:
         h = self.hyper
