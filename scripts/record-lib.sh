@@ -7,7 +7,8 @@
 #   rest                    the remaining arguments (the output folder)
 #   record_run NAME SEED ARGS...   records $out/NAME.parquet with `rt-loop run ARGS` on the
 #                                  lockstep clock at 10 kHz, unless the file exists
-# and the environment: DECIMATE (default 1: every step).
+# and the environment: DECIMATE (default 1: every step), HAPTICS_RT_LOOP (an rt-loop binary
+# to use instead of building one).
 
 # shellcheck disable=SC2034  # material, bench_args, rest and decimate are the caller's
 record_options() {
@@ -27,10 +28,16 @@ record_options() {
   decimate=${DECIMATE:-1}
 }
 
-# Builds rt-loop (the project's one build command) and sets `bin`.
+# Builds rt-loop (the project's one build command) and sets `bin`; with HAPTICS_RT_LOOP set,
+# that binary is used as it is (a frozen copy: long recordings while the tree is rebuilt).
 record_build() {
   # shellcheck disable=SC1091
   source scripts/env.sh
+  if [ -n "${HAPTICS_RT_LOOP:-}" ]; then
+    bin=$HAPTICS_RT_LOOP
+    [ -x "$bin" ] || { echo "$who: HAPTICS_RT_LOOP=$bin is not an executable" >&2; exit 2; }
+    return
+  fi
   haptics_build
   bin=target/release/rt-loop
 }

@@ -2,11 +2,15 @@
 # Brings the whole system up on the simulated bench, from a fresh clone:
 #   1. installs what it needs (scripts/setup.sh: .venv, ONNX Runtime's library, the page's packages)
 #   2. builds rt-loop, infer-server and hapticctl in release
-#   3. records the default dataset (data/dataset) and trains the default model (models/) if missing
+#   3. records the default dataset (data/dataset) if missing; trains, evaluates and exports the
+#      candidate models (models/) if there is no recommendation yet
 #   4. starts rt-loop (realtime, 10 kHz) and infer-server, and prints the page's address
 # Ctrl-C stops both cleanly (current to zero, shared-memory segment removed).
 #
-# Settings (environment): HAPTICS_MODEL (default rf_six), HAPTICS_AUTOSTART (default shadow:
+# Settings (environment): HAPTICS_MODEL (default: the model haptics-train recommends,
+# models/recommendation.json: the best free run on the validation recording), HAPTICS_CANDIDATES
+# (the specs trained when there is no recommendation; default sd_poly2,rf:memory,structured),
+# HAPTICS_AUTOSTART (default shadow:
 # the simulated hand presses the simulated sponge while the model predicts alongside; or
 # abstraction, reproduction, none), HAPTICS_HTTP (127.0.0.1:8080), HAPTICS_GRPC
 # (127.0.0.1:50051), HAPTICS_INSTANCE (default), HAPTICS_TOKEN (unset: no token), HAPTICS_PROFILE
@@ -15,7 +19,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-model=${HAPTICS_MODEL:-rf_six}
+model=${HAPTICS_MODEL:-}
+candidates=${HAPTICS_CANDIDATES:-sd_poly2,rf:memory,structured}
 autostart=${HAPTICS_AUTOSTART:-shadow}
 http=${HAPTICS_HTTP:-127.0.0.1:8080}
 grpc=${HAPTICS_GRPC:-127.0.0.1:50051}
@@ -37,9 +42,27 @@ if [ ! -f data/dataset/test_2.1.parquet ]; then
   bash scripts/record-dataset.sh data/dataset
 fi
 
-if [ ! -f "models/$model.onnx" ]; then
+recommended() { # the recommended model's name, or nothing
+  .venv/bin/python - <<'PY' 2>/dev/null || true
+import json
+doc = json.load(open("models/recommendation.json"))
+print(doc["recommended"])
+PY
+}
+if [ -z "$model" ]; then
+  model=$(recommended)
+  if [ -z "$model" ] || [ ! -f "models/$model.onnx" ]; then
+    say "train, evaluate and export the candidates ($candidates); recommend one on the validation run"
+    .venv/bin/haptics-train train --models "$candidates" --no-progress
+    .venv/bin/haptics-train evaluate --no-progress
+    .venv/bin/haptics-train export
+    model=$(recommended)
+    [ -n "$model" ] || { echo "up: no model recommended (see models/results.json)" >&2; exit 1; }
+  fi
+  say "serving the recommended model $model (models/recommendation.json; HAPTICS_MODEL overrides)"
+elif [ ! -f "models/$model.onnx" ]; then
   case "$model" in
-    sd_*) spec=$model ;;
+    sd_*|prony|structured) spec=$model ;;
     *) spec="${model%_*}:${model##*_}" ;; # rf_six -> rf:six, dnn_fb_six -> dnn_fb:six
   esac
   say "train the default model $model (haptics-train train --models $spec, then export)"

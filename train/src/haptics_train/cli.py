@@ -1,5 +1,5 @@
-"""Command line of haptics-train: analyze, train, evaluate, export, report, import, validate,
-pipeline, study. Run from the repository root (default paths are relative to it)."""
+"""Command line of haptics-train: analyze, train, evaluate, ood, export, report, import,
+validate, pipeline, study. Run from the repository root (default paths are relative to it)."""
 
 from __future__ import annotations
 
@@ -174,7 +174,31 @@ def cmd_evaluate(a: argparse.Namespace) -> None:
     models = load_models(Path(a.models_dir), _names(a))
     for _, cfg in models:
         cfg.progress = not a.no_progress
-    evaluate_models(models, ds, Path(a.models_dir), closed_loop=not a.no_closed_loop)
+    evaluate_models(models, ds, Path(a.models_dir), closed_loop=not a.no_closed_loop,
+                    fidelity=Path(a.fidelity) if a.fidelity else None)  # fmt: skip
+
+
+def cmd_ood(a: argparse.Namespace) -> None:
+    from .fidelity import load_recommendation
+    from .ood import OOD_FILE, score_suite, write_fidelity
+    from .pipeline import load_models
+
+    folder = Path(a.models_dir)
+    names = _names(a)
+    rec = load_recommendation(folder)
+    if names is None:
+        if rec is None:
+            raise ValueError(f"no --names and no recommendation in {folder} (haptics-train "
+                             "evaluate with a validation recording writes one)")  # fmt: skip
+        names = [rec["recommended"]]
+    models = load_models(folder, names)
+    doc = score_suite(models, Path(a.suite), folder / OOD_FILE)
+    print(f"[ood] -> {folder / OOD_FILE}")
+    if a.fidelity and rec is not None and rec["recommended"] in doc:
+        write_fidelity(doc, rec["recommended"], Path(a.fidelity))
+        print(f"[ood] {rec['recommended']}: worst free-run RMSE "
+              f"{doc[rec['recommended']]['worst_rmse_n']:.4g} N, "
+              f"{doc[rec['recommended']]['diverged']} diverged -> {a.fidelity}")  # fmt: skip
 
 
 def cmd_export(a: argparse.Namespace) -> None:
@@ -247,7 +271,7 @@ def cmd_pipeline(a: argparse.Namespace) -> None:
     specs = [s.strip() for s in a.models.split(",") if s.strip()]
     trained = train_models(ds, specs, cfg, folder, a.preset, _hyper(a), _candidates(a))
     models = [(m, cfg) for m in trained]
-    evaluate_models(models, ds, folder)
+    evaluate_models(models, ds, folder, fidelity=Path(a.fidelity) if a.fidelity else None)
     export_models(models, ds, folder)
     print(f"[pipeline] report -> {write_report(folder, ds, out)}")
     print(f"[pipeline] done in {time.perf_counter() - t0:.0f} s")
@@ -306,7 +330,19 @@ def build_parser() -> argparse.ArgumentParser:
     _common(s)
     s.add_argument("--names", help="comma-separated model names (default: all trained)")
     s.add_argument("--no-closed-loop", action="store_true")
+    s.add_argument("--fidelity", help="write the recommendation's keys (recommended, "
+                   "free_run_rmse_n) into this JSON file (e.g. docs/fidelity.json)")  # fmt: skip
     s.set_defaults(fn=cmd_evaluate)
+
+    s = sub.add_parser("ood", help="free-run RMSE on the out-of-distribution suite "
+                       "(scripts/record-ood.sh) -> MODELS_DIR/ood.json")  # fmt: skip
+    _common(s)
+    s.add_argument("--suite", default="data/ood", help="folder of the suite's recordings "
+                   "(default %(default)s)")  # fmt: skip
+    s.add_argument("--names", help="comma-separated model names (default: the recommended)")
+    s.add_argument("--fidelity", help="write the recommended model's suite keys "
+                   "(ood_free_run_rmse_n, ood_diverged) into this JSON file")  # fmt: skip
+    s.set_defaults(fn=cmd_ood)
 
     s = sub.add_parser("export", help="ONNX files with contract metadata + parity check")
     _common(s)
@@ -417,6 +453,7 @@ def build_parser() -> argparse.ArgumentParser:
     _common(s)
     _train_opts(s)
     s.add_argument("--out", default=DEFAULT_REPORT, help="report folder (default %(default)s)")
+    s.add_argument("--fidelity", help="write the recommendation's keys into this JSON file")
     s.set_defaults(fn=cmd_pipeline)
     return p
 

@@ -23,8 +23,9 @@ import onnx
 
 from .contract import ContractError
 from .data import Dataset
-from .evaluate import BASELINES, evaluate, pooled_metrics, ranking, score_baselines
+from .evaluate import BASELINES, evaluate, pooled_metrics, score_baselines
 from .export import parity, provenance, save_onnx, to_contract_onnx
+from .fidelity import RECOMMENDATION_FILE, load_recommendation, merge, recommendation
 from .models import ForceModel, TrainConfig, fit_recordings, parse_spec
 
 #: The pipeline's default comparison: Table 6.2 baselines, Table 6.15 algorithms on the six
@@ -52,6 +53,9 @@ DEFAULT_SPECS: tuple[str, ...] = (
     "lstm_fb:six",
     # structured stateful: nonlinear spring + Prony series, kinematics only, dissipative
     "prony",
+    # structured stateful: equilibrium, Maxwell branches, hysteresis, permanent set; the
+    # bench's friction fitted beside it and not rendered
+    "structured",
 )
 
 
@@ -174,11 +178,13 @@ def evaluate_models(
     dataset: Dataset,
     folder: Path,
     closed_loop: bool = True,
+    fidelity: Path | None = None,
 ) -> dict:
     """Free-run (closed-loop) and one-step metrics on every validation and test recording, per
     recording and pooled -> results.json (merged with earlier results) and
     predictions/<name>.npz; the baselines (persistence, mean, sd_poly2) -> baselines.json.
-    Closed loop steps an in-memory export. Prints free run first, each beside the baselines."""
+    Closed loop steps an in-memory export. Prints free run first, each beside the baselines.
+    The recommendation -> recommendation.json and, with `fidelity`, its keys of that file."""
     results = load_results(folder)
     (folder / "predictions").mkdir(parents=True, exist_ok=True)
     for model, cfg in models:
@@ -231,19 +237,18 @@ def evaluate_models(
         trained_sd = next((m for m, _ in models if m.name == "sd_poly2"), None)
         base = score_baselines(dataset, cfg, trained_sd)
         (folder / "baselines.json").write_text(json.dumps(base, indent=1, default=float))
-        rank = ranking(results, "validation")
-        rec_path = folder / "recommendation.json"
-        if rank and dataset.validation:
-            # the model to render: lowest free-run RMSE on the validation recordings (the test
-            # recordings play no part in it)
-            rec_path.write_text(json.dumps({
-                "recommended": rank[0][0],
-                "metric": "free-run RMSE pooled over the validation recordings, N",
-                "validation": [r.name for r in dataset.validation],
-                "ranking": [{"model": n, "validation_free_run_rmse_n": v} for n, v in rank],
-            }, indent=1, default=float))  # fmt: skip
-            print(f"[evaluate] recommended (validation free run): {rank[0][0]} "
-                  f"({_fmt(rank[0][1])} N) -> {rec_path}", flush=True)  # fmt: skip
+        rec_path = folder / RECOMMENDATION_FILE
+        doc = recommendation(results, [r.name for r in dataset.validation])
+        if doc is not None:
+            # the model to render: ranked on the validation recordings by free run (the test
+            # recordings play no part in it); the study adds the felt force
+            rec_path.write_text(json.dumps(doc, indent=1, default=float))
+            print(f"[evaluate] recommended (validation free run): {doc['recommended']} "
+                  f"({_fmt(doc['ranking'][0]['validation_free_run_rmse_n'])} N; test "
+                  f"{_fmt(doc['free_run_rmse_n'])} N) -> {rec_path}", flush=True)  # fmt: skip
+            if fidelity is not None:
+                merge(fidelity, {"recommended": doc["recommended"],
+                                 "free_run_rmse_n": doc["free_run_rmse_n"]})  # fmt: skip
         else:
             rec_path.unlink(missing_ok=True)
         print(comparison_table(results, base, [m.name for m, _ in models]), flush=True)
@@ -275,6 +280,7 @@ def export_models(
     """<name>.onnx with the contract metadata (metrics from results.json when evaluated) and the
     ONNX-vs-framework parity on the first test recording."""
     results = load_results(folder)
+    rec = load_recommendation(folder)
     for model, cfg in models:
         entry = results.setdefault(model.name, {})
         if "error" in entry:
@@ -285,6 +291,15 @@ def export_models(
             for e in entry.get("test", [])
         }
         m = to_contract_onnx(model, provenance(model, cfg, dataset, metrics))
+        if rec is not None:
+            # the recommendation travels with the model: which one the pipeline recommends,
+            # this model's place in the ranking and why
+            place = next((i + 1 for i, r in enumerate(rec["ranking"]) if r["model"] == model.name),
+                         None)  # fmt: skip
+            m.metadata_props.add(key="haptics.recommendation", value=json.dumps({
+                "recommended": rec["recommended"], "this_model_rank": place,
+                "of": len(rec["ranking"]), "metric": rec["metric"],
+            }))  # fmt: skip
         path = save_onnx(m, folder / f"{model.name}.onnx")
         entry["onnx"] = str(path)
         entry["onnx_bytes"] = path.stat().st_size

@@ -9,9 +9,10 @@ from .networks import DNN_THESIS, LSTM_THESIS, DenseModel, LSTMModel
 from .prony import PronyModel
 from .sklearn_models import RF_THESIS, SVR_THESIS, ForestModel, LinearModel, SVRModel
 from .spring_damper import SpringDamper
+from .structured import StructuredModel
 
 ALGOS = ("sd_const", "sd_poly1", "sd_poly2", "lr", "svr", "rf", "dnn", "lstm", "dnn_fb", "lstm_fb",
-         "prony")
+         "prony", "structured")
 
 #: `dnn_fb` / `lstm_fb`: the same networks trained with feedback noise on the previous force
 #: (see networks.perturb_previous_force), for a closed loop that does not drift. Its scale is a
@@ -45,6 +46,8 @@ def make_model(
         return SpringDamper(order)
     if algo == "prony":
         return PronyModel(h)  # always on x, v (kinematics only)
+    if algo == "structured":
+        return StructuredModel(h)  # always on x, v (kinematics only)
     fs = feature_set(fset)
     if algo == "lr":
         return LinearModel(fs.features, fs.name)

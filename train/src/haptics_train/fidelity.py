@@ -1,0 +1,100 @@
+"""The recommended model and docs/fidelity.json, in one place so the pipeline, the
+out-of-distribution scoring and the study agree on the rule and the keys (issue 11).
+
+The rule: models are ranked by their free-run (closed-loop) RMSE pooled over the validation
+recordings, never by one-step; where the study has measured a model's felt force, by the larger
+of the two (a model must hold both offline and in the loop). The test recordings play no part.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+#: docs/fidelity.json's keys (issue 11's "Show"), numbers in N, `ood_diverged` a count.
+FIDELITY_KEYS = (
+    "recommended",
+    "free_run_rmse_n",
+    "ood_free_run_rmse_n",
+    "ood_diverged",
+    "felt_rmse_n",
+    "felt_fast_rmse_n",
+    "oracle_felt_rmse_n",
+    "sd_poly2_felt_rmse_n",
+)
+RECOMMENDATION_FILE = "recommendation.json"
+
+
+def _finite(v: object) -> float | None:
+    return float(v) if isinstance(v, int | float) and math.isfinite(v) else None
+
+
+def pooled_rmse(entry: dict, split: str) -> float | None:
+    """A results.json entry's pooled free-run RMSE on `split` (None: not scored)."""
+    pool = entry.get(f"{split}_pooled") or {}
+    v = (pool.get("closed_loop") or {}).get("rmse")
+    return float(v) if isinstance(v, int | float) else None
+
+
+def rank(results: dict, felt: dict[str, float] | None = None) -> list[dict]:
+    """Models with a validation free-run RMSE, best first: score = that RMSE, or the larger of
+    it and the measured felt-force RMSE (`felt`, name -> N) where there is one; a non-finite
+    score (a diverged free run) ranks last."""
+    felt = felt or {}
+    out = []
+    for name, entry in results.items():
+        if not isinstance(entry, dict):
+            continue
+        v = pooled_rmse(entry, "validation")
+        if v is None:
+            continue
+        f = _finite(felt.get(name))
+        score = v if math.isfinite(v) else math.inf
+        if f is not None:
+            score = max(score, f)
+        out.append({"model": name, "validation_free_run_rmse_n": v, "felt_rmse_n": f,
+                    "score_n": score})  # fmt: skip
+    return sorted(out, key=lambda r: r["score_n"])
+
+
+def recommendation(results: dict, validation: list[str], felt: dict[str, float] | None = None
+                   ) -> dict | None:  # fmt: skip
+    """The recommendation document (models/recommendation.json), None without any ranked
+    model or validation recording."""
+    ranking = rank(results, felt)
+    if not ranking or not validation:
+        return None
+    best = ranking[0]["model"]
+    return {
+        "recommended": best,
+        "metric": "free-run RMSE pooled over the validation recordings, N; with a measured "
+        "felt force, the larger of the two",
+        "validation": validation,
+        "free_run_rmse_n": pooled_rmse(results[best], "test"),
+        "ranking": ranking,
+    }
+
+
+def load_recommendation(models_dir: Path) -> dict | None:
+    p = models_dir / RECOMMENDATION_FILE
+    try:
+        doc = json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    return doc if isinstance(doc, dict) and isinstance(doc.get("recommended"), str) else None
+
+
+def merge(path: Path, keys: dict) -> dict:
+    """Merges `keys` into the JSON object at `path` (created when missing); returns it."""
+    try:
+        doc = json.loads(path.read_text())
+        if not isinstance(doc, dict):
+            doc = {}
+    except (OSError, json.JSONDecodeError):
+        doc = {}
+    doc.update({k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                for k, v in keys.items()})  # fmt: skip
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(doc, indent=1) + "\n")
+    return doc

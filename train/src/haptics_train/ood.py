@@ -1,0 +1,88 @@
+"""Scores trained models on the out-of-distribution suite (scripts/record-ood.sh): what the
+training recordings never show a model (shuffled peaks, minor loops, long holds, rates outside
+the training range, position-controlled presses, hand presses). Free run, as in reproduction:
+a feedback model steps its exported graph on its own predictions (`evaluate.evaluate`).
+
+The target of each recording is the model's training target, except the hand presses: in
+`shadow` the force loop holds the RFOB near 0 N, so their target is the felt force F_true. A
+free run diverges when it is not finite or leaves three times the recording's force range: it
+is counted, and its RMSE is reported as it is.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .closed_loop import contact_thresholds
+from .data import load_recording
+from .evaluate import evaluate
+from .export import provenance, to_contract_onnx
+from .fidelity import merge
+from .metrics import force_metrics
+from .models import ForceModel, TrainConfig
+
+OOD_FILE = "ood.json"
+
+
+def target_column(name: str, cfg: TrainConfig) -> str:
+    """The column a suite recording is scored against (see the module docstring)."""
+    return "F_true" if name.startswith("hand_") else cfg.target
+
+
+def diverged(y: np.ndarray, pred: np.ndarray) -> bool:
+    """A free run that is not finite or runs beyond three times the force range."""
+    if not np.all(np.isfinite(pred)):
+        return True
+    span = max(float(np.max(np.abs(y))), 1.0)
+    return bool(np.max(np.abs(pred)) > 3.0 * span)
+
+
+def score_suite(
+    models: list[tuple[ForceModel, TrainConfig]], suite: Path, out: Path | None = None
+) -> dict:
+    """name -> {recordings: {rec: metrics + target + diverged}, worst_rmse_n, diverged};
+    written to `out` (JSON) when given."""
+    paths = sorted(suite.glob("*.parquet"))
+    if not paths:
+        raise FileNotFoundError(f"no *.parquet recordings in {suite} (scripts/record-ood.sh)")
+    doc: dict = {}
+    recs = [load_recording(p) for p in paths]
+    for model, cfg in models:
+        draft = to_contract_onnx(model, provenance(model, cfg, None, None))
+        rows: dict = {}
+        for rec in recs:
+            col = target_column(rec.name, cfg)
+            rcfg = TrainConfig(**{**cfg.to_dict(), "target": col, "progress": False})
+            _, preds = evaluate(model, draft, rec, rcfg)
+            y, pred = rec.column(col), preds["closed_loop"]
+            m = force_metrics(y, pred, rec.column("position_x"), contact_thresholds(rec)[1])
+            rows[rec.name] = {"target": col, "rows": len(y), "diverged": diverged(y, pred), **m}
+            print(f"[ood] {model.name} {rec.name}: free-run RMSE {m['rmse']:.4g} N"
+                  f"{' DIVERGED' if rows[rec.name]['diverged'] else ''}", flush=True)  # fmt: skip
+        rmses = [r["rmse"] for r in rows.values()]
+        worst = max(rmses, key=lambda v: v if math.isfinite(v) else math.inf)
+        doc[model.name] = {
+            "recordings": rows,
+            "worst_rmse_n": worst,
+            "worst_recording": next(k for k, r in rows.items() if r["rmse"] == worst),
+            "diverged": sum(r["diverged"] for r in rows.values()),
+        }
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(doc, indent=1, default=float))
+    return doc
+
+
+def fidelity_keys(doc: dict, recommended: str) -> dict:
+    """docs/fidelity.json's suite keys for the recommended model."""
+    e = doc[recommended]
+    return {"ood_free_run_rmse_n": e["worst_rmse_n"], "ood_diverged": e["diverged"],
+            "ood_worst_recording": e["worst_recording"]}  # fmt: skip
+
+
+def write_fidelity(doc: dict, recommended: str, path: Path) -> dict:
+    return merge(path, fidelity_keys(doc, recommended))

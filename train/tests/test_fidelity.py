@@ -1,0 +1,58 @@
+"""The recommendation rule (validation free run, never one-step; the felt force where the study
+measured it; test recordings play no part) and docs/fidelity.json's keys."""
+
+import json
+
+import numpy as np
+
+from haptics_train.fidelity import FIDELITY_KEYS, merge, rank, recommendation
+from haptics_train.ood import diverged
+
+
+def entry(val: float, test: float, one_step: float = 0.001) -> dict:
+    pool = lambda v: {"closed_loop": {"rmse": v}, "one_step": {"rmse": one_step}}  # noqa: E731
+    return {"validation_pooled": pool(val), "test_pooled": pool(test)}
+
+
+RESULTS = {
+    "persistent": entry(2.0, 0.01),  # best one-step and best test: neither counts
+    "a": entry(0.5, 0.9),
+    "b": entry(0.4, 0.6),
+    "runaway": entry(float("inf"), 0.1),
+    "unscored": {"error": "export breaks the contract"},
+}
+
+
+def test_ranked_by_validation_free_run_never_one_step_nor_test():
+    names = [r["model"] for r in rank(RESULTS)]
+    assert names == ["b", "a", "persistent", "runaway"]
+    doc = recommendation(RESULTS, ["validation_5.0"])
+    assert doc["recommended"] == "b" and doc["free_run_rmse_n"] == 0.6
+
+
+def test_felt_force_counts_where_measured():
+    # b renders badly in the loop: the larger of its two errors ranks it behind a
+    assert recommendation(RESULTS, ["v"], felt={"b": 1.5, "a": 0.45})["recommended"] == "a"
+
+
+def test_no_recommendation_without_validation():
+    assert recommendation(RESULTS, []) is None
+
+
+def test_merge_keeps_other_keys_and_writes_null_for_non_finite(tmp_path):
+    p = tmp_path / "fidelity.json"
+    p.write_text(json.dumps({"felt_rmse_n": 0.3, "extra": 1}))
+    merge(p, {"recommended": "b", "ood_free_run_rmse_n": float("nan")})
+    doc = json.loads(p.read_text())
+    assert doc == {"felt_rmse_n": 0.3, "extra": 1, "recommended": "b", "ood_free_run_rmse_n": None}
+    assert set(FIDELITY_KEYS) == {
+        "recommended", "free_run_rmse_n", "ood_free_run_rmse_n", "ood_diverged", "felt_rmse_n",
+        "felt_fast_rmse_n", "oracle_felt_rmse_n", "sd_poly2_felt_rmse_n",
+    }  # fmt: skip
+
+
+def test_divergence():
+    y = np.array([0.0, 5.0, 10.0])
+    assert not diverged(y, y + 1.0)
+    assert diverged(y, np.array([0.0, np.nan, 1.0]))
+    assert diverged(y, np.array([0.0, 40.0, 1.0]))

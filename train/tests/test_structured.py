@@ -1,0 +1,88 @@
+"""The structured stateful model (`structured`): dissipative by construction, the bench's
+friction identified beside the object and left out of the rendered graph, pushing only, and in
+parity with ONNX Runtime. On a synthetic foam (tanh plateau, one Maxwell branch, Coulomb
+friction), so it runs in seconds without a recording."""
+
+import numpy as np
+import pytest
+
+from haptics_train.closed_loop import OnnxStepper
+from haptics_train.contract import validate_model
+from haptics_train.data import SequenceInfo
+from haptics_train.export import provenance, to_contract_onnx
+from haptics_train.metrics import loop_work
+from haptics_train.models import TrainConfig, make_model
+
+RATE = 1000.0
+FRICTION_N = 0.5
+SMALL = {
+    "yield_m": [0.002, 0.005],
+    "densification_m": [0.04],
+    "taus_s": [0.1, 1.0],
+    "hysteresis_lengths_m": [1e-3],
+    "friction_lengths_m": [2e-5],
+    "set_max_m": [0.0],
+}
+
+
+def presses(depths: list[float], period_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """x (m) of cosine presses from 2 mm above the surface to each depth, and v."""
+    t = np.arange(0, period_s, 1 / RATE)
+    x = np.concatenate([-0.002 + (d + 0.002) * 0.5 * (1 - np.cos(2 * np.pi * t / period_s))
+                        for d in depths])  # fmt: skip
+    return x, np.gradient(x, 1 / RATE)
+
+
+def foam(x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(object force, measured force = object + Coulomb friction of the bench)."""
+    e = np.maximum(x, 0.0)
+    feq = 3.0 * np.tanh(e / 0.004) + 0.5 * ((1 - e / 0.04) ** -2 - 1)
+    q = np.zeros_like(x)
+    d = np.exp(-1 / (RATE * 0.5))
+    df = np.diff(feq, prepend=0.0)
+    for n in range(1, len(x)):
+        q[n] = d * q[n - 1] + 0.3 * df[n]
+    obj = np.where(e > 0, np.maximum(feq + q, 0.0), 0.0)
+    return obj, obj + FRICTION_N * np.tanh(v / 1e-4)
+
+
+def info(n: int) -> SequenceInfo:
+    return SequenceInfo(sample_rate_hz=RATE, duration_s=n / RATE, stride=1, row_step=1,
+                        contact_off_n=0.05)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    x, v = presses([0.01, 0.02, 0.015, 0.025], 2.0)
+    _, y = foam(x, v)
+    m = make_model("structured", hyper=SMALL)
+    m.fit([np.column_stack([x, v])], [y], info=[info(len(x))])
+    return m
+
+
+def test_structured_is_dissipative_and_identifies_the_friction(fitted):
+    m = fitted
+    for w in (m.a_, m.g_, m.h_, m.c_):
+        assert np.all(w >= 0), w  # a stiffening equilibrium; branches and elements dissipate
+    assert m.c_.sum() == pytest.approx(FRICTION_N, rel=0.2), m.c_
+    x, v = presses([0.018], 2.5)  # a depth and a rate it was not fitted on
+    obj, y = foam(x, v)
+    X = np.column_stack([x, v])
+    served, full = m.predict_served(X), m.predict(X)
+    assert np.all(served >= 0) and np.all(served[x <= 0] == 0)  # pushes only, in contact
+    assert np.sqrt(np.mean((full - y) ** 2)) < 0.15
+    assert np.sqrt(np.mean((served - obj) ** 2)) < 0.15  # the friction is not rendered
+    assert loop_work(x, served) > 0  # a press and release dissipates energy
+
+
+def test_structured_onnx_renders_the_object_in_parity(fitted):
+    m = fitted
+    om = to_contract_onnx(m, provenance(m, TrainConfig(progress=False), None, None))
+    meta = validate_model(om)
+    assert meta["haptics.kind"] == "stateful"
+    assert meta["haptics.state_size"] == str(m.state_size)
+    x, v = presses([0.02], 2.0)
+    X = np.column_stack([x, v])
+    st = OnnxStepper(om)
+    got = np.array([st.step(r) for r in X.astype(np.float32)])
+    np.testing.assert_allclose(got, m.predict_served(X), atol=2e-3)
