@@ -56,3 +56,21 @@ def test_divergence():
     assert not diverged(y, y + 1.0)
     assert diverged(y, np.array([0.0, np.nan, 1.0]))
     assert diverged(y, np.array([0.0, 40.0, 1.0]))
+
+
+def test_study_reranks_with_the_felt_force(tmp_path):
+    from types import SimpleNamespace
+
+    from haptics_train.study.run import rerank_by_felt
+
+    def row(name: str, felt: float) -> SimpleNamespace:
+        return SimpleNamespace(name=name, repro={"rmse": felt, "coverage": 1.0},
+                               run=SimpleNamespace(ok=True))  # fmt: skip
+
+    (tmp_path / "recommendation.json").write_text(
+        json.dumps(recommendation(RESULTS, ["validation_5.0"]))
+    )
+    doc = rerank_by_felt(tmp_path, RESULTS, [row("b", 1.5), row("a", 0.45), row("oracle", 0.02)])
+    assert doc["recommended"] == "a"
+    assert json.loads((tmp_path / "recommendation.json").read_text())["recommended"] == "a"
+    assert rerank_by_felt(tmp_path / "none", RESULTS, []) is None  # no pipeline recommendation

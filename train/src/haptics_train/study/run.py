@@ -11,6 +11,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from ..fidelity import RECOMMENDATION_FILE, load_recommendation, merge, recommendation
 from ..metrics import regression_metrics
 from .plot import write_plots
 from .processes import Run, Tools, find_tools, read_series, run_loop, write_config
@@ -25,7 +26,7 @@ from .protocol import (
     StudyError,
 )
 from .report import fmt, load_results, results_json, write_fidelity, write_readme
-from .score import Row, compare, floor_summary, rankable, repro_rmse, score_run
+from .score import Row, compare, felt_rmse, floor_summary, rankable, repro_rmse, score_run
 
 
 def study_models(models_dir: Path, names: list[str] | None) -> list[Path]:
@@ -171,6 +172,12 @@ def run_study(
     doc["setup"] = setup
     doc["friction"] = {k: floor_summary(v[1]) for k, v in settings.items()}
     (out_dir / "results.json").write_text(json.dumps(doc, indent=1))
+    felt_doc = rerank_by_felt(models_dir, results, settings["off"][1])
+    if felt_doc is not None:
+        say(f"recommended (validation free run and felt force): {felt_doc['recommended']}")
+        if fidelity is not None:
+            merge(fidelity, {"recommended": felt_doc["recommended"],
+                             "free_run_rmse_n": felt_doc["free_run_rmse_n"]})  # fmt: skip
     if fidelity is not None:
         write_fidelity(fidelity, rows, fast_rows, primary)
         say(f"fidelity keys -> {fidelity}")
@@ -265,6 +272,20 @@ def _reproduce_all(
     rows.append(Row(b.name, "rt-loop builtin", rb, None, b, None, False))
     say(f"{tag}builtin spring-damper: felt-force RMSE {fmt(rb['rmse'] if rb else None)} N")
     return ref, rows
+
+
+def rerank_by_felt(models_dir: Path, results: dict, rows: list[Row]) -> dict | None:
+    """The pipeline's recommendation ranked again with the felt force measured here (without
+    friction compensation, the models of `models_dir`), written back to its
+    recommendation.json; None when the pipeline recommended nothing (no validation run)."""
+    prior = load_recommendation(models_dir)
+    if prior is None:
+        return None
+    felt = {r.name: felt_rmse(r) for r in rows if r.name in results and rankable(r)}
+    doc = recommendation(results, list(prior.get("validation") or []), felt)
+    if doc is not None:
+        (models_dir / RECOMMENDATION_FILE).write_text(json.dumps(doc, indent=1) + "\n")
+    return doc
 
 
 def clean_work(work: Path) -> None:
