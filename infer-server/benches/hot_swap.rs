@@ -121,12 +121,12 @@ fn main() {
     };
 
     if let Some(cpu) = env_usize("BENCH_LOOP_CPU") {
-        if let Err(e) = infer_server::inference_thread::pin_current_thread(cpu) {
+        if let Err(e) = shm_ring::os::rt_thread::pin_current_thread(cpu) {
             println!("loop thread not pinned: {e}");
         }
     }
     if let Some(p) = rt_prio {
-        if let Err(e) = infer_server::inference_thread::set_fifo_priority(p) {
+        if let Err(e) = shm_ring::os::rt_thread::set_fifo(p) {
             println!("loop thread not SCHED_FIFO: {e}");
         }
     }

@@ -73,14 +73,14 @@ fn main() {
     let rt = Runtime::init(None).unwrap_or_else(|e| panic!("{e}"));
     let dir = bench_models();
     if let Some(cpu) = env_usize("BENCH_LOOP_CPU") {
-        if let Err(e) = infer_server::inference_thread::pin_current_thread(cpu) {
+        if let Err(e) = shm_ring::os::rt_thread::pin_current_thread(cpu) {
             println!("loop thread not pinned: {e}");
         }
     }
     let rt_prio = env_usize("BENCH_RT_PRIO").map(|p| p as i32);
     if let Some(p) = rt_prio {
         // The "loop" thread gets the same SCHED_FIFO priority as the inference thread.
-        if let Err(e) = infer_server::inference_thread::set_fifo_priority(p) {
+        if let Err(e) = shm_ring::os::rt_thread::set_fifo(p) {
             println!("loop thread not SCHED_FIFO: {e}");
         }
     }

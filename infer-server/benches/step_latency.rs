@@ -202,7 +202,7 @@ fn main() {
         .unwrap_or(200_000);
     let rt = Runtime::init(None).unwrap_or_else(|e| panic!("{e}"));
     if let Some(cpu) = std::env::var("BENCH_CPU").ok().and_then(|s| s.parse().ok()) {
-        match infer_server::inference_thread::pin_current_thread(cpu) {
+        match shm_ring::os::rt_thread::pin_current_thread(cpu) {
             Ok(()) => println!("pinned to CPU {cpu}"),
             Err(e) => println!("not pinned ({e})"),
         }

@@ -28,6 +28,8 @@ use shm_ring::{
     SegmentName, WaitStrategy,
 };
 
+use shm_ring::os::rt_thread::{CpuChoice, RtRequest};
+
 use crate::attachment::{LoopEndpoints, SharedEndpoints};
 use crate::contract::{FeatureSchema, ModelKind};
 use crate::engine::StepError;
@@ -317,21 +319,23 @@ struct Worker {
 
 impl Worker {
     fn run(mut self) -> Result<(), InferenceError> {
-        if let Some(cpu) = self.cfg.cpu {
-            match pin_current_thread(cpu) {
-                Ok(()) => self.stats.pinned_cpu.store(cpu as i64, Ordering::Relaxed),
-                Err(e) => {
-                    eprintln!("infer-server: not pinned to CPU {cpu} ({e}); running unpinned")
-                }
-            }
+        // The one real-time set-up of both processes (shm_ring::os::rt_thread); kept for the
+        // thread's life. What the system refuses is reported and the thread runs on without it.
+        let obtained = RtRequest {
+            fifo_priority: self.cfg.rt_priority,
+            cpu: self.cfg.cpu.map_or(CpuChoice::Any, CpuChoice::Cpu),
+            lock_memory: false,
         }
-        if let Some(prio) = self.cfg.rt_priority {
-            match set_fifo_priority(prio) {
-                Ok(()) => self.stats.rt_priority.store(prio as i64, Ordering::Relaxed),
-                Err(e) => eprintln!(
-                    "infer-server: SCHED_FIFO priority {prio} not permitted ({e}); default scheduler"
-                ),
-            }
+        .apply()
+        .keep();
+        if let Some(cpu) = obtained.pinned_cpu {
+            self.stats.pinned_cpu.store(cpu as i64, Ordering::Relaxed);
+        }
+        if let Some(prio) = obtained.fifo_priority {
+            self.stats.rt_priority.store(prio as i64, Ordering::Relaxed);
+        }
+        for warning in obtained.warnings() {
+            eprintln!("infer-server: {warning}; the inference thread runs without it");
         }
         let mut active: Option<Box<Offered>> = None;
         let mut attached_once = false;
@@ -580,42 +584,4 @@ fn recv_synced(
         counter.store(value, Ordering::Relaxed);
     }
     result
-}
-
-/// Pins the calling thread to `cpu` (Linux `sched_setaffinity`).
-pub fn pin_current_thread(cpu: usize) -> std::io::Result<()> {
-    if cpu >= libc::CPU_SETSIZE as usize {
-        return Err(std::io::Error::new(
-            std::io::ErrorKind::InvalidInput,
-            format!("CPU {cpu} is out of range"),
-        ));
-    }
-    // SAFETY: cpu_set_t is plain data; CPU_SET writes within it (cpu < CPU_SETSIZE); pid 0 is
-    // the calling thread.
-    unsafe {
-        let mut set: libc::cpu_set_t = std::mem::zeroed();
-        libc::CPU_SET(cpu, &mut set);
-        if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
-            return Err(std::io::Error::last_os_error());
-        }
-    }
-    Ok(())
-}
-
-/// Puts the calling thread in SCHED_FIFO at `priority` (1-99).
-pub fn set_fifo_priority(priority: i32) -> std::io::Result<()> {
-    if !(1..=99).contains(&priority) {
-        return Err(std::io::Error::new(
-            std::io::ErrorKind::InvalidInput,
-            format!("priority {priority} is not in 1..=99"),
-        ));
-    }
-    let param = libc::sched_param {
-        sched_priority: priority,
-    };
-    // SAFETY: pid 0 is the calling thread; `param` is initialised.
-    if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } != 0 {
-        return Err(std::io::Error::last_os_error());
-    }
-    Ok(())
 }

@@ -1,5 +1,9 @@
 //! infer-server: runs the active ONNX model on every loop step.
 //!
+//! - [`app`]: `infer-server serve` as a function of its configuration and a shutdown signal
+//!   ([`app::run`]): the threads, the control plane, housekeeping and the order of shutdown.
+//! - [`cli`]: the command line (clap) and the serve flags turned into an [`app::AppConfig`].
+//! - [`commands`]: the one-shot subcommands `validate`, `predict`, `runtime`.
 //! - [`runtime`]: finds and loads ONNX Runtime (the PyPI wheel's library, `load-dynamic`).
 //! - [`contract`]: the model contract (metadata keys, input/output names, the nine features).
 //! - [`model`]: loading and validating a model file against the contract and a feature schema.
@@ -22,7 +26,10 @@
 //! - [`control_backend`]: [`control_backend::ControlBackend`], the `control_plane::Backend`
 //!   of this server: the registry, the telemetry and the mailbox behind gRPC and the page.
 
+pub mod app;
 pub mod attachment;
+pub mod cli;
+pub mod commands;
 pub mod contract;
 pub mod contract_check;
 pub mod control_backend;

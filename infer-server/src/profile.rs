@@ -10,6 +10,7 @@
 //! printed at start and can be overridden (`infer-server serve --profile`), and each explicit
 //! flag (`--wait`, `--cpu`, `--rt-priority`, `--mlock`) overrides its part of it.
 
+use shm_ring::os::rt_thread::Permissions;
 use shm_ring::WaitStrategy;
 
 /// SCHED_FIFO priority the profiles give the inference thread: below rt-loop's default (80),
@@ -148,20 +149,9 @@ impl Machine {
             .map(|t| parse_cpu_list(&t))
             .unwrap_or_default();
         let cpus = allowed_cpus();
-        let probe = std::thread::spawn(|| {
-            let param = libc::sched_param { sched_priority: 1 };
-            // SAFETY: pid 0 is this probe thread, which ends right after.
-            let rt = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } == 0;
-            // SAFETY: cpu_set_t is plain data; the mask set is the thread's own current one.
-            let affinity = unsafe {
-                let mut set: libc::cpu_set_t = std::mem::zeroed();
-                let size = std::mem::size_of::<libc::cpu_set_t>();
-                libc::sched_getaffinity(0, size, &mut set) == 0
-                    && libc::sched_setaffinity(0, size, &set) == 0
-            };
-            (rt, affinity)
-        });
-        let (rt_permitted, affinity_permitted) = probe.join().unwrap_or((false, false));
+        // The probe of shm_ring::os::rt_thread, the one real-time set-up of both processes.
+        let permitted = Permissions::probe();
+        let (rt_permitted, affinity_permitted) = (permitted.fifo, permitted.affinity);
         let mut lim = libc::rlimit {
             rlim_cur: 0,
             rlim_max: 0,

@@ -28,9 +28,9 @@ const DEADLINE_NS: u64 = 50_000;
 
 fn pin_fifo(cpu: Option<usize>, priority: i32) {
     if let Some(cpu) = cpu {
-        let _ = infer_server::inference_thread::pin_current_thread(cpu);
+        let _ = shm_ring::os::rt_thread::pin_current_thread(cpu);
     }
-    let _ = infer_server::inference_thread::set_fifo_priority(priority);
+    let _ = shm_ring::os::rt_thread::set_fifo(priority);
 }
 
 fn hist() -> Histogram<u64> {

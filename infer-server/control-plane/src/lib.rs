@@ -41,6 +41,6 @@ pub use backend::{
 };
 pub use config::Config;
 pub use error::ControlError;
-pub use server::{bind, serve, serve_async, Bound};
+pub use server::{bind, serve, serve_async, start, Bound, Running};
 pub use shutdown::Shutdown;
 pub use telemetry::{Bucket, TelemetryBatch, TelemetryHub};

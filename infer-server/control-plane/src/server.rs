@@ -155,15 +155,21 @@ pub async fn serve_async(
     bound.run().await
 }
 
-/// Triggers `shutdown` on the first SIGINT or SIGTERM.
+/// Triggers `shutdown` on the first SIGINT or SIGTERM: the process's one stop request
+/// (`shm_ring::os::shutdown`, the handler both processes use), awaited through its eventfd.
 fn trigger_on_signals(shutdown: Shutdown) -> Result<()> {
-    use tokio::signal::unix::{signal, SignalKind};
-    let mut int = signal(SignalKind::interrupt()).context("SIGINT handler")?;
-    let mut term = signal(SignalKind::terminate()).context("SIGTERM handler")?;
+    use tokio::io::unix::AsyncFd;
+    use tokio::io::Interest;
+    let process =
+        shm_ring::os::shutdown::install_signal_handlers().context("SIGINT/SIGTERM handlers")?;
+    let fd = process.wait_fd().context("the stop request's eventfd")?;
+    // SAFETY: the AsyncFd owns the descriptor (an OwnedFd duplicate of the eventfd: one runtime
+    // registers a descriptor once) for its whole life, as the call's contract asks.
+    let readable = unsafe { AsyncFd::register_with_interest(fd, Interest::READABLE) }
+        .context("register eventfd")?;
     tokio::spawn(async move {
         tokio::select! {
-            _ = int.recv() => {}
-            _ = term.recv() => {}
+            _ = readable.readable() => {}
             _ = shutdown.wait() => return,
         }
         eprintln!("control plane: signal received, shutting down");
@@ -172,10 +178,40 @@ fn trigger_on_signals(shutdown: Shutdown) -> Result<()> {
     Ok(())
 }
 
-/// The entry point for infer-server's main: creates a small multi-thread tokio runtime whose
-/// threads run under the normal scheduling policy (never real-time), serves gRPC and HTTP on it,
-/// and returns after `shutdown` is triggered and the servers have stopped. Blocks the caller.
-pub fn serve(config: Config, backend: Arc<dyn Backend>, shutdown: Shutdown) -> Result<()> {
+/// The control plane serving on a runtime and a thread of its own (what infer-server runs beside
+/// its inference thread): bound, so its addresses are known, and running until the shutdown.
+pub struct Running {
+    grpc_addr: SocketAddr,
+    http_addr: SocketAddr,
+    thread: std::thread::JoinHandle<Result<()>>,
+}
+
+impl Running {
+    pub fn grpc_addr(&self) -> SocketAddr {
+        self.grpc_addr
+    }
+
+    pub fn http_addr(&self) -> SocketAddr {
+        self.http_addr
+    }
+
+    /// True once the servers have stopped (after the shutdown, or on an error).
+    pub fn is_finished(&self) -> bool {
+        self.thread.is_finished()
+    }
+
+    /// Waits for the servers to stop (trigger the shutdown first).
+    pub fn join(self) -> Result<()> {
+        self.thread
+            .join()
+            .unwrap_or_else(|_| Err(anyhow::anyhow!("the control plane panicked")))
+    }
+}
+
+/// Creates a small multi-thread tokio runtime whose threads run under the normal scheduling
+/// policy (never real-time), binds gRPC and HTTP on it and serves them on a thread of its own
+/// ("control-plane") until `shutdown` is triggered. Returns once both listeners are bound.
+pub fn start(config: Config, backend: Arc<dyn Backend>, shutdown: Shutdown) -> Result<Running> {
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(config.worker_threads.max(1))
         .max_blocking_threads(16)
@@ -184,19 +220,44 @@ pub fn serve(config: Config, backend: Arc<dyn Backend>, shutdown: Shutdown) -> R
         .enable_all()
         .build()
         .context("cannot start the control plane's runtime")?;
-    let result = runtime.block_on(serve_async(config, backend, shutdown));
-    // Connection tasks still alive after the grace period are dropped here.
-    runtime.shutdown_timeout(std::time::Duration::from_millis(200));
-    result
+    let bound = runtime.block_on(async {
+        if config.stop_on_signals {
+            trigger_on_signals(shutdown.clone())?;
+        }
+        bind(config, backend, shutdown).await
+    })?;
+    let (grpc_addr, http_addr) = (bound.grpc_addr(), bound.http_addr());
+    let thread = std::thread::Builder::new()
+        .name("control-plane".into())
+        .spawn(move || {
+            let result = runtime.block_on(bound.run());
+            // Connection tasks still alive after the grace period are dropped here.
+            runtime.shutdown_timeout(std::time::Duration::from_millis(200));
+            result
+        })
+        .context("cannot start the control plane's thread")?;
+    Ok(Running {
+        grpc_addr,
+        http_addr,
+        thread,
+    })
+}
+
+/// [`start`], then waits until `shutdown` is triggered and the servers have stopped. Blocks the
+/// caller.
+pub fn serve(config: Config, backend: Arc<dyn Backend>, shutdown: Shutdown) -> Result<()> {
+    let running = start(config, backend, shutdown)?;
+    eprintln!(
+        "control plane: gRPC on {}, HTTP on http://{}",
+        running.grpc_addr(),
+        running.http_addr()
+    );
+    running.join()
 }
 
 /// The control plane's threads must never compete with the loop: if the thread that called
-/// `serve` had a real-time policy, its children would inherit it, so reset it.
+/// `start` had a real-time policy, its children would inherit it, so reset it.
 fn normal_scheduling() {
-    #[cfg(target_os = "linux")]
-    // SAFETY: sched_setscheduler on the calling thread (pid 0) with a valid, initialised param.
-    unsafe {
-        let param = libc::sched_param { sched_priority: 0 };
-        libc::sched_setscheduler(0, libc::SCHED_OTHER, &param);
-    }
+    // Refused only by a system that forbids SCHED_OTHER, which does not exist on Linux.
+    let _ = shm_ring::os::rt_thread::set_normal();
 }
