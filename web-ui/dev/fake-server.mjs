@@ -5,7 +5,9 @@
 // force spikes), stepped at 10 kHz under a force command that follows ramp cycles.
 //
 // It exists for developing the page and for the page-only test (tests/page.fake.test.mjs); the
-// real test (tests/system.test.mjs) runs against target/release/infer-server and rt-loop.
+// real test (tests/system.test.mjs) runs against target/release/infer-server and rt-loop. The
+// series it sends, and their order, are the page's own (src/protocol.ts, loaded through Vite),
+// never a copy of its own.
 //
 //   node dev/fake-server.mjs [--port 8080] [--token T] [--bucket 10] [--rate 10000] [--demo]
 //
@@ -14,10 +16,20 @@ import { createServer } from "node:http";
 import { readFile } from "node:fs/promises";
 import { extname, join, normalize, dirname } from "node:path";
 import { fileURLToPath } from "node:url";
+import { runnerImport } from "vite";
 import { WebSocketServer } from "ws";
 
 const here = dirname(fileURLToPath(import.meta.url));
-export const SERIES = ["F_ref", "rtob_force", "F_pred", "position_x", "velocity", "acceleration", "F_true"];
+const { module: protocol } = await runnerImport(join(here, "..", "src", "protocol.ts"));
+/** The telemetry series in the server's order. */
+export const SERIES = protocol.SERIES;
+/** Where each quantity the bench computes goes in a telemetry row; a series it cannot fill is an error. */
+const FIELDS = ["F_ref", "rtob_force", "F_pred", "position_x", "velocity", "acceleration", "F_true", "f_previous", "model_id"];
+const unknown = SERIES.filter((n) => !FIELDS.includes(n));
+if (unknown.length) throw new Error(`fake-server: the protocol has series it does not fill: ${unknown.join(", ")}`);
+const COLUMN = FIELDS.map((n) => SERIES.indexOf(n));
+/** rt-loop's phase names (docs/recording-format.md), as the status's `loop.experiment.phase` says them. */
+const [HOLD_ZERO, RAMP_UP, HOLD_MAX, RAMP_DOWN, REPRODUCTION, DONE] = ["hold-zero", "ramp-up", "hold-max", "ramp-down", "reproduction", "done"];
 
 /** Deterministic noise (the same seed gives the same run), xorshift32 + Box-Muller. */
 function rng(seed) {
@@ -53,8 +65,10 @@ export class FakeBench {
     this.v = 0;
     this.aInt = 0;
     this.a = 0;
+    this.prevF = 0; // the previous step's RFOB force: the f_previous feature
+    this.row = new Float64Array(SERIES.length);
     this.exp = { kind: "idle", running: false };
-    this.phase = "idle";
+    this.phase = DONE;
   }
 
   /** Ramp cycles: hold 0, ramp up to F_max, hold, ramp down, hold 0; F_max grows per cycle. */
@@ -77,13 +91,13 @@ export class FakeBench {
   command() {
     const e = this.exp;
     if (!e.running) {
-      this.phase = "idle";
+      this.phase = DONE;
       return 0.3;
     }
     const tt = this.t - e.t0;
     if (e.kind === "reproduction") {
       // A hand pressing and releasing every 4 s; the command is what the model renders.
-      this.phase = "reproduction";
+      this.phase = REPRODUCTION;
       return 5 * (1 - Math.cos((2 * Math.PI * tt) / 4)) / 2 + 0.3;
     }
     const hold = 0.5;
@@ -95,11 +109,11 @@ export class FakeBench {
       if (tt < t0 + len) {
         const u = tt - t0;
         this.cycle = c + 1;
-        if (u < hold) return (this.phase = "hold-zero"), 0.3;
-        if (u < hold + ramp) return (this.phase = "ramp-up"), 0.3 + (u - hold) * e.rate;
-        if (u < 2 * hold + ramp) return (this.phase = "hold-max"), 0.3 + fMax;
-        if (u < 2 * hold + 2 * ramp) return (this.phase = "ramp-down"), 0.3 + fMax - (u - 2 * hold - ramp) * e.rate;
-        return (this.phase = "hold-zero"), 0.3;
+        if (u < hold) return (this.phase = HOLD_ZERO), 0.3;
+        if (u < hold + ramp) return (this.phase = RAMP_UP), 0.3 + (u - hold) * e.rate;
+        if (u < 2 * hold + ramp) return (this.phase = HOLD_MAX), 0.3 + fMax;
+        if (u < 2 * hold + 2 * ramp) return (this.phase = RAMP_DOWN), 0.3 + fMax - (u - 2 * hold - ramp) * e.rate;
+        return (this.phase = HOLD_ZERO), 0.3;
       }
       t0 += len;
     }
@@ -107,8 +121,11 @@ export class FakeBench {
     return 0.3;
   }
 
-  /** One 10 kHz step; returns the 7 series values in protocol order (SI units). */
-  advance(model) {
+  /**
+   * One 10 kHz step with `model` (and the id its answers carry; 0 without one); returns the
+   * telemetry row, every series in the vocabulary's order (SI units). The row is reused.
+   */
+  advance(model, modelId = 0) {
     const dt = this.dt;
     const Fcmd = this.command();
     // Force control with ~300 rad/s bandwidth; the probe cannot pull the sponge.
@@ -139,7 +156,10 @@ export class FakeBench {
     if (model) Fpred = model.predict(xq, this.v, Ftrue, this.r);
     this.t += dt;
     this.step++;
-    return [Fcmd, Fres, Fpred, xq, this.v, this.a, Ftrue];
+    const values = [Fcmd, Fres, Fpred, xq, this.v, this.a, Ftrue, this.prevF, model ? modelId : 0];
+    for (let k = 0; k < values.length; k++) this.row[COLUMN[k]] = values[k];
+    this.prevF = Fres;
+    return this.row;
   }
 }
 
@@ -166,6 +186,9 @@ export async function startFakeServer(opts = {}) {
     loopAlive: true,
     models: Object.fromEntries(Object.keys(MODELS).map((n) => [n, n === "rf6" ? "active" : "available"])),
     active: "rf6",
+    /** The id each model's answers carry: its generation, given when it is activated (0: never). */
+    modelIds: Object.fromEntries(Object.keys(MODELS).map((n) => [n, n === "rf6" ? 1 : 0])),
+    generation: 1,
     fallbacks: 0,
     misses: 0,
     startedAt: Date.now(),
@@ -187,7 +210,7 @@ export async function startFakeServer(opts = {}) {
     let n = 0;
     while (bench.step < target && n < rate) {
       const t = bench.t;
-      const v = bench.advance(model);
+      const v = bench.advance(model, model ? state.modelIds[state.active] : 0);
       if (model) state.predictions++;
       if (bench.r.u() < 1 / 200000) state.fallbacks++;
       if (!acc) {
@@ -271,7 +294,7 @@ export async function startFakeServer(opts = {}) {
         recorder: "off",
         telemetry_drops: 0,
       },
-      active_model: m ? { name: state.active, kind: m.kind, features: m.features, since_step: 0, model_id: 1 } : null,
+      active_model: m ? { name: state.active, kind: m.kind, features: m.features, since_step: 0, model_id: state.modelIds[state.active] } : null,
     };
   }
 
@@ -295,7 +318,7 @@ export async function startFakeServer(opts = {}) {
       if (req.method === "POST" && !p.startsWith("/api/_fake") && !authorized(req)) return json(res, 401, { error: "missing or wrong token" });
       if (req.method === "GET" && p === "/api/status") return json(res, 200, status());
       if (req.method === "GET" && p === "/api/models")
-        return json(res, 200, Object.keys(MODELS).map((n) => ({ name: n, state: state.models[n], kind: MODELS[n].kind, features: MODELS[n].features })));
+        return json(res, 200, Object.keys(MODELS).map((n) => ({ name: n, state: state.models[n], kind: MODELS[n].kind, features: MODELS[n].features, model_id: state.modelIds[n] })));
       const mm = p.match(/^\/api\/models\/([^/]+)\/(load|activate)$/);
       if (req.method === "POST" && mm) {
         const name = decodeURIComponent(mm[1]);
@@ -308,6 +331,7 @@ export async function startFakeServer(opts = {}) {
         if (state.active) state.models[state.active] = "loaded";
         state.active = name;
         state.models[name] = "active";
+        state.modelIds[name] = ++state.generation;
         return json(res, 200, { effective_step: bench.step + 1, model: { name, state: "active", kind: MODELS[name].kind } });
       }
       if (req.method === "POST" && p === "/api/experiment/start") {

@@ -8,6 +8,7 @@ import "uplot/dist/uPlot.min.css";
 import "./style.css";
 import { api, getToken, setToken, setTokenPrompt, wsProtocols, type ExperimentRequest } from "./api";
 import { TelemetryConnection, type ConnState } from "./connection";
+import { ModelNames, modelRuns, type ModelRun } from "./modelruns";
 import { decodeFrame, normalizeModels, normalizeStatus, SERIES, type ModelInfo, type Status } from "./protocol";
 import { readColumns, TelemetryStore, toCsv, type Columns } from "./store";
 import { TimePlot, type PlotDef } from "./timeplots";
@@ -20,11 +21,11 @@ const $ = <T extends HTMLElement = HTMLElement>(id: string): T => {
 };
 
 // Colours: Okabe-Ito, darkened where needed for contrast on white.
-const C = { cmd: "#111827", res: "#0072b2", pred: "#d55e00", truth: "#009e73", depth: "#7b3294", vel: "#0072b2", acc: "#a6611a" };
+const C = { cmd: "#111827", res: "#0072b2", pred: "#d55e00", truth: "#009e73", prev: "#cc79a7", depth: "#7b3294", vel: "#0072b2", acc: "#a6611a" };
 
-/** Unit conversion per series for display: depth in mm, velocity in mm/s. */
-const DISPLAY_SCALE = [1, 1, 1, 1000, 1000, 1, 1];
 const S = Object.fromEntries(SERIES.map((n, i) => [n, i])) as Record<(typeof SERIES)[number], number>;
+/** Unit conversion per series for display: depth in mm, velocity in mm/s. */
+const DISPLAY_SCALE = SERIES.map((_, i) => (i === S.position_x || i === S.velocity ? 1000 : 1));
 
 const PLOTS: PlotDef[] = [
   {
@@ -37,6 +38,9 @@ const PLOTS: PlotDef[] = [
       { series: S.rtob_force, label: "RFOB response", short: "F_res", unit: "N", color: C.res },
       { series: S.F_pred, label: "predicted", short: "F_pred", unit: "N", color: C.pred },
       { series: S.F_true, label: "true (sim)", short: "F_true", unit: "N", color: C.truth },
+      // The force the model was given as its previous one (F(t-1)): beside F_res it shows what a
+      // feedback model saw. Off by default (at plot resolution it lies on the RFOB response).
+      { series: S.f_previous, label: "previous F(t-1)", short: "F_prev", unit: "N", color: C.prev, hidden: true },
     ],
   },
   {
@@ -77,6 +81,10 @@ let retryAt = 0;
 let frames = 0;
 let badFrames = 0;
 let models: ModelInfo[] = [];
+/** The names of the model ids in the telemetry, learnt from the model list and the status. */
+const modelNames = new ModelNames();
+/** Which model drew each stretch of the shown range (force plot's strip and readout). */
+let shownRuns: ModelRun[] = [];
 const frameDeltas: number[] = [];
 const drawTimes: number[] = [];
 const FRAME_LOG = 2000;
@@ -116,6 +124,7 @@ const timePlots: TimePlot[] = PLOTS.map((def) => {
     },
     onResetZoom: () => goLive(),
     onWheel: (t, dir, panOnly) => wheel(t, dir, panOnly),
+    readoutExtra: def.id === "force" ? (cols, i) => `model ${modelAt(cols, i)}` : undefined,
   }, document.getElementById(`readout-${def.id}`));
   const fs = $(`toggles-${def.id}`);
   def.signals.forEach((sig, k) => {
@@ -152,7 +161,7 @@ function layout(): void {
   // The time plots share the height left in the window (in their default proportions), so the
   // page needs no scrolling to see all three; below a minimum they keep their default heights.
   const top = $("plots").getBoundingClientRect().top + window.scrollY;
-  const chrome = timePlots.length * 52 + 16;
+  const chrome = timePlots.length * 52 + 16 + $("model-strip").offsetHeight;
   const avail = window.innerHeight - top - chrome;
   const total = PLOTS.reduce((a, d) => a + d.height, 0);
   const k = Math.max(1, avail / total);
@@ -184,6 +193,7 @@ function render(): void {
     for (const p of timePlots) p.update(lastCols, 0, 1);
     xy.draw([]);
     xyPoints = { x: [], y: [], pred: [] };
+    renderModelStrip([], 0, 1);
     return;
   }
   const [t0, t1] = r;
@@ -200,11 +210,52 @@ function render(): void {
     if (nd && nd.textContent !== want) nd.textContent = want;
   }
   renderXY(t1);
+  renderModelStrip(modelRuns(cols, S.model_id, t1), t0, t1);
   const info = frozen
     ? `${paused && pauseReason === "zoomed" ? "Zoomed" : "Paused"}: ${t0.toFixed(2)}–${t1.toFixed(2)} s`
     : `Live: last ${windowS} s`;
   const vi = $("view-info");
   if (vi.textContent !== info) vi.textContent = info;
+}
+
+/** The model that drew column `i` (its name; "no model" where none did). */
+function modelAt(cols: Columns, i: number): string {
+  const a = cols.min[S.model_id][i];
+  const b = cols.max[S.model_id][i];
+  if (a === null || b === null) return "–";
+  return a === b ? modelNames.name(a) : `${modelNames.name(a)}…${modelNames.name(b)}`;
+}
+
+let stripKey = "";
+/**
+ * The strip under the force plot: one labelled segment per run of a model, lined up with the
+ * plot's time axis. Rebuilt only when what it shows changed (runs, names or the plot's width).
+ */
+function renderModelStrip(runs: ModelRun[], t0: number, t1: number): void {
+  shownRuns = runs;
+  const strip = $("model-strip");
+  const bbox = timePlots[0].u.bbox;
+  const dpr = window.devicePixelRatio || 1;
+  const span = t1 - t0 || 1;
+  const named = runs.map((r) => ({ ...r, name: modelNames.name(r.id) }));
+  const key = `${Math.round(bbox.left)}:${Math.round(bbox.width)}|${named.map((r) => `${r.name}@${(((r.t0 - t0) / span) * 1000).toFixed(0)}-${(((r.t1 - t0) / span) * 1000).toFixed(0)}`).join(",")}`;
+  if (key === stripKey) return;
+  stripKey = key;
+  strip.style.marginLeft = `${bbox.left / dpr}px`;
+  strip.style.width = `${bbox.width / dpr}px`;
+  strip.replaceChildren(
+    ...named.map((r) => {
+      const seg = document.createElement("span");
+      seg.className = r.id === 0 ? "run none" : r.id === null ? "run swap" : "run";
+      const a = Math.max(0, (r.t0 - t0) / span);
+      const b = Math.min(1, (r.t1 - t0) / span);
+      seg.style.left = `${(a * 100).toFixed(3)}%`;
+      seg.style.width = `${(Math.max(0, b - a) * 100).toFixed(3)}%`;
+      seg.textContent = r.id === null ? "" : r.name;
+      seg.title = `${r.name}: ${r.t0.toFixed(2)}–${r.t1.toFixed(2)} s`;
+      return seg;
+    }),
+  );
 }
 
 /** Force-depth points of the last xyWindowS seconds ending at t1, at most ~1500 points. */
@@ -490,6 +541,7 @@ function updateConnView(): void {
 function onStatus(raw: unknown): void {
   const prevModel = status.active_model?.name;
   status = normalizeStatus(raw);
+  modelNames.learn([status.active_model]);
   lastStatusAt = performance.now();
   updateFigures();
   updateConnView();
@@ -553,6 +605,9 @@ async function pollStatus(): Promise<void> {
 async function refreshModels(): Promise<void> {
   try {
     models = normalizeModels(await api.models());
+    modelNames.learn(models);
+    dirty = true; // the model strip may now name an id it showed by number
+    stripKey = "";
     renderModels();
   } catch (e) {
     if (conn === "open") log(`Model list: ${(e as Error).message}`, "err");
@@ -729,6 +784,8 @@ Object.defineProperty(window, "__haptics", {
     view: () => ({ range: viewRange(), frozen: frozen !== null, windowS }),
     /** Which series each time plot shows (per-series toggles). */
     shown: () => Object.fromEntries(timePlots.flatMap((p) => p.def.signals.map((sig, k) => [SERIES[sig.series], p.isVisible(k)]))),
+    /** The model strip: which model drew which stretch of the shown range (t0, t1 in s). */
+    modelRuns: () => shownRuns.map((r) => ({ t0: r.t0, t1: r.t1, id: r.id, name: modelNames.name(r.id) })),
     counts: () => ({ frames, badFrames, buckets: store.appended, held: store.length, restarts: store.restarts, lastTime: store.lastTime() }),
   }),
 });

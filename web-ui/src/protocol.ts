@@ -1,18 +1,21 @@
 // Decoding of what infer-server sends (docs/web-protocol.md): binary telemetry frames of
 // min/max buckets and the status object (the gRPC Status message as JSON).
 
-/** The series of a telemetry frame, in the order the server writes them. */
-export const SERIES = [
-  "F_ref",
-  "rtob_force",
-  "F_pred",
-  "position_x",
-  "velocity",
-  "acceleration",
-  "F_true",
-] as const;
+/**
+ * The series of a telemetry frame, in the order the server writes them. `f_previous` is F(t-1),
+ * the previous force the loop gives a model; `model_id` the id of the model whose answer the
+ * loop used for each step (its min and max over a bucket differ where the model changed inside
+ * it; 0: no model's answer).
+ */
+export const SERIES = ["F_ref", "rtob_force", "F_pred", "position_x", "velocity", "acceleration", "F_true", "f_previous", "model_id"] as const;
 export type SeriesName = (typeof SERIES)[number];
 export const N_SERIES = SERIES.length;
+/**
+ * Series every server sends: the protocol grows by appending series, and a frame from a server
+ * that stops after these (one older than the page) reads the page's later series as NaN (shown
+ * as "no data"), rather than being refused.
+ */
+export const MIN_SERIES = SERIES.indexOf("F_true") + 1;
 
 const MAGIC = 0x31545048; // "HPT1" read as a little-endian u32
 const HEADER_BYTES = 16;
@@ -29,9 +32,10 @@ export interface TelemetryFrame {
 export class FrameError extends Error {}
 
 /**
- * Decodes one binary frame. Series beyond the 7 the page knows are skipped (the protocol lets
- * the server add more later); a frame that is short, has the wrong magic or version, or has
- * fewer series than the page needs is rejected with a message that says which.
+ * Decodes one binary frame. Series beyond the N_SERIES the page knows are skipped (the protocol lets
+ * the server add more later), series the frame lacks beyond MIN_SERIES are NaN; a frame that is
+ * short, has the wrong magic or version, or has fewer than MIN_SERIES series is rejected with a
+ * message that says which.
  */
 export function decodeFrame(buf: ArrayBuffer): TelemetryFrame {
   if (buf.byteLength < HEADER_BYTES) throw new FrameError(`frame of ${buf.byteLength} bytes is shorter than its header`);
@@ -42,17 +46,19 @@ export function decodeFrame(buf: ArrayBuffer): TelemetryFrame {
   if (version !== 1) throw new FrameError(`unsupported frame version ${version}`);
   const nSeries = view.getUint16(6, true);
   const nBuckets = view.getUint32(8, true);
-  if (nSeries < N_SERIES) throw new FrameError(`frame has ${nSeries} series, the page needs ${N_SERIES}`);
+  if (nSeries < MIN_SERIES) throw new FrameError(`frame has ${nSeries} series, the page needs at least ${MIN_SERIES}`);
   const need = HEADER_BYTES + 8 * nBuckets + 8 * nBuckets * nSeries;
   if (buf.byteLength !== need) throw new FrameError(`frame of ${buf.byteLength} bytes, header says ${need}`);
   const t = new Float64Array(nBuckets);
   for (let b = 0; b < nBuckets; b++) t[b] = view.getFloat64(HEADER_BYTES + 8 * b, true);
   const minMax = new Float32Array(nBuckets * N_SERIES * 2);
+  if (nSeries < N_SERIES) minMax.fill(NaN);
+  const read = Math.min(nSeries, N_SERIES);
   let off = HEADER_BYTES + 8 * nBuckets;
-  let k = 0;
   for (let b = 0; b < nBuckets; b++) {
+    let k = b * N_SERIES * 2;
     for (let s = 0; s < nSeries; s++) {
-      if (s < N_SERIES) {
+      if (s < read) {
         minMax[k++] = view.getFloat32(off, true);
         minMax[k++] = view.getFloat32(off + 4, true);
       }
@@ -78,6 +84,8 @@ export interface ModelInfo {
   error?: string;
   units?: string;
   size_bytes?: number;
+  /** The id the model's answers carry while it is active (its generation; 0: never active). */
+  model_id?: number;
 }
 
 /** The fields of the status object the page shows; everything optional (shown as "–"). */
@@ -132,6 +140,7 @@ export function normalizeModel(m: unknown): ModelInfo | null {
     error: typeof o.error === "string" && o.error !== "" ? o.error : undefined,
     units: typeof o.units === "string" ? o.units : undefined,
     size_bytes: typeof o.size_bytes === "number" ? o.size_bytes : undefined,
+    model_id: typeof o.model_id === "number" ? o.model_id : undefined,
   };
 }
 

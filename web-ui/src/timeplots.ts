@@ -34,6 +34,8 @@ export interface TimePlotHooks {
   onResetZoom(): void;
   /** Mouse wheel at time t: zoom in (dir < 0) or out (dir > 0) around t; with shift, pan. */
   onWheel(t: number, dir: number, pan: boolean): void;
+  /** Text added to the cursor readout for column `i` of `cols` (e.g. the model that drew it). */
+  readoutExtra?(cols: Columns, i: number): string;
 }
 
 function alpha(hex: string, a: number): string {
@@ -52,6 +54,7 @@ export class TimePlot {
   private readonly visible: boolean[];
   /** Last data handed to uPlot, for the test hook. */
   last: Columns | null = null;
+  private readonly readoutExtra: TimePlotHooks["readoutExtra"];
 
   constructor(
     readonly def: PlotDef,
@@ -61,6 +64,7 @@ export class TimePlot {
     private readonly readout: HTMLElement | null = null,
   ) {
     this.visible = def.signals.map((s) => !s.hidden);
+    this.readoutExtra = hooks.readoutExtra;
     const series: uPlot.Series[] = [{ label: "t (s)" }];
     for (const [k, sig] of def.signals.entries()) {
       const common = {
@@ -184,6 +188,8 @@ export class TimePlot {
       const v = a === b ? a : `${a}…${b}`;
       parts.push(`${sig.short} ${v} ${sig.unit}`);
     });
+    const extra = this.last && this.readoutExtra ? this.readoutExtra(this.last, i) : "";
+    if (extra) parts.push(extra);
     el.textContent = parts.join(" · ");
     el.title = el.textContent;
   }

@@ -121,6 +121,44 @@ describe("page against the fake server", () => {
     assert.ok(server.state.requests.includes("POST /api/models/lstm6/load"), "an available model is loaded before activation");
   });
 
+  test("the page shows which model drew each point, and the previous force F(t-1)", async () => {
+    // Each bucket carries the model_id of its steps; the strip under the force plot names the
+    // model of each stretch, the readout names the one under the cursor.
+    const runsNow = () => page.evaluate(() => window.__haptics.modelRuns());
+    const tSwap = (await hook.counts(page)).lastTime;
+    await page.click('tr[data-model="spring_damper2"] button');
+    const runs = await waitFor(
+      async () => {
+        const r = (await runsNow()).filter((x) => x.id !== null);
+        return r.length >= 2 && r.at(-2).name === "lstm6" && r.at(-1).name === "spring_damper2" && r.at(-1).t1 - r.at(-1).t0 > 0.5 ? r : null;
+      },
+      { what: "the strip: lstm6, then spring_damper2 for half a second" },
+    );
+    const swapAt = runs.at(-1).t0;
+    assert.ok(swapAt > tSwap - 0.05 && swapAt < tSwap + 2, `the new model's stretch starts at the swap (${swapAt} s; clicked at ${tSwap} s)`);
+    assert.ok(runs.at(-1).id > runs.at(-2).id, `a new model id (${runs.at(-2).id} -> ${runs.at(-1).id})`);
+    // The ids are the server's: the status names the active one.
+    assert.equal((await hook.status(page)).active_model.model_id, runs.at(-1).id);
+    const strip = await page.$$eval("#model-strip .run", (els) => els.map((e) => e.textContent));
+    assert.ok(strip.includes("lstm6") && strip.at(-1) === "spring_damper2", `strip segments: ${JSON.stringify(strip)}`);
+    await page.click("#pause");
+    const box = await page.locator("#plot-force .u-over").boundingBox();
+    await page.mouse.move(box.x + box.width - 3, box.y + box.height / 2);
+    await waitFor(async () => /· model spring_damper2$/.test(await page.textContent("#readout-force")), { what: "readout names the model under the cursor" });
+    await page.mouse.move(0, 0);
+    await page.click("#live");
+    // f_previous: off by default, shown by its toggle, and one step behind the RFOB force.
+    assert.equal((await page.evaluate(() => window.__haptics.shown())).f_previous, false);
+    await page.check('input[data-series="f_previous"]');
+    await sleep(300);
+    const prev = await hook.points(page, "f_previous");
+    const res = await hook.points(page, "rtob_force");
+    assert.ok(finite(prev.max).length > 100, "f_previous reaches its plot");
+    const diffs = prev.max.map((v, i) => Math.abs(v - res.max[i])).filter(Number.isFinite).sort((a, b) => a - b);
+    assert.ok(diffs[Math.floor(diffs.length / 2)] < 0.05, `F(t-1) follows the RFOB force (median |diff| ${diffs[Math.floor(diffs.length / 2)]} N)`);
+    await page.uncheck('input[data-series="f_previous"]');
+  });
+
   test("pause freezes the plots while data keeps arriving; resume catches up", async () => {
     await page.click("#pause");
     assert.equal(await hook.paused(page), true);
@@ -222,7 +260,7 @@ describe("page against the fake server", () => {
     await dl.saveAs(file);
     await page.click("#pause");
     const lines = (await readFile(file, "utf8")).trim().split("\n");
-    assert.equal(lines[0], "t_s,F_ref_min,F_ref_max,rtob_force_min,rtob_force_max,F_pred_min,F_pred_max,position_x_min,position_x_max,velocity_min,velocity_max,acceleration_min,acceleration_max,F_true_min,F_true_max");
+    assert.equal(lines[0], "t_s,F_ref_min,F_ref_max,rtob_force_min,rtob_force_max,F_pred_min,F_pred_max,position_x_min,position_x_max,velocity_min,velocity_max,acceleration_min,acceleration_max,F_true_min,F_true_max,f_previous_min,f_previous_max,model_id_min,model_id_max");
     const ts = lines.slice(1).map((l) => Number(l.split(",")[0]));
     // 1 ms buckets over the shown range (the page may hold less than 10 s at this point).
     const held = ts.at(-1) - ts[0];

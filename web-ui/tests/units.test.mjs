@@ -23,9 +23,10 @@ before(async () => {
   await rm(out, { recursive: true, force: true });
 });
 
-/** A frame as the server writes it (docs/web-protocol.md), with `extra` series beyond the 7. */
+/** A frame as the server writes it (docs/web-protocol.md), with `extra` series beyond the page's. */
 function frame(ts, values, { extra = 0, magic = "HPT1", version = 1 } = {}) {
-  const S = 7 + extra;
+  const N = m.N_SERIES;
+  const S = N + extra;
   const B = ts.length;
   const buf = new ArrayBuffer(16 + 8 * B + 8 * B * S);
   const v = new DataView(buf);
@@ -37,7 +38,7 @@ function frame(ts, values, { extra = 0, magic = "HPT1", version = 1 } = {}) {
   let off = 16 + 8 * B;
   for (let b = 0; b < B; b++) {
     for (let s = 0; s < S; s++) {
-      const [lo, hi] = s < 7 ? values(b, s) : [999, 999];
+      const [lo, hi] = s < N ? values(b, s) : [999, 999];
       v.setFloat32(off, lo, true);
       v.setFloat32(off + 4, hi, true);
       off += 8;
@@ -51,10 +52,32 @@ describe("decodeFrame", () => {
     const f = m.decodeFrame(frame([1.5, 1.501], (b, s) => [b * 10 + s, b * 10 + s + 0.5], { extra: 2 }));
     assert.equal(f.nBuckets, 2);
     assert.deepEqual([...f.t], [1.5, 1.501]);
-    assert.equal(f.minMax.length, 2 * 7 * 2);
+    const N = m.N_SERIES;
+    assert.equal(f.minMax.length, 2 * N * 2);
     assert.equal(f.minMax[2 * 3], 3); // bucket 0, series 3, min
-    assert.equal(f.minMax[14 + 2 * 6 + 1], 16.5); // bucket 1, series 6, max
+    assert.equal(f.minMax[2 * N + 2 * 6 + 1], 16.5); // bucket 1, series 6, max
     assert.ok(![...f.minMax].includes(999), "extra series dropped");
+  });
+  test("a frame from a server that sends fewer series reads the page's later ones as NaN", () => {
+    const N = m.N_SERIES;
+    const S = m.MIN_SERIES;
+    const buf = new ArrayBuffer(16 + 8 * 2 + 8 * 2 * S);
+    const v = new DataView(buf);
+    [0x48, 0x50, 0x54, 0x31].forEach((c, i) => v.setUint8(i, c));
+    v.setUint16(4, 1, true);
+    v.setUint16(6, S, true);
+    v.setUint32(8, 2, true);
+    for (let b = 0; b < 2; b++) {
+      v.setFloat64(16 + 8 * b, b, true);
+      for (let s = 0; s < S; s++) {
+        v.setFloat32(32 + (b * S + s) * 8, b * 100 + s, true);
+        v.setFloat32(32 + (b * S + s) * 8 + 4, b * 100 + s + 0.5, true);
+      }
+    }
+    const f = m.decodeFrame(buf);
+    assert.equal(f.minMax.length, 2 * N * 2);
+    assert.equal(f.minMax[2 * N + 2 * (S - 1) + 1], 100 + S - 1 + 0.5); // bucket 1, last sent series, max
+    for (let b = 0; b < 2; b++) for (let s = S; s < N; s++) assert.ok(Number.isNaN(f.minMax[b * 2 * N + 2 * s]), `bucket ${b} series ${s} NaN`);
   });
   test("refuses bad frames with a message that says what is wrong", () => {
     const good = frame([0], () => [0, 0]);
@@ -66,12 +89,13 @@ describe("decodeFrame", () => {
     const v = new DataView(few);
     [0x48, 0x50, 0x54, 0x31].forEach((c, i) => v.setUint8(i, c));
     v.setUint16(4, 1, true);
-    v.setUint16(6, 5, true);
-    assert.throws(() => m.decodeFrame(few), /has 5 series, the page needs 7/);
+    v.setUint16(6, m.MIN_SERIES - 1, true);
+    assert.throws(() => m.decodeFrame(few), new RegExp(`has ${m.MIN_SERIES - 1} series, the page needs at least ${m.MIN_SERIES}`));
   });
 });
 
 describe("TelemetryStore", () => {
+  const ones = () => Array(m.N_SERIES).fill(1);
   const fill = (store, t0, n, dt, val = (i, s) => [i + s, i + s + 1]) => {
     const ts = Array.from({ length: n }, (_, i) => t0 + i * dt);
     store.append(m.decodeFrame(frame(ts, (b, s) => val(b, s))));
@@ -105,8 +129,7 @@ describe("TelemetryStore", () => {
     // 10 000 buckets of 1 ms; series 1 is 1.0 everywhere except a 5.0 spike in bucket 4321
     // and a -2.0 dip in bucket 777.
     fill(st, 0, 10000, 0.001, (i, s) => (s === 1 ? (i === 4321 ? [1, 5] : i === 777 ? [-2, 1] : [1, 1]) : [0, 0]));
-    const scale = [1, 1, 1, 1, 1, 1, 1];
-    const c = m.readColumns(st, 0, 10, 500, scale);
+    const c = m.readColumns(st, 0, 10, 500, ones());
     assert.ok(c.t.length <= 500 && c.t.length > 450, `${c.t.length} columns`);
     assert.equal(c.bucketsInRange, 10000);
     assert.equal(Math.max(...c.max[1]), 5);
@@ -114,7 +137,7 @@ describe("TelemetryStore", () => {
     const spikeCols = c.max[1].filter((v) => v === 5).length;
     assert.equal(spikeCols, 1, "the spike is in exactly one column");
     // Few buckets: drawn as they are, with unit scaling.
-    const raw = m.readColumns(st, 1.0, 1.01, 500, [1, 1000, 1, 1, 1, 1, 1]);
+    const raw = m.readColumns(st, 1.0, 1.01, 500, ones().map((v, s) => (s === 1 ? 1000 : v)));
     assert.equal(raw.t.length, 11);
     assert.equal(raw.max[1][0], 1000);
   });
@@ -123,7 +146,7 @@ describe("TelemetryStore", () => {
     const st = new m.TelemetryStore(1 << 14);
     fill(st, 0, 3000, 0.001, () => [1, 2]);
     fill(st, 6, 3000, 0.001, () => [1, 2]);
-    const c = m.readColumns(st, 0, 9, 300, [1, 1, 1, 1, 1, 1, 1]);
+    const c = m.readColumns(st, 0, 9, 300, ones());
     const gaps = c.max[0].filter((v) => v === null).length;
     assert.equal(gaps, 1, "one null marks the 3 s hole");
     const gi = c.max[0].indexOf(null);
@@ -134,7 +157,7 @@ describe("TelemetryStore", () => {
   test("NaN series (no model, a real board's F_true) are gaps, not zeros", () => {
     const st = new m.TelemetryStore(64);
     fill(st, 0, 10, 0.001, (i, s) => (s === 2 ? [NaN, NaN] : [i, i]));
-    const c = m.readColumns(st, 0, 1, 100, [1, 1, 1, 1, 1, 1, 1]);
+    const c = m.readColumns(st, 0, 1, 100, ones());
     assert.ok(c.max[2].every((v) => v === null));
     assert.equal(st.hasFinite(2, 0, 10), false);
     assert.equal(st.hasFinite(1, 0, 10), true);
@@ -144,9 +167,41 @@ describe("TelemetryStore", () => {
     const st = new m.TelemetryStore(64);
     fill(st, 0, 20, 0.5, (i, s) => (s === 6 ? [NaN, NaN] : [i * 10 + s, i * 10 + s + 0.25]));
     const csv = m.toCsv(st, 2, 4, m.SERIES).trim().split("\n");
-    assert.equal(csv[0].split(",").length, 15);
+    assert.equal(csv[0], ["t_s", ...m.SERIES.flatMap((n) => [`${n}_min`, `${n}_max`])].join(","));
     assert.equal(csv.length, 1 + 5); // t = 2, 2.5, 3, 3.5, 4
-    assert.equal(csv[1], "2.000000,40,40.25,41,41.25,42,42.25,43,43.25,44,44.25,45,45.25,,");
+    const want = ["2.000000"];
+    for (let s = 0; s < m.N_SERIES; s++) want.push(...(s === 6 ? ["", ""] : [String(40 + s), String(40 + s + 0.25)]));
+    assert.equal(csv[1], want.join(","));
+  });
+});
+
+describe("which model drew each point", () => {
+  // Columns as readColumns gives them, only the model_id series filled.
+  const cols = (ids) => {
+    const s = m.SERIES.indexOf("model_id");
+    const c = { t: ids.map((_, i) => i * 0.1), min: m.SERIES.map(() => []), max: m.SERIES.map(() => []), bucketsInRange: ids.length };
+    for (const id of ids) {
+      c.min[s].push(Array.isArray(id) ? id[0] : id);
+      c.max[s].push(Array.isArray(id) ? id[1] : id);
+    }
+    return [c, s];
+  };
+  test("runs of one id; a column holding a swap is its own run; a gap ends a run", () => {
+    const [c, s] = cols([1, 1, [1, 2], 2, 2, null, 2, 0, 0]);
+    const runs = m.modelRuns(c, s, 1.0);
+    assert.deepEqual(runs.map((r) => r.id), [1, null, 2, 2, 0]);
+    assert.deepEqual(runs.map((r) => [r.t0, r.t1].map((x) => Math.round(x * 10) / 10)), [[0, 0.2], [0.2, 0.3], [0.3, 0.5], [0.6, 0.7], [0.7, 1.0]]);
+  });
+  test("ids are named from the model list and the status, and keep their name", () => {
+    const n = new m.ModelNames();
+    n.learn([{ name: "rf6", state: "active", model_id: 3 }, { name: "lstm6", state: "available", model_id: 0 }, null]);
+    assert.equal(n.name(3), "rf6");
+    assert.equal(n.name(0), "no model");
+    assert.equal(n.name(null), "swap");
+    assert.equal(n.name(7), "model #7");
+    n.learn([{ name: "lstm6", state: "active", model_id: 4 }]);
+    assert.deepEqual([n.name(3), n.name(4)], ["rf6", "lstm6"]);
+    assert.equal(m.normalizeModel({ name: "x", state: "active", model_id: 5 }).model_id, 5);
   });
 });
 
