@@ -1,8 +1,8 @@
 //! hapticctl against the real control plane over a simulated backend.
 use std::sync::Arc;
 
-use control_plane::testing::{model_file, SimBackend};
 use control_plane::{Config, Shutdown};
+use control_plane_sim::{model_file, SimBackend};
 
 struct Server {
     addr: String,

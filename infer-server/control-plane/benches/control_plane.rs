@@ -7,8 +7,8 @@ use std::time::{Duration, Instant};
 
 use control_plane::pb;
 use control_plane::telemetry::{encode_frame, Bucket, Decimator, N_SERIES};
-use control_plane::testing::SimBackend;
 use control_plane::{Config, Shutdown};
+use control_plane_sim::SimBackend;
 use futures_util::StreamExt;
 
 fn report(what: &str, mut samples: Vec<Duration>) {

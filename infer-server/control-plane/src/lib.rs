@@ -22,8 +22,6 @@ pub mod server;
 pub mod shutdown;
 pub mod stats;
 pub mod telemetry;
-#[cfg(feature = "testing")]
-pub mod testing;
 pub mod uploads;
 
 /// The generated `haptics.v1` messages, clients and servers.

@@ -7,8 +7,8 @@ use common::*;
 use control_plane::pb;
 use control_plane::pb::loop_service_client::LoopServiceClient;
 use control_plane::pb::model_service_client::ModelServiceClient;
-use control_plane::testing::{model_file, nan_model_file, SimBackend, SPIKE_EVERY, SPIKE_N};
 use control_plane::Config;
+use control_plane_sim::{model_file, nan_model_file, SimBackend, SPIKE_EVERY, SPIKE_N};
 use tonic::{Code, Request};
 
 async fn clients(

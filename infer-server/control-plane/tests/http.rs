@@ -2,8 +2,8 @@
 mod common;
 
 use common::*;
-use control_plane::testing::{model_file, SimBackend};
 use control_plane::Config;
+use control_plane_sim::{model_file, SimBackend};
 use serde_json::Value;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -5,8 +5,8 @@ mod common;
 use std::path::PathBuf;
 
 use common::*;
-use control_plane::testing::SimBackend;
 use control_plane::Config;
+use control_plane_sim::SimBackend;
 
 fn python() -> PathBuf {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");

@@ -6,8 +6,8 @@ use std::time::Duration;
 use common::*;
 use control_plane::pb;
 use control_plane::pb::loop_service_client::LoopServiceClient;
-use control_plane::testing::SimBackend;
 use control_plane::{Config, Shutdown};
+use control_plane_sim::SimBackend;
 use futures_util::StreamExt;
 use tokio_tungstenite::tungstenite::Message;
 

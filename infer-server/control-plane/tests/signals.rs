@@ -2,8 +2,8 @@
 //! because the signal goes to the whole process.
 use std::time::Duration;
 
-use control_plane::testing::SimBackend;
 use control_plane::{Config, Shutdown};
+use control_plane_sim::SimBackend;
 
 #[test]
 fn sigterm_ends_serve_cleanly() {

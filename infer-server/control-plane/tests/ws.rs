@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 
 use common::*;
 use control_plane::telemetry::{decode_frame, series};
-use control_plane::testing::{SPIKE_EVERY, SPIKE_N};
+use control_plane_sim::{SPIKE_EVERY, SPIKE_N};
 use futures_util::StreamExt;
 use tokio_tungstenite::tungstenite::Message;
 

@@ -4,8 +4,8 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
-use control_plane::testing::SimBackend;
 use control_plane::{Config, Shutdown};
+use control_plane_sim::SimBackend;
 
 pub const RATE_HZ: f64 = 10_000.0;
 

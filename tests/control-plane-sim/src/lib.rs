@@ -1,9 +1,12 @@
-//! An in-memory `Backend` over a simulated loop, for the tests of the control plane and of
-//! hapticctl (feature `testing`). It keeps real state (a model directory, loaded models, the
-//! active one, experiments) and a loop thread that steps at `rate_hz` in wall-clock time and
-//! publishes telemetry, so the services are tested against something that behaves like
-//! infer-server. Its "model files" are small JSON documents, not ONNX:
+//! The control plane's simulated backend: an in-memory `control_plane::Backend` over a
+//! simulated loop, for the tests of control-plane and hapticctl (and, as the `control-plane-sim`
+//! binary, for developing the page). Test support, not shipped: it lives under `tests/`, not in
+//! the control-plane library. It keeps real state (a model directory, loaded models, the active
+//! one, experiments) and a loop thread that steps at `rate_hz` in wall-clock time and publishes
+//! telemetry through the control plane's own types, so the services are tested against something
+//! that behaves like infer-server. Its "model files" are small JSON documents, not ONNX:
 //! `{"kind": "stateless", "features": ["position_x", "velocity"], "gain": 1.0, "warmup": "ok"}`.
+//! The real processes (rt-loop on the simulated bench + infer-server) are the end-to-end tests'.
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -13,9 +16,9 @@ use std::time::{Duration, Instant};
 use serde::Deserialize;
 use tokio::sync::broadcast;
 
-use crate::backend::*;
-use crate::error::ControlError;
-use crate::telemetry::{series, Bucket, TelemetryBatch, TelemetryHub, N_SERIES};
+use control_plane::backend::*;
+use control_plane::telemetry::{series, Bucket, TelemetryBatch, TelemetryHub, N_SERIES};
+use control_plane::ControlError;
 
 /// Features the simulated loop provides.
 pub const SCHEMA: [&str; 5] = [

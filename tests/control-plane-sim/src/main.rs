@@ -1,11 +1,15 @@
-//! The control plane over the simulated backend (`testing::SimBackend`): a 10 kHz sine "loop"
-//! with F_res spikes, two models `a.onnx` and `b.onnx`. For developing the page and trying
-//! hapticctl before infer-server runs; it is not the product.
+//! `control-plane-sim`: the control plane over the simulated backend ([`SimBackend`]): a 10 kHz
+//! sine "loop" with force spikes, two models `a.onnx` and `b.onnx`. For developing the page and
+//! trying hapticctl without rt-loop and infer-server (`scripts/up.sh` runs the real ones); it is
+//! not the product. Prints one line on stdout once both listeners are bound (so a test can start
+//! it on port 0 and read the addresses), and stops on SIGINT/SIGTERM.
 //!
-//! cargo run -p control-plane --features testing --example sim_server -- \
+//! cargo run -p control-plane-sim -- \
 //!     [--grpc 127.0.0.1:50051] [--http 127.0.0.1:8080] [--token TOKEN] [--rate 10000]
-use control_plane::testing::SimBackend;
+use std::io::Write;
+
 use control_plane::{Config, Shutdown};
+use control_plane_sim::SimBackend;
 
 fn main() -> anyhow::Result<()> {
     let mut config = Config {
@@ -28,5 +32,12 @@ fn main() -> anyhow::Result<()> {
         }
     }
     // Ctrl-C or SIGTERM stops it.
-    control_plane::serve(config, SimBackend::with_two_models(rate), Shutdown::new())
+    let running = control_plane::start(config, SimBackend::with_two_models(rate), Shutdown::new())?;
+    println!(
+        "control-plane-sim: gRPC {} HTTP http://{}",
+        running.grpc_addr(),
+        running.http_addr()
+    );
+    std::io::stdout().flush()?;
+    running.join()
 }
