@@ -18,11 +18,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use haptics_proto::{FeatureMsg, Segment};
 use infer_server::inference_control::InferenceControl;
 use infer_server::inference_thread::InferenceConfig;
 use infer_server::registry::Registry;
 use infer_server::{Runtime, SessionConfig};
-use shm_ring::{Config, FeatureMsg, Segment, SegmentName, WaitStrategy};
+use shm_ring::{SegmentName, WaitStrategy};
 
 fn env_usize(name: &str) -> Option<usize> {
     std::env::var(name).ok().and_then(|s| s.parse().ok())
@@ -69,7 +70,7 @@ fn main() {
 
     let seg =
         SegmentName::new(&format!("/infer-server-swap-bench-{}", std::process::id())).unwrap();
-    let mut lp = Segment::create(&seg, &Config::default())
+    let mut lp = Segment::create(&seg, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();

@@ -18,10 +18,11 @@ mod common;
 use common::bench_models;
 use std::time::{Duration, Instant};
 
+use haptics_proto::{FeatureMsg, Segment};
 use infer_server::handoff;
 use infer_server::inference_thread::{InferenceConfig, InferenceThread};
 use infer_server::{FeatureSchema, Runtime, SessionConfig, StepEngine};
-use shm_ring::{Config, FeatureMsg, Segment, SegmentName, WaitStrategy};
+use shm_ring::{SegmentName, WaitStrategy};
 
 fn quantile(sorted: &[u64], q: f64) -> u64 {
     sorted[((sorted.len() as f64 * q).ceil() as usize).clamp(1, sorted.len()) - 1]
@@ -131,7 +132,7 @@ fn main() {
             std::process::id()
         ))
         .unwrap();
-        let mut lp = Segment::create(&seg, &Config::default())
+        let mut lp = Segment::create(&seg, &haptics_proto::layout::config())
             .unwrap()
             .loop_side()
             .unwrap();

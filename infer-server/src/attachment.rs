@@ -13,7 +13,8 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Mutex, MutexGuard};
 
-use shm_ring::{Command, Link, OverwriteConsumer, Producer, TelemetryRow};
+use haptics_proto::{Command, TelemetryRow};
+use shm_ring::{Link, OverwriteConsumer, Producer};
 
 /// The endpoints of one attachment that the inference thread does not use.
 pub struct LoopEndpoints {

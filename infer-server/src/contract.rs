@@ -65,8 +65,8 @@ pub fn checked_elements(shape: &[i64]) -> Result<usize, String> {
 
 /// The nine features of thesis Table 3.1, in that order (docs/recording-format.md). A model uses
 /// any subset of these, in any order.
-/// One list for the whole system: shm-ring's, which the segment's schema is built from.
-pub const FEATURE_NAMES: [&str; 9] = shm_ring::THESIS_FEATURES;
+/// One list for the whole system: haptics-proto's.
+pub const FEATURE_NAMES: [&str; 9] = haptics_proto::THESIS_FEATURES;
 
 /// How the server steps a model.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]

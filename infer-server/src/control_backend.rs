@@ -13,7 +13,8 @@ use control_plane::{
     Activation, Backend, ControlError, ExperimentRequest, ExperimentStatus, Latency, LoopStatus,
     ModelInfo, ModelSource, ServerStatus, StatusSnapshot, TelemetryBatch, TelemetryHub,
 };
-use shm_ring::{Command, CommandKind, FixedStr, SendError, COMMAND_VALUES};
+use haptics_proto::{Command, CommandKind, LoopStatusLink, COMMAND_VALUES};
+use shm_ring::{FixedStr, SendError};
 
 use crate::latency::LatencySnapshot;
 use crate::registry::Registry;
@@ -87,7 +88,7 @@ fn latency_of(s: &LatencySnapshot) -> Latency {
 /// board, scheduling obtained, recorder state, and the current (or last) run's fallbacks,
 /// deadline misses and round-trip percentiles as the loop counted them (exact, where the
 /// telemetry rows only give a lower bound once rows were dropped).
-pub fn apply_loop_block(status: &mut LoopStatus, b: &shm_ring::LoopStatus) {
+pub fn apply_loop_block(status: &mut LoopStatus, b: &haptics_proto::LoopStatus) {
     let us = |ns: u64| ns as f64 / 1000.0;
     status.clock = b.clock.as_str().into();
     status.board = b.board.as_str().into();
@@ -112,7 +113,7 @@ pub fn apply_loop_block(status: &mut LoopStatus, b: &shm_ring::LoopStatus) {
     if status.experiment.running && b.running && !b.experiment.is_empty() {
         status.experiment.kind = b.experiment.as_str().into();
     }
-    let lat = |q: &shm_ring::Quantiles| Latency {
+    let lat = |q: &haptics_proto::Quantiles| Latency {
         p50_us: us(q.p50_ns),
         p99_us: us(q.p99_ns),
         p999_us: us(q.p999_ns),
@@ -131,7 +132,7 @@ pub fn apply_loop_block(status: &mut LoopStatus, b: &shm_ring::LoopStatus) {
 impl ControlBackend {
     /// The attached loop's status block, if it published one (a short lock on the endpoints,
     /// then a seqlock read: never waits on the loop).
-    fn loop_block(&self, attachment: u64) -> Option<shm_ring::LoopStatus> {
+    fn loop_block(&self, attachment: u64) -> Option<haptics_proto::LoopStatus> {
         if attachment == 0 {
             return None;
         }

@@ -23,9 +23,9 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use haptics_proto::{FeatureMsg, ForceMsg, Segment};
 use shm_ring::{
-    monotonic_ns, sleep_until_ns, Consumer, DecodeError, FeatureMsg, ForceMsg, RecvError, Segment,
-    SegmentName, WaitStrategy,
+    monotonic_ns, sleep_until_ns, Consumer, DecodeError, RecvError, SegmentName, WaitStrategy,
 };
 
 use shm_ring::os::rt_thread::{CpuChoice, RtRequest};
@@ -365,7 +365,7 @@ impl Worker {
         segment: Segment,
         active: &mut Option<Box<Offered>>,
     ) -> Result<bool, InferenceError> {
-        let shm_ring::ServerSide {
+        let haptics_proto::ServerSide {
             mut features_rx,
             mut forces_tx,
             telemetry_rx,

@@ -16,7 +16,8 @@ use std::time::{Duration, Instant};
 
 use control_plane::telemetry::{series, N_SERIES};
 use control_plane::{Bucket, TelemetryHub};
-use shm_ring::{Link, OverwriteConsumer, TelemetryRow};
+use haptics_proto::TelemetryRow;
+use shm_ring::{Link, OverwriteConsumer};
 
 use crate::attachment::SharedEndpoints;
 

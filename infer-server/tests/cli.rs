@@ -166,12 +166,13 @@ fn predict_steps_a_csv_in_order() {
 
 #[test]
 fn serve_answers_a_loop_over_shared_memory_and_exits_when_it_leaves() {
-    use shm_ring::{Config, FeatureMsg, Segment, SegmentName, WaitStrategy, MAX_FEATURES};
+    use haptics_proto::{FeatureMsg, Segment, MAX_FEATURES};
+    use shm_ring::{SegmentName, WaitStrategy};
     use std::time::{Duration, Instant};
 
     let path = model_or_skip!("linear");
     let name = SegmentName::new(&format!("/infer-server-cli-{}", std::process::id())).unwrap();
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();

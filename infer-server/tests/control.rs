@@ -17,10 +17,8 @@ use std::time::{Duration, Instant};
 use control_plane::pb;
 use control_plane::pb::loop_service_client::LoopServiceClient;
 use control_plane::pb::model_service_client::ModelServiceClient;
-use shm_ring::{
-    CommandKind, Config, FeatureMsg, LoopSide, Segment, SegmentName, TelemetryRow, WaitStrategy,
-    MAX_FEATURES,
-};
+use haptics_proto::{CommandKind, FeatureMsg, LoopSide, Segment, TelemetryRow, MAX_FEATURES};
+use shm_ring::{Config, SegmentName, WaitStrategy};
 use tonic::transport::Channel;
 use tonic::Code;
 
@@ -35,7 +33,7 @@ fn segment_name(tag: &str) -> SegmentName {
 fn loop_config() -> Config {
     Config {
         feature_names: SCHEMA.iter().map(|s| s.to_string()).collect(),
-        ..Config::default()
+        ..haptics_proto::layout::config()
     }
 }
 
@@ -971,7 +969,7 @@ async fn sigterm_ends_open_streams_and_websockets_quickly() {
 fn loop_with(segment: &SegmentName, order: &[usize]) -> LoopSide {
     let config = Config {
         feature_names: order.iter().map(|&i| SCHEMA[i].to_string()).collect(),
-        ..Config::default()
+        ..haptics_proto::layout::config()
     };
     Segment::create(segment, &config)
         .unwrap()

@@ -5,10 +5,11 @@ mod common;
 
 use std::time::Duration;
 
+use haptics_proto::{FeatureMsg, LoopSide, Segment, MAX_FEATURES};
 use infer_server::handoff;
 use infer_server::inference_thread::{force_flags, InferenceConfig, InferenceThread};
 use infer_server::{FeatureSchema, SessionConfig, StepEngine};
-use shm_ring::{Config, FeatureMsg, LoopSide, Segment, SegmentName, WaitStrategy, MAX_FEATURES};
+use shm_ring::{Config, SegmentName, WaitStrategy};
 
 const TIMEOUT: Duration = Duration::from_secs(10);
 
@@ -43,7 +44,7 @@ fn wait_attached(thread: &InferenceThread) {
 }
 
 /// Sends one step and waits for its answer, as a lockstep loop does.
-fn round_trip(lp: &mut LoopSide, msg: FeatureMsg) -> shm_ring::ForceMsg {
+fn round_trip(lp: &mut LoopSide, msg: FeatureMsg) -> haptics_proto::ForceMsg {
     lp.features_tx
         .try_send(msg)
         .expect("features ring has room");
@@ -67,7 +68,7 @@ fn serves_every_step_in_order_swaps_models_and_resets_state() {
     let name = segment_name("swap");
     let config = Config {
         feature_names: schema_names.iter().map(|s| s.to_string()).collect(),
-        ..Config::default()
+        ..haptics_proto::layout::config()
     };
     let mut lp = Segment::create(&name, &config)
         .unwrap()
@@ -238,7 +239,7 @@ fn a_model_for_another_schema_is_not_fed_wrong_columns() {
     let rt = common::runtime();
     let name = segment_name("mismatch");
     // Segment schema: standard nine. Model validated against a different schema.
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();
@@ -289,7 +290,7 @@ fn server_activates_refuses_and_revalidates_when_a_new_loop_brings_another_schem
         &name,
         &Config {
             feature_names: first,
-            ..Config::default()
+            ..haptics_proto::layout::config()
         },
     )
     .unwrap()
@@ -351,7 +352,7 @@ fn server_activates_refuses_and_revalidates_when_a_new_loop_brings_another_schem
         &name,
         &Config {
             feature_names: second,
-            ..Config::default()
+            ..haptics_proto::layout::config()
         },
     )
     .unwrap()

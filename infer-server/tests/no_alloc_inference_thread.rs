@@ -8,10 +8,11 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
+use haptics_proto::{FeatureMsg, Segment};
 use infer_server::handoff;
 use infer_server::inference_thread::{InferenceConfig, InferenceThread};
 use infer_server::{FeatureSchema, SessionConfig, StepEngine};
-use shm_ring::{Config, FeatureMsg, Segment, SegmentName, WaitStrategy};
+use shm_ring::{SegmentName, WaitStrategy};
 
 struct Counting;
 static ARMED: AtomicBool = AtomicBool::new(false);
@@ -43,7 +44,7 @@ fn the_inference_thread_allocates_nothing_per_step() {
     };
     let rt = common::runtime();
     let name = SegmentName::new(&format!("/infer-server-noalloc-{}", std::process::id())).unwrap();
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();

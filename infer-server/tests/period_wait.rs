@@ -6,19 +6,17 @@
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
+use haptics_proto::{FeatureMsg, LoopSide, Segment, MAX_FEATURES};
 use infer_server::handoff;
 use infer_server::inference_thread::{force_flags, InferenceConfig, InferenceThread};
-use shm_ring::{
-    monotonic_ns, sleep_until_ns, Config, FeatureMsg, LoopSide, Segment, SegmentName, WaitStrategy,
-    MAX_FEATURES,
-};
+use shm_ring::{monotonic_ns, sleep_until_ns, SegmentName, WaitStrategy};
 
 const TIMEOUT: Duration = Duration::from_secs(10);
 
 fn start(tag: &str, wait: WaitStrategy) -> (LoopSide, InferenceThread) {
     let name =
         SegmentName::new(&format!("/infer-server-wait-{tag}-{}", std::process::id())).unwrap();
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();

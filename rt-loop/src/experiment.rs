@@ -396,7 +396,7 @@ impl Experiment {
     }
 
     /// Lets the model fill its part of the loop-status block (no allocation, no lock).
-    pub fn report_status(&self, status: &mut shm_ring::LoopStatus) {
+    pub fn report_status(&self, status: &mut haptics_proto::LoopStatus) {
         if let Experiment::Reproduction { model, .. } = self {
             model.report_status(status);
         }

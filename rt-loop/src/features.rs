@@ -20,26 +20,14 @@
 use serde::{Deserialize, Serialize};
 
 /// The feature names in the order of thesis Table 3.1 (and of [`Features::as_array`]).
-/// One list for the whole system: shm-ring's, which the segment's schema is built from.
-pub const FEATURE_NAMES: [&str; 9] = shm_ring::THESIS_FEATURES;
+/// One list for the whole system: haptics-proto's.
+pub const FEATURE_NAMES: [&str; 9] = haptics_proto::THESIS_FEATURES;
 
 /// The names the loop publishes to a served model (the shared-memory segment's schema, in
 /// [`Features::as_schema_array`] order): the nine of thesis Table 3.1, then `f_previous`
-/// = F(t-1), the force committed the step before, in N (train/'s better-conditioned
-/// alternative to the ratios, used by its `*_fb` networks). Not a recorded column: train/
-/// derives it from a recording (`haptics_train.data.add_previous_force`).
-pub const SCHEMA_NAMES: [&str; 10] = [
-    "position_x",
-    "velocity",
-    "acceleration",
-    "f_previous_x",
-    "f_previous_v",
-    "f_previous_a",
-    "cycle_no",
-    "deformation",
-    "area_fx",
-    "f_previous",
-];
+/// = F(t-1), the force committed the step before, in N. Not a recorded column: train/
+/// derives it from a recording (`haptics_train.data.add_previous_force`). haptics-proto's.
+pub const SCHEMA_NAMES: [&str; 10] = haptics_proto::SCHEMA_NAMES;
 
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[repr(C)]

@@ -74,7 +74,7 @@ pub trait ForceModel: Send {
     }
     /// Fills what the model knows for the loop-status block (deadline misses, round-trip
     /// percentiles). Called about every 100 ms on the loop thread: no allocation, no lock.
-    fn report_status(&self, _status: &mut shm_ring::LoopStatus) {}
+    fn report_status(&self, _status: &mut haptics_proto::LoopStatus) {}
 }
 
 /// `F = k1 x + k2 x^2 + b v` while in contact (x > 0), never pulling (F >= 0).

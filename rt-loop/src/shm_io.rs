@@ -10,11 +10,12 @@ use crate::features::SCHEMA_NAMES;
 use crate::record::row::Row;
 use crate::shm_model::ShmClient;
 use anyhow::{anyhow, bail, Result};
-use hdrhistogram::Histogram;
-use shm_ring::{
-    Command, CommandKind, Config, Consumer, Link, LoopClock, LoopStatus, OverwriteProducer,
-    Quantiles, Segment, SegmentName, StatusText, TelemetryRow, WaitStrategy, RECORDER_BYTES,
+use haptics_proto::{
+    Command, CommandKind, LoopClock, LoopStatus, LoopStatusLink, Quantiles, Segment, StatusText,
+    TelemetryRow, RECORDER_BYTES,
 };
+use hdrhistogram::Histogram;
+use shm_ring::{Config, Consumer, Link, OverwriteProducer, SegmentName, WaitStrategy};
 use std::fmt::Write as _;
 use std::time::{Duration, Instant};
 
@@ -60,7 +61,7 @@ pub fn create_segment(instance: &str, answer_wait: WaitStrategy) -> Result<LoopS
         SegmentName::for_instance(instance).map_err(|e| anyhow!("--instance {instance:?}: {e}"))?;
     let config = Config {
         feature_names: SCHEMA_NAMES.iter().map(|s| s.to_string()).collect(),
-        ..Config::default()
+        ..haptics_proto::layout::config()
     };
     let segment = Segment::create(&name, &config).map_err(|e| anyhow!("segment {name}: {e}"))?;
     if let Some(pid) = segment.replaced_stale() {

@@ -18,10 +18,9 @@
 
 use crate::features::Features;
 use crate::model::{Answer, ForceModel, Miss};
+use haptics_proto::{FeatureMsg, ForceMsg};
 use hdrhistogram::Histogram;
-use shm_ring::{
-    Consumer, FeatureMsg, ForceMsg, Link, Producer, RecvError, SendError, WaitStrategy,
-};
+use shm_ring::{Consumer, Link, Producer, RecvError, SendError, WaitStrategy};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -318,7 +317,7 @@ impl ShmClient {
     /// Deadline misses of the current run and the round-trip percentiles into the status
     /// block's fields. About every 100 ms on the loop thread: no allocation (the percentiles
     /// walk the preallocated histogram's buckets), no lock.
-    pub fn report_status(&self, status: &mut shm_ring::LoopStatus) {
+    pub fn report_status(&self, status: &mut haptics_proto::LoopStatus) {
         status.deadline_misses = self
             .counters
             .late
@@ -615,7 +614,7 @@ impl ForceModel for ShmModel {
         self.start_error.as_deref()
     }
 
-    fn report_status(&self, status: &mut shm_ring::LoopStatus) {
+    fn report_status(&self, status: &mut haptics_proto::LoopStatus) {
         if let Some(c) = self.client.as_ref() {
             c.report_status(status);
         }

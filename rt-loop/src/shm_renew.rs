@@ -24,10 +24,8 @@
 //! so its steps are rendered by the degradation ladder's fallback, which keeps the current
 //! within its limits.
 
-use shm_ring::{
-    Command, Consumer, FeatureMsg, ForceMsg, Link, OverwriteProducer, Producer, TelemetryRow,
-    WaitStrategy,
-};
+use haptics_proto::{Command, FeatureMsg, ForceMsg, TelemetryRow};
+use shm_ring::{Consumer, Link, OverwriteProducer, Producer, WaitStrategy};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
@@ -241,7 +239,7 @@ fn collect_old(handoff: &Handoff) {
 /// Re-creates the segment and leaves its endpoints in the hand-off; returns the new link.
 fn renew(link: &Link, handoff: &Handoff, answer_wait: WaitStrategy) -> Result<Link, String> {
     let side = link
-        .recreate()
+        .recreate::<haptics_proto::Haptics>()
         .and_then(|s| s.loop_side())
         .map_err(|e| e.to_string())?;
     let mut features_tx = side.features_tx;

@@ -7,6 +7,7 @@
 mod alloc_count;
 mod common;
 
+use haptics_proto::{ForceMsg, Segment};
 use rt_loop::board::{Board, BoardStop, Snapshot};
 use rt_loop::config::{ClockKind, ExperimentKind};
 use rt_loop::features::Features;
@@ -14,7 +15,7 @@ use rt_loop::ladder::{Ladder, LadderConfig, Level};
 use rt_loop::model::{Answer, ForceModel, Miss, SpringDamper};
 use rt_loop::shm_io::create_segment;
 use rt_loop::shm_model::{AnswerWait, ShmModel};
-use shm_ring::{ForceMsg, RecvError, Segment, WaitStrategy};
+use shm_ring::{RecvError, WaitStrategy};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};

@@ -2,11 +2,12 @@
 //! thread of this test; cross-process runs with the real infer-server are in
 //! `tests/tests/model_in_loop.rs` of the workspace).
 
+use haptics_proto::{FeatureMsg, ForceMsg, Segment};
 use rt_loop::features::Features;
 use rt_loop::model::ForceModel;
 use rt_loop::shm_io::create_segment;
 use rt_loop::shm_model::{AnswerWait, ShmClient, ShmModel, SETTLE_AFTER_ATTACH};
-use shm_ring::{FeatureMsg, ForceMsg, RecvError, Segment, SegmentName, WaitStrategy};
+use shm_ring::{RecvError, SegmentName, WaitStrategy};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;

@@ -4,10 +4,11 @@
 #[path = "support/alloc_count.rs"]
 mod alloc_count;
 
+use haptics_proto::{ForceMsg, LoopStatusLink, Segment};
 use rt_loop::features::Features;
 use rt_loop::shm_io::create_segment;
 use rt_loop::shm_model::AnswerWait;
-use shm_ring::{ForceMsg, RecvError, Segment, WaitStrategy};
+use shm_ring::{RecvError, WaitStrategy};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;

@@ -17,8 +17,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use haptics_proto::{FeatureMsg, ForceMsg, Segment, MAX_FEATURES};
 use hdrhistogram::Histogram;
-use shm_ring::{Config, FeatureMsg, ForceMsg, Segment, SegmentName, WaitStrategy, MAX_FEATURES};
+use shm_ring::{SegmentName, WaitStrategy};
 use shm_ring_bench_grpc::predictor_client::PredictorClient;
 use shm_ring_bench_grpc::predictor_server::{Predictor, PredictorServer};
 
@@ -139,7 +140,7 @@ fn bench_shm(
     pace: Pace,
 ) -> Row {
     let name = SegmentName::for_instance(&format!("bench-{}", std::process::id())).unwrap();
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();

@@ -1,10 +1,11 @@
-//! The two sides' endpoint bundles: what rt-loop and infer-server actually hold.
+//! The two sides' endpoint bundles: what rt-loop and infer-server actually hold, generic over
+//! the protocol's message types (haptics-proto's `layout` names them: `LoopSide<Haptics>`).
 
 use std::sync::Arc;
 
 use crate::header::Channel;
-use crate::messages::{Command, FeatureMsg, ForceMsg, TelemetryRow};
 use crate::overwrite::{OverwriteConsumer, OverwriteProducer};
+use crate::protocol::Protocol;
 use crate::segment::{Link, Shared};
 use crate::spsc::{Consumer, Producer};
 
@@ -15,22 +16,22 @@ use crate::spsc::{Consumer, Producer};
 /// `commands_rx.try_recv` and `link.heartbeat` never block, allocate or make a syscall (except
 /// one `FUTEX_WAKE` when the server is parked). `forces_rx.recv_deadline` waits at most until
 /// its deadline: the loop never blocks on the server.
-pub struct LoopSide {
+pub struct LoopSide<P: Protocol> {
     /// Feature vectors to the server. Full ring: `try_send` hands the message back
     /// (`SendError::Full`) and counts it; nothing is dropped silently.
-    pub features_tx: Producer<FeatureMsg>,
+    pub features_tx: Producer<P::Features>,
     /// Predicted forces from the server, tagged with the step they answer.
-    pub forces_rx: Consumer<ForceMsg>,
+    pub forces_rx: Consumer<P::Forces>,
     /// Every step's state for plots; overwrites the oldest row when the server lags.
-    pub telemetry_tx: OverwriteProducer<TelemetryRow>,
+    pub telemetry_tx: OverwriteProducer<P::Telemetry>,
     /// Commands from the server (start/stop experiment, set parameter).
-    pub commands_rx: Consumer<Command>,
+    pub commands_rx: Consumer<P::Commands>,
     /// Liveness, heartbeats, schema.
     pub link: Link,
 }
 
-impl LoopSide {
-    pub(crate) fn new(shared: Arc<Shared>) -> LoopSide {
+impl<P: Protocol> LoopSide<P> {
+    pub(crate) fn new(shared: Arc<Shared>) -> LoopSide<P> {
         let link = Link { shared };
         LoopSide {
             features_tx: Producer::new(link.ring(Channel::Features), link.probe()),
@@ -53,15 +54,15 @@ impl LoopSide {
 }
 
 /// infer-server's ends of the segment.
-pub struct ServerSide {
+pub struct ServerSide<P: Protocol> {
     /// Feature vectors from the loop, in step order.
-    pub features_rx: Consumer<FeatureMsg>,
+    pub features_rx: Consumer<P::Features>,
     /// Answers to the loop.
-    pub forces_tx: Producer<ForceMsg>,
+    pub forces_tx: Producer<P::Forces>,
     /// The loop's per-step state; `dropped()` counts rows lost because we lagged.
-    pub telemetry_rx: OverwriteConsumer<TelemetryRow>,
+    pub telemetry_rx: OverwriteConsumer<P::Telemetry>,
     /// Commands to the loop.
-    pub commands_tx: Producer<Command>,
+    pub commands_tx: Producer<P::Commands>,
     /// Liveness, heartbeats, schema.
     pub link: Link,
     /// Feature messages that were waiting when we attached and were skipped: they were
@@ -69,8 +70,8 @@ pub struct ServerSide {
     pub skipped_on_attach: u64,
 }
 
-impl ServerSide {
-    pub(crate) fn new(shared: Arc<Shared>) -> ServerSide {
+impl<P: Protocol> ServerSide<P> {
+    pub(crate) fn new(shared: Arc<Shared>) -> ServerSide<P> {
         let link = Link { shared };
         let mut features_rx = Consumer::new(link.ring(Channel::Features), link.probe());
         let skipped_on_attach = features_rx.skip_pending();

@@ -48,7 +48,7 @@ impl FixedStr {
         std::str::from_utf8(&self.bytes[..self.len as usize]).unwrap_or("")
     }
 
-    pub(crate) fn to_words(self) -> [u64; FIXED_STR_WORDS] {
+    pub fn to_words(self) -> [u64; FIXED_STR_WORDS] {
         let mut words = [0u64; FIXED_STR_WORDS];
         for (word, chunk) in words.iter_mut().zip(self.bytes.chunks_exact(8)) {
             *word = u64::from_le_bytes(chunk.try_into().expect("8-byte chunk"));
@@ -57,7 +57,7 @@ impl FixedStr {
     }
 
     /// Rebuilds from words; `None` if the bytes are not NUL-padded UTF-8.
-    pub(crate) fn from_words(words: &[u64]) -> Option<Self> {
+    pub fn from_words(words: &[u64]) -> Option<Self> {
         let mut bytes = [0u8; FIXED_STR_BYTES];
         for (chunk, word) in bytes.chunks_exact_mut(8).zip(words) {
             chunk.copy_from_slice(&word.to_le_bytes());

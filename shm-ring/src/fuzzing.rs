@@ -3,15 +3,16 @@
 //! attacher runs, the rings' index and slot handling with a hostile writer poking the shared
 //! words between operations, and the message decoders. Each panics only on a broken
 //! invariant (that is what the fuzzer reports); bad input must come back as an error.
+//! Generic over the protocol: haptics-proto's `fuzzing` module runs them with its messages.
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
-use crate::header::{Channel, Header, MAGIC};
+use crate::header::{Header, MAGIC, MAX_SCHEMA_NAMES};
 use crate::message::Message;
-use crate::messages::{Command, FeatureMsg, ForceMsg, TelemetryRow};
 use crate::overwrite::{OverwriteConsumer, OverwriteProducer};
+use crate::protocol::{shapes, Protocol};
 use crate::ring_mem::{slot_words, RingControl, RingMem};
 use crate::segment::{validate, SegmentName};
 use crate::spsc::{Consumer, Producer, RecvError};
@@ -51,19 +52,20 @@ impl HeaderBuf {
 /// the rest the header's words (a valid header's words when the input asks, so the checks
 /// past the magic are reached too). Whatever validation accepts must place every ring inside
 /// the file: that is the property that keeps the rings' accesses inside the mapping.
-pub fn header(data: &[u8]) {
+pub fn header<P: Protocol>(data: &[u8], schema: &[&str]) {
+    let shapes = shapes::<P>();
     let mut words = words_of(data);
     let file_size = words.next().unwrap_or(0);
     let buf = HeaderBuf::new();
     let h = buf.header();
     let start_valid = file_size & 1 == 1;
     if start_valid {
-        let layout = crate::header::Layout::compute([1024, 1024, 8192, 64]);
-        let names: Vec<_> = crate::segment::THESIS_FEATURES
+        let layout = crate::header::Layout::compute([1024, 1024, 8192, 64], &shapes);
+        let names: Vec<_> = schema
             .iter()
             .map(|n| crate::fixed_str::FixedStr::new(n).expect("valid name"))
             .collect();
-        h.init([1024, 1024, 8192, 64], &names, &layout, 0);
+        h.init([1024, 1024, 8192, 64], &names, &layout, &shapes, 0);
         h.magic.store(MAGIC, Ordering::Relaxed);
     }
     // Overwrite words: (index, value) pairs when starting valid, else the words in order.
@@ -79,15 +81,15 @@ pub fn header(data: &[u8]) {
     }
     let name = SegmentName::new("/fuzz").expect("valid name");
     // Both outcomes are fine; an accepted layout must lie inside the file.
-    if let Ok((layout, schema)) = validate(h, &name, file_size) {
-        assert!(schema.len() <= crate::messages::MAX_FEATURES);
+    if let Ok((layout, schema)) = validate(h, &name, file_size, &shapes) {
+        assert!(schema.len() <= MAX_SCHEMA_NAMES);
         assert!(layout.total as u64 <= file_size);
-        for (i, channel) in Channel::ALL.iter().enumerate() {
+        for (i, shape) in shapes.iter().enumerate() {
             let cap = layout.capacities[i];
             assert!(cap.is_power_of_two() && cap >= 2);
             assert!(layout.control_offsets[i] + RingControl::SIZE <= layout.total);
             assert_eq!(layout.control_offsets[i] % RingControl::ALIGN, 0);
-            let slot_bytes = slot_words(channel.message_shape().0) * 8;
+            let slot_bytes = slot_words(shape.words) * 8;
             assert!(layout.slots_offsets[i] + cap * slot_bytes <= layout.total);
         }
     }
@@ -246,25 +248,22 @@ fn lossless<M: Message + Copy + PartialEq + std::fmt::Debug>(
 }
 
 /// The overwrite ring (telemetry): never blocks, counts what it loses, survives pokes.
-fn overwrite(input: &mut Input) {
+fn overwrite<P: FuzzProtocol>(input: &mut Input) {
     let capacity = 1usize << (input.byte().unwrap_or(0) % 5);
-    let mem = RingMem::heap(capacity, TelemetryRow::WORDS);
-    let mut tx = OverwriteProducer::<TelemetryRow>::new(mem.twin());
-    let mut rx = OverwriteConsumer::<TelemetryRow>::new(mem.twin(), None);
+    let mem = RingMem::heap(capacity, P::Telemetry::WORDS);
+    let mut tx = OverwriteProducer::<P::Telemetry>::new(mem.twin());
+    let mut rx = OverwriteConsumer::<P::Telemetry>::new(mem.twin(), None);
     let (mut sent, mut received, mut poked) = (0u64, 0u64, false);
     while let Some(b) = input.byte() {
         match b % 4 {
             0 | 1 => {
-                tx.send(&TelemetryRow {
-                    step: sent,
-                    ..TelemetryRow::default()
-                });
+                tx.send(&P::telemetry(sent));
                 sent += 1;
             }
             2 => match rx.try_recv() {
                 Ok(Some(row)) => {
                     if !poked {
-                        assert_eq!(row.step, received + rx.dropped(), "in order");
+                        assert_eq!(P::telemetry_step(&row), received + rx.dropped(), "in order");
                     }
                     received += 1;
                 }
@@ -288,41 +287,42 @@ fn overwrite(input: &mut Input) {
     }
 }
 
+/// How a protocol's messages are made from a counter for [`rings`] (each distinct per `n`).
+pub trait FuzzProtocol: Protocol {
+    fn features(n: u64) -> Self::Features;
+    fn forces(n: u64) -> Self::Forces;
+    fn commands(n: u64) -> Self::Commands;
+    /// A telemetry message carrying step `step`, and the step back out of one.
+    fn telemetry(step: u64) -> Self::Telemetry;
+    fn telemetry_step(row: &Self::Telemetry) -> u64;
+}
+
 /// The four rings' protocols under arbitrary operation sequences and hostile pokes.
-pub fn rings(data: &[u8]) {
+pub fn rings<P: FuzzProtocol>(data: &[u8])
+where
+    P::Features: Copy + PartialEq + std::fmt::Debug,
+    P::Forces: Copy + PartialEq + std::fmt::Debug,
+    P::Commands: Copy + PartialEq + std::fmt::Debug,
+{
     let mut input = Input(data);
     match input.byte().unwrap_or(0) % 4 {
-        0 => lossless(&mut input, |n| FeatureMsg {
-            seq: n,
-            len: (n % 17) as u8,
-            values: [n as f64; 16],
-            ..FeatureMsg::default()
-        }),
-        1 => lossless(&mut input, |n| ForceMsg {
-            seq: n,
-            force: n as f64 * 0.5,
-            ..ForceMsg::default()
-        }),
-        2 => lossless(&mut input, |n| Command {
-            id: n,
-            kind: crate::messages::CommandKind::StopExperiment,
-            name: crate::fixed_str::FixedStr::new("stop").expect("valid"),
-            values: [n as f64; 4],
-        }),
-        _ => overwrite(&mut input),
+        0 => lossless(&mut input, P::features),
+        1 => lossless(&mut input, P::forces),
+        2 => lossless(&mut input, P::commands),
+        _ => overwrite::<P>(&mut input),
     }
 }
 
-/// Decodes arbitrary words as each message type. Decoding either refuses or gives a value
-/// that encodes to words that decode to the same value (compared as words, so NaN payloads
-/// compare too).
-pub fn messages(data: &[u8]) {
+/// Decodes arbitrary words as each of the protocol's message types. Decoding either refuses
+/// or gives a value that encodes to words that decode to the same value (compared as words,
+/// so NaN payloads compare too).
+pub fn messages<P: Protocol>(data: &[u8]) {
     let mut words: Vec<u64> = words_of(data).collect();
     words.resize(crate::message::MAX_WORDS, 0);
-    round_trip::<FeatureMsg>(&words);
-    round_trip::<ForceMsg>(&words);
-    round_trip::<TelemetryRow>(&words);
-    round_trip::<Command>(&words);
+    round_trip::<P::Features>(&words);
+    round_trip::<P::Forces>(&words);
+    round_trip::<P::Telemetry>(&words);
+    round_trip::<P::Commands>(&words);
 }
 
 fn round_trip<M: Message>(words: &[u64]) {

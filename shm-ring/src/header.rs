@@ -4,10 +4,16 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use crate::fixed_str::{FixedStr, FIXED_STR_WORDS};
-use crate::loop_status::StatusBlock;
-use crate::message::Message;
-use crate::messages::{Command, FeatureMsg, ForceMsg, TelemetryRow, MAX_FEATURES};
+use crate::protocol::MessageShape;
 use crate::ring_mem::{slot_words, Padded, RingControl};
+use crate::status_block::{StatusBlock, STATUS_WORDS};
+
+/// Most names the header's schema holds (the names of the first channel's values; the
+/// protocol's message must carry at most as many values).
+pub const MAX_SCHEMA_NAMES: usize = 16;
+
+// The status block's size is part of the layout (LAYOUT_VERSION 3: 58 words).
+const _: () = assert!(std::mem::size_of::<StatusBlock>() == (1 + STATUS_WORDS) * 8);
 
 /// "HAPTSHM1" little-endian: the first word of every segment.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"HAPTSHM1");
@@ -41,16 +47,6 @@ impl Channel {
             Channel::Commands => "commands",
         }
     }
-
-    /// Payload words and layout fingerprint of the channel's message type in this build.
-    pub(crate) fn message_shape(self) -> (usize, u64) {
-        match self {
-            Channel::Features => (FeatureMsg::WORDS, FeatureMsg::LAYOUT_ID),
-            Channel::Forces => (ForceMsg::WORDS, ForceMsg::LAYOUT_ID),
-            Channel::Telemetry => (TelemetryRow::WORDS, TelemetryRow::LAYOUT_ID),
-            Channel::Commands => (Command::WORDS, Command::LAYOUT_ID),
-        }
-    }
 }
 
 /// Per-channel description in the header.
@@ -81,11 +77,11 @@ pub(crate) struct Header {
     /// How many times a server attached; the loop sees a new server come as a change.
     pub(crate) server_attachments: AtomicU64,
     pub(crate) schema_len: AtomicU64,
-    pub(crate) schema: [[AtomicU64; FIXED_STR_WORDS]; MAX_FEATURES],
+    pub(crate) schema: [[AtomicU64; FIXED_STR_WORDS]; MAX_SCHEMA_NAMES],
     pub(crate) channels: [ChannelDesc; 4],
     pub(crate) loop_heartbeat: Padded<AtomicU64>,
     pub(crate) server_heartbeat: Padded<AtomicU64>,
-    /// Written by the loop about every 100 ms (a seqlock; see `loop_status`).
+    /// Written by the loop about every 100 ms (a seqlock; see `status_block`).
     pub(crate) loop_status: Padded<StatusBlock>,
 }
 
@@ -109,7 +105,7 @@ const fn align_up(x: usize, a: usize) -> usize {
 pub(crate) const SLOT_ALIGN: usize = 128;
 
 impl Layout {
-    pub(crate) fn compute(capacities: [usize; 4]) -> Layout {
+    pub(crate) fn compute(capacities: [usize; 4], shapes: &[MessageShape; 4]) -> Layout {
         let mut at = align_up(std::mem::size_of::<Header>(), RingControl::ALIGN);
         let mut control_offsets = [0; 4];
         for off in &mut control_offsets {
@@ -117,10 +113,10 @@ impl Layout {
             at += RingControl::SIZE;
         }
         let mut slots_offsets = [0; 4];
-        for (i, channel) in Channel::ALL.iter().enumerate() {
+        for (i, shape) in shapes.iter().enumerate() {
             at = align_up(at, SLOT_ALIGN);
             slots_offsets[i] = at;
-            at += capacities[i] * slot_words(channel.message_shape().0) * 8;
+            at += capacities[i] * slot_words(shape.words) * 8;
         }
         Layout {
             capacities,
@@ -138,6 +134,7 @@ impl Header {
         capacities: [usize; 4],
         schema: &[FixedStr],
         layout: &Layout,
+        shapes: &[MessageShape; 4],
         created_unix_ns: u64,
     ) {
         let r = Ordering::Relaxed;
@@ -158,8 +155,8 @@ impl Header {
                 cell.store(word, r);
             }
         }
-        for (i, channel) in Channel::ALL.iter().enumerate() {
-            let (words, id) = channel.message_shape();
+        for (i, shape) in shapes.iter().enumerate() {
+            let (words, id) = (shape.words, shape.layout_id);
             let desc = &self.channels[i];
             desc.capacity.store(capacities[i] as u64, r);
             desc.payload_words.store(words as u64, r);
@@ -182,7 +179,7 @@ impl Header {
 
     pub(crate) fn schema(&self) -> Option<Vec<String>> {
         let len = self.schema_len.load(Ordering::Relaxed) as usize;
-        if len > MAX_FEATURES {
+        if len > MAX_SCHEMA_NAMES {
             return None;
         }
         let mut names = Vec::with_capacity(len);

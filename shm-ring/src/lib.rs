@@ -6,26 +6,43 @@
 //! (server to loop). Every byte of the segment is accessed only through atomics, so two
 //! processes racing on it is defined behaviour, not luck. See `docs/shm-ring.md`.
 //!
+//! The segment is generic over a [`Protocol`]: the message type of each channel. The haptics
+//! system's is `haptics_proto::layout::Haptics` (with `FeatureMsg`, `ForceMsg`, ...); here a
+//! one-word message stands in for all four:
+//!
 //! ```no_run
-//! use shm_ring::{Config, Segment, SegmentName, FeatureMsg, ForceMsg};
+//! use shm_ring::{layout_id, Config, DecodeError, Message, Protocol, Segment, SegmentName};
+//! #[derive(Clone, Copy)]
+//! struct Word(u64);
+//! impl Message for Word {
+//!     const WORDS: usize = 1;
+//!     const LAYOUT_ID: u64 = layout_id("Word v1: u64");
+//!     fn encode(&self, out: &mut [u64]) { out[0] = self.0 }
+//!     fn decode(w: &[u64]) -> Result<Self, DecodeError> { Ok(Word(w[0])) }
+//! }
+//! struct Words;
+//! impl Protocol for Words {
+//!     type Features = Word;
+//!     type Forces = Word;
+//!     type Telemetry = Word;
+//!     type Commands = Word;
+//! }
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! let name = SegmentName::for_instance("default")?;
 //! // rt-loop:
-//! let mut lp = Segment::create(&name, &Config::default())?.loop_side()?;
-//! lp.features_tx.try_send(FeatureMsg { seq: 1, ..Default::default() })?;
+//! let mut lp = Segment::<Words>::create(&name, &Config::default())?.loop_side()?;
+//! lp.features_tx.try_send(Word(1))?;
 //! // infer-server (another process):
-//! let mut sv = Segment::attach(&name)?.server_side()?;
+//! let mut sv = Segment::<Words>::attach(&name)?.server_side()?;
 //! let f = sv.features_rx.recv()?;
-//! sv.forces_tx.send(ForceMsg { seq: f.seq, force: 1.5, ..Default::default() })?;
+//! sv.forces_tx.send(Word(f.0 * 2))?;
 //! # Ok(()) }
 //! ```
 
 mod fixed_str;
 mod message;
-mod messages;
 mod overwrite;
-#[doc(hidden)]
-pub mod pattern;
+mod protocol;
 mod ring_mem;
 mod spsc;
 mod sync;
@@ -77,17 +94,14 @@ pub mod fuzzing;
 #[cfg(not(loom))]
 mod header;
 #[cfg(not(loom))]
-mod loop_status;
-#[cfg(not(loom))]
 pub mod os;
 #[cfg(not(loom))]
 mod segment;
+#[cfg(not(loom))]
+mod status_block;
 
-pub use fixed_str::{FixedStr, FixedStrError, FIXED_STR_BYTES};
+pub use fixed_str::{FixedStr, FixedStrError, FIXED_STR_BYTES, FIXED_STR_WORDS};
 pub use message::{layout_id, DecodeError, Message, MAX_WORDS};
-pub use messages::{
-    Command, CommandKind, FeatureMsg, ForceMsg, TelemetryRow, COMMAND_VALUES, MAX_FEATURES,
-};
 pub use overwrite::{heap_overwrite_channel, OverwriteConsumer, OverwriteProducer};
 pub use ring_mem::slot_words;
 pub use spsc::{heap_channel, Consumer, CorruptRing, Producer, RecvError, SendError};
@@ -100,14 +114,11 @@ pub use endpoints::{LoopSide, ServerSide};
 #[cfg(not(loom))]
 pub use error::Error;
 #[cfg(not(loom))]
-pub use header::{Channel, LAYOUT_VERSION, MAGIC};
-#[cfg(not(loom))]
-pub use loop_status::{
-    LoopClock, LoopStatus, Quantiles, StatusText, BOARD_BYTES, EXPERIMENT_BYTES, RECORDER_BYTES,
-    SCHEDULING_BYTES,
-};
+pub use header::{Channel, LAYOUT_VERSION, MAGIC, MAX_SCHEMA_NAMES};
+pub use protocol::{MessageShape, Protocol};
 #[cfg(not(loom))]
 pub use segment::{
     Config, Corruption, Link, Role, Segment, SegmentInfo, SegmentName, StaleSegment, MAX_CAPACITY,
-    THESIS_FEATURES,
 };
+#[cfg(not(loom))]
+pub use status_block::{StatusBlock, STATUS_WORDS};

@@ -10,6 +10,7 @@
 //! (serialises creators, so a replaced segment can never be unlinked by a second creator) and
 //! byte 0 of the segment; the server holds byte 1. "Peer alive" = the peer's byte is locked.
 
+use std::marker::PhantomData;
 use std::os::fd::OwnedFd;
 use std::path::PathBuf;
 use std::ptr::NonNull;
@@ -19,28 +20,16 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use crate::error::Error;
 use crate::fixed_str::FixedStr;
-use crate::header::{Channel, Header, Layout, LAYOUT_VERSION, MAGIC, SLOT_ALIGN};
-use crate::messages::MAX_FEATURES;
+use crate::header::{Channel, Header, Layout, LAYOUT_VERSION, MAGIC, MAX_SCHEMA_NAMES, SLOT_ALIGN};
 use crate::os::{self, Mapping};
+use crate::protocol::{shapes, MessageShape, Protocol};
 use crate::ring_mem::{slot_words, CorruptSink, RingControl, RingMem};
+use crate::status_block::STATUS_WORDS;
 
 const LOOP_LOCK_BYTE: u64 = 0;
 const SERVER_LOCK_BYTE: u64 = 1;
 /// Largest ring capacity accepted (slots), to keep a typo from mapping gigabytes.
 pub const MAX_CAPACITY: usize = 1 << 20;
-
-/// The nine feature names of thesis Table 3.1, in order (docs/recording-format.md).
-pub const THESIS_FEATURES: [&str; 9] = [
-    "position_x",
-    "velocity",
-    "acceleration",
-    "f_previous_x",
-    "f_previous_v",
-    "f_previous_a",
-    "cycle_no",
-    "deformation",
-    "area_fx",
-];
 
 /// A validated POSIX shared-memory name: `/` then 1..=200 of `[A-Za-z0-9._-]`.
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
@@ -102,7 +91,8 @@ impl std::fmt::Display for SegmentName {
 /// What the creator puts in a new segment.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Config {
-    /// Feature names in the order `FeatureMsg::values` carries them (at most 16).
+    /// The schema: names of the values the first channel's messages carry, in order (at most
+    /// [`MAX_SCHEMA_NAMES`]; haptics-proto's `layout::config()` puts the feature names here).
     pub feature_names: Vec<String>,
     /// Slots per ring; each a power of two in 2..=2^20.
     pub features_capacity: usize,
@@ -112,11 +102,11 @@ pub struct Config {
 }
 
 impl Default for Config {
-    /// The thesis's nine features; 1024 requests/answers in flight (a second at 1 kHz),
-    /// 8192 telemetry rows (8 s of plots at 1 kHz), 64 commands.
+    /// No schema (the protocol names it); 1024 requests/answers in flight (a second at
+    /// 1 kHz), 8192 telemetry rows (8 s of plots at 1 kHz), 64 commands.
     fn default() -> Self {
         Config {
-            feature_names: THESIS_FEATURES.iter().map(|s| s.to_string()).collect(),
+            feature_names: Vec::new(),
             features_capacity: 1024,
             forces_capacity: 1024,
             telemetry_capacity: 8192,
@@ -144,9 +134,9 @@ impl Config {
                 )));
             }
         }
-        if self.feature_names.len() > MAX_FEATURES {
+        if self.feature_names.len() > MAX_SCHEMA_NAMES {
             return Err(Error::InvalidConfig(format!(
-                "{} feature names, at most {MAX_FEATURES} fit a FeatureMsg",
+                "{} feature names, at most {MAX_SCHEMA_NAMES} fit the schema",
                 self.feature_names.len()
             )));
         }
@@ -258,6 +248,8 @@ pub(crate) struct Shared {
     name: SegmentName,
     role: Role,
     layout: Layout,
+    /// The protocol's message shapes, in channel order (what the header was checked against).
+    shapes: [MessageShape; 4],
     schema: Vec<String>,
     creator_pid: u64,
     /// Corruption found by this process's endpoints and audits (process-private).
@@ -282,7 +274,7 @@ impl Shared {
         // The private, validated copy: never the header's word, which another process can
         // rewrite at any time (a capacity of 0 there would make the mask u64::MAX).
         let capacity = self.layout.capacities[i];
-        let (payload, _) = channel.message_shape();
+        let payload = self.shapes[i].words;
         // SAFETY: capacities and offsets are this process's `Layout::compute` result (checked
         // against the header and the file size when attaching; the mapping is `layout.total`
         // bytes, so every ring lies inside it); control blocks are aligned to
@@ -347,10 +339,12 @@ impl Drop for Shared {
     }
 }
 
-/// A mapped segment, as created by the loop or attached by the server.
-pub struct Segment {
+/// A mapped segment carrying protocol `P`'s messages, as created by the loop or attached by
+/// the server.
+pub struct Segment<P: Protocol> {
     shared: Arc<Shared>,
     replaced: Option<StaleSegment>,
+    _protocol: PhantomData<fn() -> P>,
 }
 
 fn os_err<'a>(
@@ -364,10 +358,10 @@ fn os_err<'a>(
     }
 }
 
-impl Segment {
+impl<P: Protocol> Segment<P> {
     /// Creates the segment (the loop's side). Replaces a segment left by a dead loop; refuses
     /// with [`Error::InstanceInUse`] if a live loop owns the name.
-    pub fn create(name: &SegmentName, config: &Config) -> Result<Segment, Error> {
+    pub fn create(name: &SegmentName, config: &Config) -> Result<Segment<P>, Error> {
         let schema = config.validate()?;
 
         // 1. The instance lock: one creator per name at a time, for the creator's lifetime.
@@ -381,8 +375,9 @@ impl Segment {
         config: &Config,
         schema: Vec<FixedStr>,
         lock: std::fs::File,
-    ) -> Result<Segment, Error> {
+    ) -> Result<Segment<P>, Error> {
         let capacities = config.capacities();
+        let shapes = shapes::<P>();
         // 2. Create exclusively; a leftover is stale by construction (its creator released the
         //    instance lock, i.e. died) unless its loop byte is still locked (defensive check).
         let mut replaced = None;
@@ -416,7 +411,7 @@ impl Segment {
         }
 
         // 3. Size, map (zero-filled by the kernel), write the header, publish the magic last.
-        let layout = Layout::compute(capacities);
+        let layout = Layout::compute(capacities, &shapes);
         os::ftruncate(&fd, layout.total as u64).map_err(os_err("ftruncate", name))?;
         let mapping = Mapping::map(&fd, layout.total).map_err(os_err("mmap", name))?;
         let shared = Arc::new(Shared {
@@ -425,6 +420,7 @@ impl Segment {
             name: name.clone(),
             role: Role::Loop,
             layout: layout.clone(),
+            shapes,
             schema: config.feature_names.clone(),
             creator_pid: u64::from(os::pid()),
             corrupt: CorruptSink::default(),
@@ -435,13 +431,19 @@ impl Segment {
             .duration_since(UNIX_EPOCH)
             .map(|d| d.as_nanos() as u64)
             .unwrap_or(0);
-        shared.header().init(capacities, &schema, &layout, now_ns);
+        shared
+            .header()
+            .init(capacities, &schema, &layout, &shapes, now_ns);
         shared.header().magic.store(MAGIC, Ordering::Release);
-        Ok(Segment { shared, replaced })
+        Ok(Segment {
+            shared,
+            replaced,
+            _protocol: PhantomData,
+        })
     }
 
     /// Attaches to a live loop's segment (the server's side), validating the header.
-    pub fn attach(name: &SegmentName) -> Result<Segment, Error> {
+    pub fn attach(name: &SegmentName) -> Result<Segment<P>, Error> {
         let fd = match os::shm_open(name.as_str(), false) {
             Ok(fd) => fd,
             Err(e) if e.raw_os_error() == Some(libc::ENOENT) => {
@@ -495,7 +497,8 @@ impl Segment {
                 }
             });
         }
-        let (layout, schema) = validate(header, name, stat.size)?;
+        let shapes = shapes::<P>();
+        let (layout, schema) = validate(header, name, stat.size, &shapes)?;
         let creator_pid = header.creator_pid.load(Ordering::Relaxed) as u32;
         if !loop_alive() {
             return Err(Error::CreatorDead {
@@ -518,6 +521,7 @@ impl Segment {
             name: name.clone(),
             role: Role::Server,
             layout,
+            shapes,
             schema,
             creator_pid: u64::from(creator_pid),
             corrupt: CorruptSink::default(),
@@ -527,6 +531,7 @@ impl Segment {
         Ok(Segment {
             shared,
             replaced: None,
+            _protocol: PhantomData,
         })
     }
 
@@ -557,7 +562,7 @@ impl Segment {
                 name: name.to_string(),
             });
         }
-        validate(header, name, stat.size)?;
+        validate(header, name, stat.size, &shapes::<P>())?;
         let mut info = info_of(header, name);
         info.loop_alive = os::byte_is_locked(&fd, LOOP_LOCK_BYTE).unwrap_or(false);
         info.server_alive = os::byte_is_locked(&fd, SERVER_LOCK_BYTE).unwrap_or(false);
@@ -566,7 +571,7 @@ impl Segment {
 
     /// [`Segment::attach`], retrying transient failures (no segment yet, a dead loop's
     /// segment not yet replaced, initialisation in progress) until `timeout`.
-    pub fn attach_timeout(name: &SegmentName, timeout: Duration) -> Result<Segment, Error> {
+    pub fn attach_timeout(name: &SegmentName, timeout: Duration) -> Result<Segment<P>, Error> {
         let deadline = Instant::now() + timeout;
         loop {
             match Segment::attach(name) {
@@ -599,7 +604,7 @@ impl Segment {
     }
 
     /// The loop's endpoints. Fails if this handle was attached (the server's).
-    pub fn loop_side(self) -> Result<crate::endpoints::LoopSide, Error> {
+    pub fn loop_side(self) -> Result<crate::endpoints::LoopSide<P>, Error> {
         if self.shared.role != Role::Loop {
             return Err(Error::WrongRole {
                 actual: self.shared.role.name(),
@@ -610,7 +615,7 @@ impl Segment {
     }
 
     /// The server's endpoints. Fails if this handle created the segment (the loop's).
-    pub fn server_side(self) -> Result<crate::endpoints::ServerSide, Error> {
+    pub fn server_side(self) -> Result<crate::endpoints::ServerSide<P>, Error> {
         if self.shared.role != Role::Server {
             return Err(Error::WrongRole {
                 actual: self.shared.role.name(),
@@ -651,6 +656,7 @@ pub(crate) fn validate(
     header: &Header,
     name: &SegmentName,
     file_size: u64,
+    shapes: &[MessageShape; 4],
 ) -> Result<(Layout, Vec<String>), Error> {
     let r = Ordering::Relaxed;
     let name_s = || name.to_string();
@@ -699,7 +705,7 @@ pub(crate) fn validate(
     let capacities = header.capacities();
     for (i, channel) in Channel::ALL.iter().enumerate() {
         let desc = &header.channels[i];
-        let (words, id) = channel.message_shape();
+        let (words, id) = (shapes[i].words, shapes[i].layout_id);
         let ch = channel.name();
         mismatch(
             format!("{ch} message layout id"),
@@ -731,7 +737,7 @@ pub(crate) fn validate(
             });
         }
     }
-    let layout = Layout::compute(capacities);
+    let layout = Layout::compute(capacities, shapes);
     for (i, channel) in Channel::ALL.iter().enumerate() {
         let desc = &header.channels[i];
         let ch = channel.name();
@@ -757,7 +763,7 @@ pub(crate) fn validate(
             name: name_s(),
             what: "feature schema (bad length or names)".into(),
             found: header.schema_len.load(r),
-            expected: MAX_FEATURES as u64,
+            expected: MAX_SCHEMA_NAMES as u64,
         });
     };
     Ok((layout, schema))
@@ -792,9 +798,9 @@ fn audit(shared: &Shared) -> Result<(), Corruption> {
     field("control_align", &h.control_align, RingControl::ALIGN as u64)?;
     field("total_size", &h.total_size, layout.total as u64)?;
     field("creator_pid", &h.creator_pid, shared.creator_pid)?;
-    for (i, channel) in Channel::ALL.iter().enumerate() {
+    for (i, shape) in shared.shapes.iter().enumerate() {
         let d = &h.channels[i];
-        let (words, id) = channel.message_shape();
+        let (words, id) = (shape.words, shape.layout_id);
         field("capacity", &d.capacity, layout.capacities[i] as u64)?;
         field("payload_words", &d.payload_words, words as u64)?;
         field("slot_bytes", &d.slot_bytes, slot_words(words) as u64 * 8)?;
@@ -945,16 +951,18 @@ impl Link {
             .load(Ordering::Acquire)
     }
 
-    /// Publishes the loop's status in the header's loop-status block (a seqlock; readers
-    /// never see a torn snapshot). Loop side only (the single writer): returns `None` on a
-    /// server's handle, else the generation written. Call it about every 100 ms, not per
-    /// step; it allocates nothing, takes no lock and makes no syscall.
-    pub fn publish_loop_status(&self, status: &crate::loop_status::LoopStatus) -> Option<u64> {
-        (self.shared.role == Role::Loop).then(|| self.shared.header().loop_status.0.publish(status))
+    /// Publishes the loop's status words in the header's status block (a seqlock; readers
+    /// never see a torn snapshot; what the words mean is the protocol's: haptics-proto's
+    /// `status::LoopStatusLink` wraps this). Loop side only (the single writer): returns
+    /// `None` on a server's handle, else the generation written. Call it about every 100 ms,
+    /// not per step; it allocates nothing, takes no lock and makes no syscall.
+    pub fn publish_status(&self, words: &[u64; STATUS_WORDS]) -> Option<u64> {
+        (self.shared.role == Role::Loop).then(|| self.shared.header().loop_status.0.publish(words))
     }
 
-    /// The loop's last published status, `None` if it never published (or died mid-write).
-    pub fn loop_status(&self) -> Option<crate::loop_status::LoopStatus> {
+    /// The loop's last published status words and their generation, `None` if it never
+    /// published (or died mid-write).
+    pub fn status(&self) -> Option<(u64, [u64; STATUS_WORDS])> {
         self.shared.header().loop_status.0.read()
     }
 
@@ -993,8 +1001,13 @@ impl Link {
     /// its descriptor moves to the new segment), so no other loop can take the name meanwhile.
     /// Endpoints of this segment keep working on the old memory until dropped, but nobody
     /// serves them any more. Off the real-time path: several syscalls and a 2 MB mapping.
-    pub fn recreate(&self) -> Result<Segment, Error> {
+    pub fn recreate<P: Protocol>(&self) -> Result<Segment<P>, Error> {
         let s = &self.shared;
+        if shapes::<P>() != s.shapes {
+            return Err(Error::InvalidConfig(
+                "recreate with another protocol than the segment's".into(),
+            ));
+        }
         let Some(lock) = s._instance_lock.as_ref().filter(|_| s.role == Role::Loop) else {
             return Err(Error::WrongRole {
                 actual: s.role.name(),
@@ -1019,7 +1032,7 @@ impl Link {
             Err(e) if e.raw_os_error() == Some(libc::ENOENT) => {}
             Err(e) => return Err(os_err("unlink corrupt segment", &s.name)(e)),
         }
-        Segment::create_locked(&s.name, &config, schema, lock)
+        Segment::<P>::create_locked(&s.name, &config, schema, lock)
     }
 
     /// What the header says.

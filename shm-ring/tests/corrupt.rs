@@ -9,10 +9,8 @@
 use std::os::unix::fs::FileExt;
 use std::time::{Duration, Instant};
 
-use shm_ring::{
-    Config, CorruptRing, Corruption, FeatureMsg, ForceMsg, RecvError, Segment, SegmentName,
-    SendError, TelemetryRow,
-};
+use haptics_proto::{FeatureMsg, ForceMsg, Haptics, Segment, TelemetryRow};
+use shm_ring::{CorruptRing, Corruption, RecvError, SegmentName, SendError};
 
 fn unique(tag: &str) -> SegmentName {
     SegmentName::for_instance(&format!("t{}-corrupt-{tag}", std::process::id())).unwrap()
@@ -48,7 +46,7 @@ fn feature(seq: u64) -> FeatureMsg {
 #[test]
 fn header_rewritten_after_attach_changes_nothing_and_the_audit_sees_it() {
     let name = unique("hdr");
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();
@@ -91,7 +89,7 @@ fn header_rewritten_after_attach_changes_nothing_and_the_audit_sees_it() {
 #[test]
 fn a_corrupt_slot_is_skipped_and_counted_not_a_stall() {
     let name = unique("slot");
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();
@@ -127,7 +125,7 @@ fn a_corrupt_slot_is_skipped_and_counted_not_a_stall() {
 #[test]
 fn impossible_indices_are_refused_and_counted_without_panic_or_hang() {
     let name = unique("idx");
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();
@@ -214,7 +212,7 @@ fn impossible_indices_are_refused_and_counted_without_panic_or_hang() {
 #[test]
 fn a_server_attaching_to_impossible_indices_refuses_to_send() {
     let name = unique("attach");
-    let _lp = Segment::create(&name, &Config::default())
+    let _lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();
@@ -238,7 +236,7 @@ fn a_server_attaching_to_impossible_indices_refuses_to_send() {
 #[test]
 fn recreate_gives_a_fresh_segment_the_server_reattaches_to() {
     let name = unique("recreate");
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();
@@ -249,7 +247,7 @@ fn recreate_gives_a_fresh_segment_the_server_reattaches_to() {
     poke(&name, features + TAIL, u64::MAX);
     assert!(lp.link.audit().is_err());
 
-    let mut fresh = lp.link.recreate().unwrap().loop_side().unwrap();
+    let mut fresh = lp.link.recreate::<Haptics>().unwrap().loop_side().unwrap();
     assert_eq!(fresh.link.audit(), Ok(()));
     assert_eq!(fresh.link.corrupt(), 0);
     // The server sees the old loop gone (its lock released), drains, and re-attaches.
@@ -281,7 +279,7 @@ fn recreate_gives_a_fresh_segment_the_server_reattaches_to() {
     assert_eq!(fresh.forces_rx.recv().unwrap().force, 1.5);
 
     // A second recreate works too; the last loop handle unlinks the name.
-    let again = fresh.link.recreate().unwrap();
+    let again: Segment = fresh.link.recreate().unwrap();
     drop(fresh);
     drop(sv);
     assert!(std::path::Path::new(&format!("/dev/shm{}", name.as_str())).exists());
@@ -293,7 +291,7 @@ fn recreate_gives_a_fresh_segment_the_server_reattaches_to() {
 #[test]
 fn random_writes_while_both_sides_run_never_panic() {
     let name = unique("random");
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();

@@ -6,7 +6,9 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use shm_ring::{pattern, Config, Segment, SegmentName, TelemetryRow, WaitStrategy};
+use haptics_proto::{Segment, TelemetryRow};
+use shm_ring::{SegmentName, WaitStrategy};
+use shm_ring_testing::pattern;
 
 struct Counting;
 
@@ -32,7 +34,7 @@ static GLOBAL: Counting = Counting;
 #[test]
 fn loop_step_allocates_nothing() {
     let name = SegmentName::for_instance(&format!("na{}", std::process::id())).unwrap();
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();

@@ -4,10 +4,12 @@
 
 use std::time::Duration;
 
+use haptics_proto::{Command, CommandKind, FeatureMsg, ForceMsg, TelemetryRow, MAX_FEATURES};
 use shm_ring::{
-    heap_channel, heap_overwrite_channel, pattern, Command, CommandKind, DecodeError, FeatureMsg,
-    FixedStr, ForceMsg, Message, RecvError, SendError, TelemetryRow, WaitStrategy, MAX_FEATURES,
+    heap_channel, heap_overwrite_channel, DecodeError, FixedStr, Message, RecvError, SendError,
+    WaitStrategy,
 };
+use shm_ring_testing::pattern;
 
 fn roundtrip<M: Message + PartialEq + std::fmt::Debug>(msg: M) {
     let mut words = vec![0u64; M::WORDS];

@@ -4,10 +4,9 @@
 use std::os::unix::fs::{FileExt, PermissionsExt};
 use std::time::Duration;
 
-use shm_ring::{
-    pattern, Command, CommandKind, Config, Error, FixedStr, Message, RecvError, Role, Segment,
-    SegmentName, TelemetryRow, THESIS_FEATURES,
-};
+use haptics_proto::{Command, CommandKind, LoopStatusLink, Segment, TelemetryRow, THESIS_FEATURES};
+use shm_ring::{Config, Error, FixedStr, Message, RecvError, Role, SegmentName};
+use shm_ring_testing::pattern;
 
 /// A name no other test (or test run) uses.
 fn unique(tag: &str) -> SegmentName {
@@ -45,23 +44,23 @@ fn config_is_validated() {
     let bad = |c: Config| matches!(Segment::create(&name, &c), Err(Error::InvalidConfig(_)));
     assert!(bad(Config {
         features_capacity: 1000,
-        ..Config::default()
+        ..haptics_proto::layout::config()
     }));
     assert!(bad(Config {
         telemetry_capacity: 1 << 21,
-        ..Config::default()
+        ..haptics_proto::layout::config()
     }));
     assert!(bad(Config {
         feature_names: (0..17).map(|i| format!("f{i}")).collect(),
-        ..Config::default()
+        ..haptics_proto::layout::config()
     }));
     assert!(bad(Config {
         feature_names: vec!["a".into(), "a".into()],
-        ..Config::default()
+        ..haptics_proto::layout::config()
     }));
     assert!(bad(Config {
         feature_names: vec!["x".repeat(33)],
-        ..Config::default()
+        ..haptics_proto::layout::config()
     }));
     assert!(
         !std::path::Path::new(&shm_path(&name)).exists(),
@@ -77,7 +76,7 @@ fn create_attach_and_header_contents() {
         forces_capacity: 32,
         telemetry_capacity: 128,
         commands_capacity: 8,
-        ..Config::default()
+        ..haptics_proto::layout::config()
     };
     let lp = Segment::create(&name, &config).unwrap();
     assert_eq!(lp.role(), Role::Loop);
@@ -132,7 +131,7 @@ fn create_attach_and_header_contents() {
 #[test]
 fn all_four_channels_end_to_end() {
     let name = unique("chan");
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();
@@ -179,7 +178,7 @@ fn all_four_channels_end_to_end() {
 #[test]
 fn reattaching_server_skips_stale_requests() {
     let name = unique("skip");
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();
@@ -204,7 +203,7 @@ fn reattaching_server_skips_stale_requests() {
 #[test]
 fn loop_exit_unlinks_and_server_sees_it() {
     let name = unique("exit");
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();
@@ -250,7 +249,7 @@ fn garbage_segment_is_refused_then_replaced() {
         Err(Error::BadMagic { .. })
     ));
     // Nobody holds its locks: the creator treats it as stale and replaces it.
-    let lp = Segment::create(&name, &Config::default()).unwrap();
+    let lp = Segment::create(&name, &haptics_proto::layout::config()).unwrap();
     assert!(lp.replaced_stale().is_some());
     Segment::attach(&name).unwrap();
 }
@@ -258,7 +257,7 @@ fn garbage_segment_is_refused_then_replaced() {
 #[test]
 fn group_readable_segment_is_refused() {
     let name = unique("mode");
-    let _lp = Segment::create(&name, &Config::default()).unwrap();
+    let _lp = Segment::create(&name, &haptics_proto::layout::config()).unwrap();
     std::fs::set_permissions(shm_path(&name), std::fs::Permissions::from_mode(0o644)).unwrap();
     assert!(matches!(
         Segment::attach(&name),
@@ -284,7 +283,7 @@ fn poke(name: &SegmentName, offset: u64, value: u64) -> u64 {
 #[test]
 fn mismatched_header_is_refused_with_a_clear_error() {
     let name = unique("hdr");
-    let _lp = Segment::create(&name, &Config::default()).unwrap();
+    let _lp = Segment::create(&name, &haptics_proto::layout::config()).unwrap();
 
     let old = poke(&name, 0, 0x1234);
     assert_eq!(old, shm_ring::MAGIC);
@@ -311,7 +310,7 @@ fn mismatched_header_is_refused_with_a_clear_error() {
     let old = poke(&name, 616, 3);
     assert_eq!(
         old,
-        shm_ring::FeatureMsg::WORDS as u64,
+        haptics_proto::FeatureMsg::WORDS as u64,
         "offset 616 is the features payload_words"
     );
     let e = Segment::attach(&name).err().unwrap();
@@ -346,7 +345,7 @@ fn attach_timeout_waits_for_the_loop() {
     let n2 = name.clone();
     let creator = std::thread::spawn(move || {
         std::thread::sleep(Duration::from_millis(100));
-        let seg = Segment::create(&n2, &Config::default()).unwrap();
+        let seg = Segment::create(&n2, &haptics_proto::layout::config()).unwrap();
         std::thread::sleep(Duration::from_millis(500));
         drop(seg);
     });
@@ -367,24 +366,24 @@ fn attach_timeout_waits_for_the_loop() {
 #[test]
 fn endpoints_can_move_to_their_threads() {
     fn send<T: Send>() {}
-    send::<shm_ring::LoopSide>();
-    send::<shm_ring::ServerSide>();
+    send::<haptics_proto::LoopSide>();
+    send::<haptics_proto::ServerSide>();
     send::<shm_ring::Link>();
     fn sync<T: Sync>() {}
     sync::<shm_ring::Link>();
     // And for real: each end used from its own thread.
     let name = unique("threads");
-    let lp = Segment::create(&name, &Config::default())
+    let lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();
     let sv = Segment::attach(&name).unwrap().server_side().unwrap();
-    let shm_ring::LoopSide {
+    let haptics_proto::LoopSide {
         mut features_tx,
         link,
         ..
     } = lp;
-    let shm_ring::ServerSide {
+    let haptics_proto::ServerSide {
         mut features_rx, ..
     } = sv;
     let producer = std::thread::spawn(move || {
@@ -413,9 +412,9 @@ fn endpoints_can_move_to_their_threads() {
 /// reader racing a publishing thread only ever sees whole snapshots.
 #[test]
 fn loop_status_block_round_trips_through_the_segment() {
-    use shm_ring::{LoopClock, LoopStatus, Quantiles, StatusText};
+    use haptics_proto::{LoopClock, LoopStatus, Quantiles, StatusText};
     let name = unique("status");
-    let lp = Segment::create(&name, &Config::default())
+    let lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();
@@ -459,7 +458,7 @@ fn loop_status_block_round_trips_through_the_segment() {
     };
     assert_eq!(
         s.recorder.as_str().len(),
-        shm_ring::RECORDER_BYTES,
+        haptics_proto::RECORDER_BYTES,
         "truncated"
     );
     assert_eq!(lp.link.publish_loop_status(&s), Some(1));

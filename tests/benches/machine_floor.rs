@@ -15,13 +15,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use haptics_proto::{FeatureMsg, ForceMsg, Segment, MAX_FEATURES};
 use haptics_system_tests::repo_root;
 use hdrhistogram::Histogram;
 use infer_server::profile::{self, Machine, Profile};
 use infer_server::{FeatureSchema, Runtime, SessionConfig, StepEngine};
-use shm_ring::{
-    monotonic_ns, Config, FeatureMsg, ForceMsg, Segment, SegmentName, WaitStrategy, MAX_FEATURES,
-};
+use shm_ring::{monotonic_ns, SegmentName, WaitStrategy};
 
 const PERIOD_NS: u64 = 100_000;
 const DEADLINE_NS: u64 = 50_000;
@@ -44,7 +43,7 @@ fn floor(
     server_cpu: Option<usize>,
 ) -> (u64, u64, Histogram<u64>) {
     let name = SegmentName::for_instance(&format!("floor-{}", std::process::id())).unwrap();
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();

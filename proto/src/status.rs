@@ -1,21 +1,17 @@
-//! The loop-status block of the segment header: what the loop reports about itself (clock,
-//! board, scheduling obtained, recorder state, counters, round-trip and jitter percentiles)
-//! for infer-server's status, written by the loop about every 100 ms, never per step.
+//! The loop-status block: what the loop reports about itself (clock, board, scheduling
+//! obtained, recorder state, the experiment's name, counters, round-trip and jitter
+//! percentiles) for infer-server's status, written by the loop about every 100 ms, never per
+//! step, into the segment header's status block (`shm_ring::StatusBlock`, a seqlock: readers
+//! never see half of one publication). This module says what its words mean.
 //!
-//! A seqlock, like one telemetry slot: the loop (the only writer) stores an odd sequence word,
-//! a release fence, every field (relaxed atomics), then the next even sequence word (release).
-//! A reader loads the sequence word (acquire), the fields (relaxed), an acquire fence and the
-//! sequence word again; the snapshot counts only if both are the same even value, so a reader
-//! never sees half of one publication and half of another. Every word is an `AtomicU64`, as in
-//! the rest of the segment: a racing read is a stale value that the sequence words discard,
-//! never a data race.
-//!
-//! REAL-TIME: [`StatusBlock::publish`] allocates nothing, takes no lock, makes no syscall
-//! (about 60 relaxed stores). Text fields are fixed-size byte arrays ([`StatusText`]),
-//! filled with `core::fmt` (no allocation) and truncated at a character boundary.
+//! REAL-TIME: [`LoopStatusLink::publish_loop_status`] allocates nothing, takes no lock, makes
+//! no syscall (an on-stack word array, then the seqlock's relaxed stores). Text fields are
+//! fixed-size byte arrays ([`StatusText`]), filled with `core::fmt` (no allocation) and
+//! truncated at a character boundary.
 
 use std::fmt;
-use std::sync::atomic::{fence, AtomicU64, Ordering};
+
+use shm_ring::{Link, STATUS_WORDS};
 
 /// Bytes of [`LoopStatus::board`].
 pub const BOARD_BYTES: usize = 32;
@@ -114,19 +110,16 @@ impl<const N: usize> StatusText<N> {
         self.len == 0
     }
 
-    fn store(&self, cells: &[AtomicU64]) {
-        for (cell, chunk) in cells.iter().zip(self.bytes.chunks_exact(8)) {
-            cell.store(
-                u64::from_le_bytes(chunk.try_into().expect("8-byte chunk")),
-                Ordering::Relaxed,
-            );
+    fn store(&self, out: &mut [u64]) {
+        for (word, chunk) in out.iter_mut().zip(self.bytes.chunks_exact(8)) {
+            *word = u64::from_le_bytes(chunk.try_into().expect("8-byte chunk"));
         }
     }
 
-    fn load(cells: &[AtomicU64]) -> Self {
+    fn load(words: &[u64]) -> Self {
         let mut bytes = [0u8; N];
-        for (chunk, cell) in bytes.chunks_exact_mut(8).zip(cells) {
-            chunk.copy_from_slice(&cell.load(Ordering::Relaxed).to_le_bytes());
+        for (chunk, word) in bytes.chunks_exact_mut(8).zip(words) {
+            chunk.copy_from_slice(&word.to_le_bytes());
         }
         let end = bytes.iter().position(|&b| b == 0).unwrap_or(N);
         // A scribbled segment cannot make us return invalid UTF-8: keep the valid prefix.
@@ -218,138 +211,130 @@ const fn words(bytes: usize) -> usize {
     bytes / 8
 }
 
-/// The block in the header. `#[repr(C)]`, atomics only.
-#[repr(C)]
-pub(crate) struct StatusBlock {
-    seq: AtomicU64,
-    updated_unix_ns: AtomicU64,
-    clock: AtomicU64,
-    rate_hz_bits: AtomicU64,
-    running: AtomicU64,
-    run_id: AtomicU64,
-    steps: AtomicU64,
-    fallbacks: AtomicU64,
-    deadline_misses: AtomicU64,
-    overruns: AtomicU64,
-    round_trip: [AtomicU64; 5],
-    period_jitter: [AtomicU64; 5],
-    board: [AtomicU64; words(BOARD_BYTES)],
-    scheduling: [AtomicU64; words(SCHEDULING_BYTES)],
-    recorder: [AtomicU64; words(RECORDER_BYTES)],
+/// Where each field sits in the block's words (the order of layout version 3; changing it
+/// changes the segment layout: bump `shm_ring::LAYOUT_VERSION`).
+mod at {
+    use super::*;
+    pub const UPDATED_UNIX_NS: usize = 0;
+    pub const CLOCK: usize = 1;
+    pub const RATE_HZ: usize = 2;
+    pub const RUNNING: usize = 3;
+    pub const RUN_ID: usize = 4;
+    pub const STEPS: usize = 5;
+    pub const FALLBACKS: usize = 6;
+    pub const DEADLINE_MISSES: usize = 7;
+    pub const OVERRUNS: usize = 8;
+    pub const ROUND_TRIP: usize = 9;
+    pub const PERIOD_JITTER: usize = ROUND_TRIP + 5;
+    pub const BOARD: usize = PERIOD_JITTER + 5;
+    pub const SCHEDULING: usize = BOARD + words(BOARD_BYTES);
+    pub const RECORDER: usize = SCHEDULING + words(SCHEDULING_BYTES);
     // layout version 3: the ladder's counters and the experiment's name
-    on_time: AtomicU64,
-    late_one: AtomicU64,
-    held: AtomicU64,
-    fallback_steps: AtomicU64,
-    corrupt: AtomicU64,
-    max_transition_step_n_bits: AtomicU64,
-    experiment: [AtomicU64; words(EXPERIMENT_BYTES)],
+    pub const ON_TIME: usize = RECORDER + words(RECORDER_BYTES);
+    pub const LATE_ONE: usize = ON_TIME + 1;
+    pub const HELD: usize = ON_TIME + 2;
+    pub const FALLBACK_STEPS: usize = ON_TIME + 3;
+    pub const CORRUPT: usize = ON_TIME + 4;
+    pub const MAX_TRANSITION_STEP_N: usize = ON_TIME + 5;
+    pub const EXPERIMENT: usize = ON_TIME + 6;
+    pub const END: usize = EXPERIMENT + words(EXPERIMENT_BYTES);
 }
 
-/// How many times a reader retries while the loop is mid-publication (it writes ~50 words,
-/// so one or two retries are the most ever needed unless the loop died mid-write).
-const READ_TRIES: usize = 1000;
+const _: () = assert!(
+    at::END == STATUS_WORDS,
+    "LoopStatus must fill the status block"
+);
 
-fn store_q(cells: &[AtomicU64; 5], q: &Quantiles) {
-    for (c, v) in cells
-        .iter()
-        .zip([q.p50_ns, q.p99_ns, q.p999_ns, q.max_ns, q.count])
-    {
-        c.store(v, Ordering::Relaxed);
-    }
+fn store_q(out: &mut [u64], q: &Quantiles) {
+    out[..5].copy_from_slice(&[q.p50_ns, q.p99_ns, q.p999_ns, q.max_ns, q.count]);
 }
 
-fn load_q(cells: &[AtomicU64; 5]) -> Quantiles {
-    let l = |i: usize| cells[i].load(Ordering::Relaxed);
+fn load_q(w: &[u64]) -> Quantiles {
     Quantiles {
-        p50_ns: l(0),
-        p99_ns: l(1),
-        p999_ns: l(2),
-        max_ns: l(3),
-        count: l(4),
+        p50_ns: w[0],
+        p99_ns: w[1],
+        p999_ns: w[2],
+        max_ns: w[3],
+        count: w[4],
     }
 }
 
-impl StatusBlock {
-    /// Writes a snapshot. Single writer (the loop). REAL-TIME safe: no allocation, no lock,
-    /// no syscall. Returns the generation written.
-    pub(crate) fn publish(&self, s: &LoopStatus) -> u64 {
-        let r = Ordering::Relaxed;
-        let seq = self.seq.load(r);
-        // An odd word left by a writer that died mid-publication: start from the next even.
-        let base = seq & !1;
-        self.seq.store(base + 1, r);
-        fence(Ordering::Release);
-        self.updated_unix_ns.store(s.updated_unix_ns, r);
-        self.clock.store(s.clock as u64, r);
-        self.rate_hz_bits.store(s.rate_hz.to_bits(), r);
-        self.running.store(u64::from(s.running), r);
-        self.run_id.store(s.run_id, r);
-        self.steps.store(s.steps, r);
-        self.fallbacks.store(s.fallbacks, r);
-        self.deadline_misses.store(s.deadline_misses, r);
-        self.overruns.store(s.overruns, r);
-        store_q(&self.round_trip, &s.round_trip);
-        store_q(&self.period_jitter, &s.period_jitter);
-        s.board.store(&self.board);
-        s.scheduling.store(&self.scheduling);
-        s.recorder.store(&self.recorder);
-        self.on_time.store(s.on_time, r);
-        self.late_one.store(s.late_one, r);
-        self.held.store(s.held, r);
-        self.fallback_steps.store(s.fallback_steps, r);
-        self.corrupt.store(s.corrupt, r);
-        self.max_transition_step_n_bits
-            .store(s.max_transition_step_n.to_bits(), r);
-        s.experiment.store(&self.experiment);
-        self.seq.store(base + 2, Ordering::Release);
-        (base + 2) / 2
+impl LoopStatus {
+    /// The block's words for this status (`generation` is the block's, not stored).
+    pub fn to_words(&self) -> [u64; STATUS_WORDS] {
+        let mut w = [0u64; STATUS_WORDS];
+        w[at::UPDATED_UNIX_NS] = self.updated_unix_ns;
+        w[at::CLOCK] = self.clock as u64;
+        w[at::RATE_HZ] = self.rate_hz.to_bits();
+        w[at::RUNNING] = u64::from(self.running);
+        w[at::RUN_ID] = self.run_id;
+        w[at::STEPS] = self.steps;
+        w[at::FALLBACKS] = self.fallbacks;
+        w[at::DEADLINE_MISSES] = self.deadline_misses;
+        w[at::OVERRUNS] = self.overruns;
+        store_q(&mut w[at::ROUND_TRIP..], &self.round_trip);
+        store_q(&mut w[at::PERIOD_JITTER..], &self.period_jitter);
+        self.board.store(&mut w[at::BOARD..]);
+        self.scheduling.store(&mut w[at::SCHEDULING..]);
+        self.recorder.store(&mut w[at::RECORDER..]);
+        w[at::ON_TIME] = self.on_time;
+        w[at::LATE_ONE] = self.late_one;
+        w[at::HELD] = self.held;
+        w[at::FALLBACK_STEPS] = self.fallback_steps;
+        w[at::CORRUPT] = self.corrupt;
+        w[at::MAX_TRANSITION_STEP_N] = self.max_transition_step_n.to_bits();
+        self.experiment.store(&mut w[at::EXPERIMENT..]);
+        w
     }
 
-    /// One consistent snapshot, or `None` if the loop never published (or stays mid-write,
-    /// i.e. died while writing).
-    pub(crate) fn read(&self) -> Option<LoopStatus> {
-        for _ in 0..READ_TRIES {
-            let s1 = self.seq.load(Ordering::Acquire);
-            if s1 == 0 {
-                return None;
-            }
-            if s1 & 1 == 1 {
-                std::hint::spin_loop();
-                continue;
-            }
-            let r = Ordering::Relaxed;
-            let snapshot = LoopStatus {
-                generation: s1 / 2,
-                updated_unix_ns: self.updated_unix_ns.load(r),
-                clock: LoopClock::from_word(self.clock.load(r)),
-                board: StatusText::load(&self.board),
-                rate_hz: f64::from_bits(self.rate_hz_bits.load(r)),
-                scheduling: StatusText::load(&self.scheduling),
-                recorder: StatusText::load(&self.recorder),
-                running: self.running.load(r) != 0,
-                run_id: self.run_id.load(r),
-                steps: self.steps.load(r),
-                fallbacks: self.fallbacks.load(r),
-                deadline_misses: self.deadline_misses.load(r),
-                overruns: self.overruns.load(r),
-                round_trip: load_q(&self.round_trip),
-                period_jitter: load_q(&self.period_jitter),
-                experiment: StatusText::load(&self.experiment),
-                on_time: self.on_time.load(r),
-                late_one: self.late_one.load(r),
-                held: self.held.load(r),
-                fallback_steps: self.fallback_steps.load(r),
-                corrupt: self.corrupt.load(r),
-                max_transition_step_n: f64::from_bits(self.max_transition_step_n_bits.load(r)),
-            };
-            fence(Ordering::Acquire);
-            if self.seq.load(r) == s1 {
-                return Some(snapshot);
-            }
-            std::hint::spin_loop();
+    /// The status the block's words of publication `generation` say.
+    pub fn from_words(generation: u64, w: &[u64; STATUS_WORDS]) -> LoopStatus {
+        LoopStatus {
+            generation,
+            updated_unix_ns: w[at::UPDATED_UNIX_NS],
+            clock: LoopClock::from_word(w[at::CLOCK]),
+            board: StatusText::load(&w[at::BOARD..]),
+            rate_hz: f64::from_bits(w[at::RATE_HZ]),
+            scheduling: StatusText::load(&w[at::SCHEDULING..]),
+            recorder: StatusText::load(&w[at::RECORDER..]),
+            running: w[at::RUNNING] != 0,
+            run_id: w[at::RUN_ID],
+            steps: w[at::STEPS],
+            fallbacks: w[at::FALLBACKS],
+            deadline_misses: w[at::DEADLINE_MISSES],
+            overruns: w[at::OVERRUNS],
+            round_trip: load_q(&w[at::ROUND_TRIP..]),
+            period_jitter: load_q(&w[at::PERIOD_JITTER..]),
+            experiment: StatusText::load(&w[at::EXPERIMENT..]),
+            on_time: w[at::ON_TIME],
+            late_one: w[at::LATE_ONE],
+            held: w[at::HELD],
+            fallback_steps: w[at::FALLBACK_STEPS],
+            corrupt: w[at::CORRUPT],
+            max_transition_step_n: f64::from_bits(w[at::MAX_TRANSITION_STEP_N]),
         }
-        None
+    }
+}
+
+/// The loop status through a segment's [`Link`] (its header's status block).
+pub trait LoopStatusLink {
+    /// Publishes the loop's status (a seqlock; readers never see a torn snapshot). Loop side
+    /// only (the single writer): `None` on a server's handle, else the generation written.
+    /// Call it about every 100 ms, not per step; it allocates nothing, takes no lock and
+    /// makes no syscall.
+    fn publish_loop_status(&self, status: &LoopStatus) -> Option<u64>;
+    /// The loop's last published status, `None` if it never published (or died mid-write).
+    fn loop_status(&self) -> Option<LoopStatus>;
+}
+
+impl LoopStatusLink for Link {
+    fn publish_loop_status(&self, status: &LoopStatus) -> Option<u64> {
+        self.publish_status(&status.to_words())
+    }
+
+    fn loop_status(&self) -> Option<LoopStatus> {
+        self.status()
+            .map(|(generation, words)| LoopStatus::from_words(generation, &words))
     }
 }
 
@@ -372,7 +357,7 @@ mod tests {
 
     #[test]
     fn block_round_trip_on_the_heap() {
-        let block: StatusBlock = unsafe { std::mem::zeroed() };
+        let block = shm_ring::StatusBlock::default();
         assert!(block.read().is_none());
         let s = LoopStatus {
             clock: LoopClock::Realtime,
@@ -410,13 +395,14 @@ mod tests {
             corrupt: 16,
             max_transition_step_n: 0.04,
         };
-        assert_eq!(block.publish(&s), 1);
-        let back = block.read().expect("published");
+        assert_eq!(block.publish(&s.to_words()), 1);
+        let (generation, words) = block.read().expect("published");
+        let back = LoopStatus::from_words(generation, &words);
         assert_eq!(back, LoopStatus { generation: 1, ..s });
         // a writer that died mid-publication: readers give up, the next publication heals it
-        block.seq.store(3, Ordering::Relaxed);
+        block.simulate_torn_write();
         assert!(block.read().is_none());
-        assert_eq!(block.publish(&s), 2);
-        assert_eq!(block.read().unwrap().generation, 2);
+        assert_eq!(block.publish(&s.to_words()), 2);
+        assert_eq!(block.read().unwrap().0, 2);
     }
 }

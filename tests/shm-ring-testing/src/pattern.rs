@@ -2,7 +2,7 @@
 //! benchmark: every field of message `seq` is a pure function of `seq`, so a receiver can
 //! check a slot completely (a torn, stale, reordered or duplicated slot fails the check).
 
-use crate::messages::{FeatureMsg, ForceMsg, MAX_FEATURES};
+use haptics_proto::{FeatureMsg, ForceMsg, MAX_FEATURES};
 
 /// SplitMix64: a cheap, well-mixed 64-bit hash.
 pub fn mix(mut x: u64) -> u64 {

@@ -10,7 +10,9 @@ use std::process::{Child, ChildStdout, Command, Stdio};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-use shm_ring::{pattern, Config, Error, RecvError, Segment, SegmentName, SendError, WaitStrategy};
+use haptics_proto::Segment;
+use shm_ring::{Config, Error, RecvError, SegmentName, SendError, WaitStrategy};
+use shm_ring_testing::pattern;
 
 const PEER: &str = env!("CARGO_BIN_EXE_shm-ring-peer");
 const TEN_MILLION: u64 = 10_000_000;
@@ -115,7 +117,7 @@ fn ten_million_features_from_a_loop_process() {
 fn ten_million_forces_from_a_server_process() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let name = unique("flood-forces");
-    let mut lp = Segment::create(&name, &Config::default())
+    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
         .unwrap()
         .loop_side()
         .unwrap();
@@ -145,7 +147,7 @@ fn ten_million_forces_from_a_server_process() {
 }
 
 /// One request/answer exchange with an echo server; the answer must match the request.
-fn exchange(lp: &mut shm_ring::LoopSide, seq: u64) -> Result<(), RecvError> {
+fn exchange(lp: &mut haptics_proto::LoopSide, seq: u64) -> Result<(), RecvError> {
     lp.features_tx
         .try_send(pattern::feature(seq))
         .expect("room for a request");
@@ -171,7 +173,7 @@ fn killed_server_is_noticed_and_a_new_one_reattaches() {
         &name,
         &Config {
             features_capacity: 64,
-            ..Config::default()
+            ..haptics_proto::layout::config()
         },
     )
     .unwrap()
@@ -253,7 +255,7 @@ fn killed_loop_is_noticed_its_segment_replaced_and_the_server_reattaches() {
 
     // A live loop's segment is never stolen.
     assert!(
-        matches!(Segment::create(&name, &Config::default()), Err(Error::InstanceInUse { pid, .. }) if pid == loop_pid)
+        matches!(Segment::create(&name, &haptics_proto::layout::config()), Err(Error::InstanceInUse { pid, .. }) if pid == loop_pid)
     );
 
     let mut sv = Segment::attach_timeout(&name, Duration::from_secs(5))
@@ -261,7 +263,7 @@ fn killed_loop_is_noticed_its_segment_replaced_and_the_server_reattaches() {
         .server_side()
         .unwrap();
     sv.features_rx.set_wait_strategy(WaitStrategy::Park);
-    let serve = |sv: &mut shm_ring::ServerSide, n: u64| -> Result<(), RecvError> {
+    let serve = |sv: &mut haptics_proto::ServerSide, n: u64| -> Result<(), RecvError> {
         let mut last = None;
         for _ in 0..n {
             let f = sv.features_rx.recv_timeout(Duration::from_secs(5))?;
@@ -320,6 +322,6 @@ fn killed_loop_is_noticed_its_segment_replaced_and_the_server_reattaches() {
     serve(&mut sv, 3000).unwrap();
     looper2.kill9();
     // Leave nothing behind: replacing the stale segment and exiting cleanly removes it.
-    drop(Segment::create(&name, &Config::default()).unwrap());
+    drop(Segment::create(&name, &haptics_proto::layout::config()).unwrap());
     assert!(!std::path::Path::new(&format!("/dev/shm{}", name.as_str())).exists());
 }

@@ -4,9 +4,9 @@ use std::io::Write;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
-use shm_ring::{
-    pattern, Config, RecvError, Segment, SegmentName, SendError, TelemetryRow, WaitStrategy,
-};
+use haptics_proto::{Segment, TelemetryRow};
+use shm_ring::{RecvError, SegmentName, SendError, WaitStrategy};
+use shm_ring_testing::pattern;
 
 const USAGE: &str = "usage:
   shm-ring-peer inspect NAME
@@ -83,7 +83,7 @@ fn wait_until(timeout: Duration, mut done: impl FnMut() -> bool) -> bool {
 }
 
 fn loop_flood(name: &SegmentName, count: u64, wait: WaitStrategy) -> Result<(), String> {
-    let mut lp = Segment::create(name, &Config::default())
+    let mut lp = Segment::create(name, &haptics_proto::layout::config())
         .and_then(Segment::loop_side)
         .map_err(|e| e.to_string())?;
     lp.features_tx.set_wait_strategy(wait);
@@ -96,7 +96,7 @@ fn loop_flood(name: &SegmentName, count: u64, wait: WaitStrategy) -> Result<(), 
             .send(pattern::feature(seq))
             .map_err(|e| format!("send {seq}: {e}"))?;
     }
-    let capacity = Config::default().features_capacity as u64;
+    let capacity = haptics_proto::layout::config().features_capacity as u64;
     if !wait_until(Duration::from_secs(30), || {
         lp.features_tx.free() == capacity || !lp.peer_alive()
     }) {
@@ -107,7 +107,7 @@ fn loop_flood(name: &SegmentName, count: u64, wait: WaitStrategy) -> Result<(), 
 }
 
 fn loop_run(name: &SegmentName, wait: WaitStrategy) -> Result<(), String> {
-    let seg = Segment::create(name, &Config::default()).map_err(|e| e.to_string())?;
+    let seg = Segment::create(name, &haptics_proto::layout::config()).map_err(|e| e.to_string())?;
     let replaced = seg
         .replaced_stale()
         .map(|s| s.creator_pid.to_string())

@@ -1,0 +1,31 @@
+//! The haptics system's vocabulary: everything rt-loop, infer-server and their clients say to
+//! each other, written once. The gRPC schema stands beside it (`proto/haptics/v1/`); the
+//! Python (`train/`) and TypeScript (`web-ui/`) copies of the name lists are generated from
+//! it. Built on shm-ring's generic rings and segment; shm-ring never depends on this crate.
+//!
+//! - [`features`]: the feature names and the segment's feature schema.
+//! - [`messages`]: `FeatureMsg` and `ForceMsg`, the per-step request and answer.
+//! - [`telemetry`]: `TelemetryRow`, one loop step's state.
+//! - [`command`]: commands to the loop.
+//! - [`status`]: the loop-status block (`LoopStatus`).
+//! - [`layout`]: the haptics segment (its channels' message types, default config).
+
+pub mod command;
+pub mod experiment_args;
+pub mod features;
+#[doc(hidden)]
+pub mod fuzzing;
+pub mod layout;
+pub mod messages;
+pub mod status;
+pub mod telemetry;
+
+pub use command::{Command, CommandKind, COMMAND_VALUES};
+pub use features::{MAX_FEATURES, SCHEMA_NAMES, THESIS_FEATURES};
+pub use layout::{Haptics, LoopSide, Segment, ServerSide};
+pub use messages::{FeatureMsg, ForceMsg};
+pub use status::{
+    LoopClock, LoopStatus, LoopStatusLink, Quantiles, StatusText, BOARD_BYTES, EXPERIMENT_BYTES,
+    RECORDER_BYTES, SCHEDULING_BYTES,
+};
+pub use telemetry::TelemetryRow;
