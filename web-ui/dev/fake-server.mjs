@@ -123,7 +123,7 @@ export class FakeBench {
 
   /**
    * One 10 kHz step with `model` (and the id its answers carry; 0 without one); returns the
-   * telemetry row, every series in the vocabulary's order (SI units). The row is reused.
+   * telemetry row, every series in the page's order (SI units). The row is reused.
    */
   advance(model, modelId = 0) {
     const dt = this.dt;
@@ -189,6 +189,7 @@ export async function startFakeServer(opts = {}) {
     /** The id each model's answers carry: its generation, given when it is activated (0: never). */
     modelIds: Object.fromEntries(Object.keys(MODELS).map((n) => [n, n === "rf6" ? 1 : 0])),
     generation: 1,
+    activeSince: 0,
     fallbacks: 0,
     misses: 0,
     startedAt: Date.now(),
@@ -280,6 +281,8 @@ export async function startFakeServer(opts = {}) {
         rate_hz: state.loopAlive ? rate * (1 + 0.0002 * bench.r.n()) : 0,
         steps: bench.step,
         deadline_misses: state.misses,
+        overruns: 0,
+        period_jitter_us: pct(0.1),
         fallbacks: state.fallbacks,
         // the fake bench has no ladder: a step is on time or rendered by the fallback
         on_time: Math.max(0, bench.step - state.fallbacks),
@@ -294,10 +297,22 @@ export async function startFakeServer(opts = {}) {
         recorder: "off",
         telemetry_drops: 0,
       },
-      active_model: m ? { name: state.active, kind: m.kind, features: m.features, since_step: 0, model_id: state.modelIds[state.active] } : null,
+      active_model: m ? { name: state.active, kind: m.kind, features: m.features, since_step: state.activeSince, model_id: state.modelIds[state.active] } : null,
     };
   }
 
+  /** A model as /api/models lists it (control-plane's ModelJson). */
+  const modelJson = (n) => ({
+    name: n,
+    state: state.models[n],
+    kind: MODELS[n].kind,
+    features: MODELS[n].features,
+    units: "N",
+    size_bytes: 1000,
+    model_id: state.modelIds[n],
+    ...(n === state.active ? { active_since_step: state.activeSince } : {}),
+    provenance: null,
+  });
   const json = (res, code, body) => {
     res.writeHead(code, { "Content-Type": "application/json", "Cache-Control": "no-store" });
     res.end(JSON.stringify(body));
@@ -317,22 +332,23 @@ export async function startFakeServer(opts = {}) {
     if (p.startsWith("/api/")) {
       if (req.method === "POST" && !p.startsWith("/api/_fake") && !authorized(req)) return json(res, 401, { error: "missing or wrong token" });
       if (req.method === "GET" && p === "/api/status") return json(res, 200, status());
-      if (req.method === "GET" && p === "/api/models")
-        return json(res, 200, Object.keys(MODELS).map((n) => ({ name: n, state: state.models[n], kind: MODELS[n].kind, features: MODELS[n].features, model_id: state.modelIds[n] })));
+      if (req.method === "GET" && p === "/api/models") return json(res, 200, Object.keys(MODELS).map(modelJson));
       const mm = p.match(/^\/api\/models\/([^/]+)\/(load|activate)$/);
       if (req.method === "POST" && mm) {
         const name = decodeURIComponent(mm[1]);
         if (!MODELS[name]) return json(res, 400, { error: `no model named ${name}` });
         if (mm[2] === "load") {
           if (state.models[name] === "available") state.models[name] = "loaded";
-          return json(res, 200, { name, state: state.models[name], kind: MODELS[name].kind });
+          return json(res, 200, modelJson(name));
         }
-        if (state.models[name] === "available") return json(res, 412, { error: `${name} is not loaded` });
+        // As infer-server: an available model is loaded first unless ?load_if_needed=false.
+        if (state.models[name] === "available" && url.searchParams.get("load_if_needed") === "false") return json(res, 412, { error: `${name} is not loaded` });
         if (state.active) state.models[state.active] = "loaded";
         state.active = name;
         state.models[name] = "active";
         state.modelIds[name] = ++state.generation;
-        return json(res, 200, { effective_step: bench.step + 1, model: { name, state: "active", kind: MODELS[name].kind } });
+        state.activeSince = bench.step + 1;
+        return json(res, 200, { effective_step: state.activeSince, model: modelJson(name) });
       }
       if (req.method === "POST" && p === "/api/experiment/start") {
         let body;
