@@ -9,12 +9,15 @@
 //! - [`command`]: commands to the loop.
 //! - [`status`]: the loop-status block (`LoopStatus`).
 //! - [`layout`]: the haptics segment (its channels' message types, default config).
+//! - `grpc` (cargo feature `grpc`): the tonic/prost types of `proto/haptics/v1/haptics.proto`.
 
 pub mod command;
 pub mod experiment_args;
 pub mod features;
 #[doc(hidden)]
 pub mod fuzzing;
+#[cfg(feature = "grpc")]
+pub mod grpc;
 pub mod layout;
 pub mod messages;
 pub mod status;

@@ -24,14 +24,8 @@ pub mod stats;
 pub mod telemetry;
 pub mod uploads;
 
-/// The generated `haptics.v1` messages, clients and servers.
-#[allow(clippy::all, clippy::pedantic)]
-pub mod pb {
-    tonic::include_proto!("haptics.v1");
-    /// The encoded descriptor set of `proto/`, served by reflection.
-    pub const FILE_DESCRIPTOR_SET: &[u8] =
-        include_bytes!(concat!(env!("OUT_DIR"), "/haptics_descriptor.bin"));
-}
+/// The generated `haptics.v1` messages, clients and servers (haptics-proto's, feature `grpc`).
+pub use haptics_proto::grpc as pb;
 
 pub use backend::{
     Activation, Backend, ExperimentKind, ExperimentRequest, ExperimentStatus, Latency, LoopStatus,
