@@ -1,3 +1,3 @@
-//! The shared-memory messages decoded from arbitrary slot words (haptics_proto::fuzzing::messages).
+//! The shared-memory messages decoded from arbitrary slot words (shm_ring_testing::fuzzing::messages).
 #![no_main]
-libfuzzer_sys::fuzz_target!(|data: &[u8]| haptics_proto::fuzzing::messages(data));
+libfuzzer_sys::fuzz_target!(|data: &[u8]| shm_ring_testing::fuzzing::messages(data));

@@ -14,8 +14,6 @@
 pub mod command;
 pub mod experiment_args;
 pub mod features;
-#[doc(hidden)]
-pub mod fuzzing;
 #[cfg(feature = "grpc")]
 pub mod grpc;
 pub mod layout;

@@ -40,6 +40,11 @@ pub enum Error {
     ForeignOwner { name: String, uid: u32 },
     #[error("segment `{name}` has mode {mode:o}: group/other may access it; refusing it")]
     InsecureMode { name: String, mode: u32 },
+    #[error("channel `{channel}` refused: {reason}")]
+    Channel {
+        channel: &'static str,
+        reason: String,
+    },
     #[error("this segment handle was {actual}, it cannot become the {wanted} side")]
     WrongRole {
         actual: &'static str,

@@ -3,8 +3,8 @@
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
+use crate::channel::{MessageShape, CHANNELS};
 use crate::fixed_str::{FixedStr, FIXED_STR_WORDS};
-use crate::protocol::MessageShape;
 use crate::ring_mem::{slot_words, Padded, RingControl};
 use crate::status_block::{StatusBlock, STATUS_WORDS};
 
@@ -21,33 +21,6 @@ pub const MAGIC: u64 = u64::from_le_bytes(*b"HAPTSHM1");
 /// 2: the loop-status block (`loop_status`) was added after the heartbeats.
 /// 3: the loop-status block gained the degradation ladder's counters and the experiment name.
 pub const LAYOUT_VERSION: u64 = 3;
-
-/// The four channels, in header order.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Channel {
-    Features = 0,
-    Forces = 1,
-    Telemetry = 2,
-    Commands = 3,
-}
-
-impl Channel {
-    pub const ALL: [Channel; 4] = [
-        Channel::Features,
-        Channel::Forces,
-        Channel::Telemetry,
-        Channel::Commands,
-    ];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Channel::Features => "features",
-            Channel::Forces => "forces",
-            Channel::Telemetry => "telemetry",
-            Channel::Commands => "commands",
-        }
-    }
-}
 
 /// Per-channel description in the header.
 #[repr(C)]
@@ -78,7 +51,7 @@ pub(crate) struct Header {
     pub(crate) server_attachments: AtomicU64,
     pub(crate) schema_len: AtomicU64,
     pub(crate) schema: [[AtomicU64; FIXED_STR_WORDS]; MAX_SCHEMA_NAMES],
-    pub(crate) channels: [ChannelDesc; 4],
+    pub(crate) channels: [ChannelDesc; CHANNELS],
     pub(crate) loop_heartbeat: Padded<AtomicU64>,
     pub(crate) server_heartbeat: Padded<AtomicU64>,
     /// Written by the loop about every 100 ms (a seqlock; see `status_block`).
@@ -91,9 +64,9 @@ pub(crate) struct Header {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub(crate) struct Layout {
     /// Slots per ring (validated: powers of two in 2..=MAX_CAPACITY).
-    pub(crate) capacities: [usize; 4],
-    pub(crate) control_offsets: [usize; 4],
-    pub(crate) slots_offsets: [usize; 4],
+    pub(crate) capacities: [usize; CHANNELS],
+    pub(crate) control_offsets: [usize; CHANNELS],
+    pub(crate) slots_offsets: [usize; CHANNELS],
     pub(crate) total: usize,
 }
 
@@ -105,14 +78,17 @@ const fn align_up(x: usize, a: usize) -> usize {
 pub(crate) const SLOT_ALIGN: usize = 128;
 
 impl Layout {
-    pub(crate) fn compute(capacities: [usize; 4], shapes: &[MessageShape; 4]) -> Layout {
+    pub(crate) fn compute(
+        capacities: [usize; CHANNELS],
+        shapes: &[MessageShape; CHANNELS],
+    ) -> Layout {
         let mut at = align_up(std::mem::size_of::<Header>(), RingControl::ALIGN);
-        let mut control_offsets = [0; 4];
+        let mut control_offsets = [0; CHANNELS];
         for off in &mut control_offsets {
             *off = at;
             at += RingControl::SIZE;
         }
-        let mut slots_offsets = [0; 4];
+        let mut slots_offsets = [0; CHANNELS];
         for (i, shape) in shapes.iter().enumerate() {
             at = align_up(at, SLOT_ALIGN);
             slots_offsets[i] = at;
@@ -131,10 +107,10 @@ impl Header {
     /// Writes every field but `magic`, for a freshly zeroed segment.
     pub(crate) fn init(
         &self,
-        capacities: [usize; 4],
+        capacities: [usize; CHANNELS],
         schema: &[FixedStr],
         layout: &Layout,
-        shapes: &[MessageShape; 4],
+        shapes: &[MessageShape; CHANNELS],
         created_unix_ns: u64,
     ) {
         let r = Ordering::Relaxed;
@@ -169,8 +145,8 @@ impl Header {
         }
     }
 
-    pub(crate) fn capacities(&self) -> [usize; 4] {
-        let mut caps = [0; 4];
+    pub(crate) fn capacities(&self) -> [usize; CHANNELS] {
+        let mut caps = [0; CHANNELS];
         for (cap, desc) in caps.iter_mut().zip(&self.channels) {
             *cap = desc.capacity.load(Ordering::Relaxed) as usize;
         }

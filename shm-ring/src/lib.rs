@@ -1,17 +1,26 @@
-//! Lock-free shared-memory rings between `rt-loop` and `infer-server`.
+//! Lock-free shared-memory rings between two processes (rt-loop and infer-server).
+//!
+//! Layered like iceoryx2's building blocks and concepts (`docs/shm-ring.md`, "Layers"):
+//!
+//! - building blocks, each usable alone: `sync` (atomics, std or loom), `message` (a message
+//!   as `u64` words), `fixed_str`, `ring_mem` (a ring's memory), `wait` (spinning and the futex
+//!   event count), `spsc` (the lossless ring), `overwrite` (the ring that overwrites the oldest),
+//!   `status_block` (a seqlock block), [`os`] (shared memory, liveness locks, real-time thread
+//!   set-up, shutdown);
+//! - concepts on top: `channel` (what a segment carries, described by the layer above),
+//!   `header` (the segment's header and layout), `segment` (a named segment of channels with
+//!   liveness, validation and recovery; [`Protocol`] is how the layer above says which message
+//!   types travel where and builds its endpoints).
 //!
 //! One segment per loop instance (`/haptics-<instance>`, mode 0600) holds a validated header
-//! and four single-producer single-consumer channels: features (loop to server), forces
-//! (server to loop), telemetry (loop to server, overwrites the oldest) and a command mailbox
-//! (server to loop). Every byte of the segment is accessed only through atomics, so two
-//! processes racing on it is defined behaviour, not luck. See `docs/shm-ring.md`.
-//!
-//! The segment is generic over a [`Protocol`]: the message type of each channel. The haptics
-//! system's is `haptics_proto::layout::Haptics` (with `FeatureMsg`, `ForceMsg`, ...); here a
-//! one-word message stands in for all four:
+//! and four single-producer single-consumer channels. Every byte of the segment is accessed
+//! only through atomics, so two processes racing on it is defined behaviour, not luck. The
+//! haptics system's protocol is `haptics_proto::layout::Haptics`; here a one-word message
+//! stands in for all four channels:
 //!
 //! ```no_run
-//! use shm_ring::{layout_id, Config, DecodeError, Message, Protocol, Segment, SegmentName};
+//! use shm_ring::{layout_id, ChannelSpec, Config, Consumer, DecodeError, Error, Lossless,
+//!                Message, Producer, Protocol, Role, Segment, SegmentName, CHANNELS};
 //! #[derive(Clone, Copy)]
 //! struct Word(u64);
 //! impl Message for Word {
@@ -20,29 +29,41 @@
 //!     fn encode(&self, out: &mut [u64]) { out[0] = self.0 }
 //!     fn decode(w: &[u64]) -> Result<Self, DecodeError> { Ok(Word(w[0])) }
 //! }
+//! const UP: Lossless<Word> = Lossless::at(0);
+//! const DOWN: Lossless<Word> = Lossless::at(1);
 //! struct Words;
 //! impl Protocol for Words {
-//!     type Features = Word;
-//!     type Forces = Word;
-//!     type Telemetry = Word;
-//!     type Commands = Word;
+//!     const CHANNELS: [ChannelSpec; CHANNELS] = [
+//!         UP.spec("up", Role::Loop, 64),
+//!         DOWN.spec("down", Role::Server, 64),
+//!         Lossless::<Word>::at(2).spec("spare-a", Role::Loop, 2),
+//!         Lossless::<Word>::at(3).spec("spare-b", Role::Server, 2),
+//!     ];
+//!     type LoopSide = (Producer<Word>, Consumer<Word>);
+//!     type ServerSide = (Consumer<Word>, Producer<Word>);
+//!     fn loop_side(s: Segment<Self>) -> Result<Self::LoopSide, Error> {
+//!         Ok((s.producer(UP)?, s.consumer(DOWN)?))
+//!     }
+//!     fn server_side(s: Segment<Self>) -> Result<Self::ServerSide, Error> {
+//!         Ok((s.consumer(UP)?, s.producer(DOWN)?))
+//!     }
 //! }
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! let name = SegmentName::for_instance("default")?;
 //! // rt-loop:
-//! let mut lp = Segment::<Words>::create(&name, &Config::default())?.loop_side()?;
-//! lp.features_tx.try_send(Word(1))?;
+//! let (mut up, _down) = Segment::<Words>::create(&name, &Config::default())?.loop_side()?;
+//! up.try_send(Word(1))?;
 //! // infer-server (another process):
-//! let mut sv = Segment::<Words>::attach(&name)?.server_side()?;
-//! let f = sv.features_rx.recv()?;
-//! sv.forces_tx.send(Word(f.0 * 2))?;
+//! let (mut up_rx, mut down_tx) = Segment::<Words>::attach(&name)?.server_side()?;
+//! let w = up_rx.recv()?;
+//! down_tx.send(Word(w.0 * 2))?;
 //! # Ok(()) }
 //! ```
 
+mod channel;
 mod fixed_str;
 mod message;
 mod overwrite;
-mod protocol;
 mod ring_mem;
 mod spsc;
 mod sync;
@@ -84,15 +105,13 @@ pub mod loom_hooks {
 }
 
 #[cfg(not(loom))]
-mod endpoints;
-#[cfg(not(loom))]
 mod error;
-/// Entry points for the `cargo fuzz` targets in `fuzz/` (not a stable API).
-#[cfg(not(loom))]
-#[doc(hidden)]
-pub mod fuzzing;
 #[cfg(not(loom))]
 mod header;
+/// What a hostile peer can do to shared memory, for the fuzz targets (not a stable API).
+#[cfg(not(loom))]
+#[doc(hidden)]
+pub mod hostile;
 #[cfg(not(loom))]
 pub mod os;
 #[cfg(not(loom))]
@@ -100,6 +119,7 @@ mod segment;
 #[cfg(not(loom))]
 mod status_block;
 
+pub use channel::{ChannelKind, ChannelSpec, Lossless, MessageShape, Overwrite, Role, CHANNELS};
 pub use fixed_str::{FixedStr, FixedStrError, FIXED_STR_BYTES, FIXED_STR_WORDS};
 pub use message::{layout_id, DecodeError, Message, MAX_WORDS};
 pub use overwrite::{heap_overwrite_channel, OverwriteConsumer, OverwriteProducer};
@@ -110,15 +130,13 @@ pub use wait::WaitStrategy;
 pub use wait::{monotonic_ns, sleep_until_ns};
 
 #[cfg(not(loom))]
-pub use endpoints::{LoopSide, ServerSide};
-#[cfg(not(loom))]
 pub use error::Error;
 #[cfg(not(loom))]
-pub use header::{Channel, LAYOUT_VERSION, MAGIC, MAX_SCHEMA_NAMES};
-pub use protocol::{MessageShape, Protocol};
+pub use header::{LAYOUT_VERSION, MAGIC, MAX_SCHEMA_NAMES};
 #[cfg(not(loom))]
 pub use segment::{
-    Config, Corruption, Link, Role, Segment, SegmentInfo, SegmentName, StaleSegment, MAX_CAPACITY,
+    Config, Corruption, Link, Protocol, Segment, SegmentInfo, SegmentName, StaleSegment,
+    MAX_CAPACITY,
 };
 #[cfg(not(loom))]
 pub use status_block::{StatusBlock, STATUS_WORDS};

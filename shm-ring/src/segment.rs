@@ -1,4 +1,8 @@
-//! Creating, replacing, attaching and validating the shared-memory segment.
+//! Creating, replacing, attaching and validating the shared-memory segment: a named segment of
+//! channels, the concept built on the rings (`spsc`, `overwrite`), the header and the OS layer.
+//! What the channels carry is the [`Protocol`]'s: the layer above names the message types and
+//! builds its endpoints from [`Segment::producer`], [`Segment::consumer`] and their overwrite
+//! twins; this module never names an endpoint type.
 //!
 //! Segment = `shm_open` object `/haptics-<instance>` (mode 0600) = header + four ring control
 //! blocks + four slot arrays, mapped whole in both processes. Plain `libc::shm_open` + `mmap`
@@ -14,16 +18,19 @@ use std::marker::PhantomData;
 use std::os::fd::OwnedFd;
 use std::path::PathBuf;
 use std::ptr::NonNull;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
+use crate::channel::{ChannelKind, ChannelSpec, Lossless, MessageShape, Overwrite, Role, CHANNELS};
 use crate::error::Error;
 use crate::fixed_str::FixedStr;
-use crate::header::{Channel, Header, Layout, LAYOUT_VERSION, MAGIC, MAX_SCHEMA_NAMES, SLOT_ALIGN};
+use crate::header::{Header, Layout, LAYOUT_VERSION, MAGIC, MAX_SCHEMA_NAMES, SLOT_ALIGN};
+use crate::message::Message;
 use crate::os::{self, Mapping};
-use crate::protocol::{shapes, MessageShape, Protocol};
+use crate::overwrite::{OverwriteConsumer, OverwriteProducer};
 use crate::ring_mem::{slot_words, CorruptSink, RingControl, RingMem};
+use crate::spsc::{Consumer, PeerProbe, Producer};
 use crate::status_block::STATUS_WORDS;
 
 const LOOP_LOCK_BYTE: u64 = 0;
@@ -88,49 +95,56 @@ impl std::fmt::Display for SegmentName {
     }
 }
 
+/// What a segment carries: its channels (in header order) and the endpoints each side holds.
+/// The layer above implements it (haptics-proto's `layout::Haptics`); the segment only reads
+/// [`Protocol::CHANNELS`] and hands itself to [`Protocol::loop_side`] / [`Protocol::server_side`],
+/// which build the sides from [`Segment::producer`] and friends. So the segment never knows
+/// its endpoints' types, and nothing in this crate imports the protocol's.
+pub trait Protocol: Sized + 'static {
+    /// The channels, in header order. Each side's ends must match its `writer`.
+    const CHANNELS: [ChannelSpec; CHANNELS];
+    /// What the creator holds (rt-loop's ends).
+    type LoopSide;
+    /// What the attached side holds (infer-server's ends).
+    type ServerSide;
+    /// Builds the creator's ends (called by [`Segment::loop_side`] on a creator's handle).
+    fn loop_side(segment: Segment<Self>) -> Result<Self::LoopSide, Error>;
+    /// Builds the attached side's ends (called by [`Segment::server_side`] on an attached
+    /// handle).
+    fn server_side(segment: Segment<Self>) -> Result<Self::ServerSide, Error>;
+}
+
+/// The shapes of `P`'s channels, in header order.
+pub(crate) fn shapes<P: Protocol>() -> [MessageShape; CHANNELS] {
+    P::CHANNELS.map(|c| c.shape)
+}
+
 /// What the creator puts in a new segment.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Config {
     /// The schema: names of the values the first channel's messages carry, in order (at most
     /// [`MAX_SCHEMA_NAMES`]; haptics-proto's `layout::config()` puts the feature names here).
     pub feature_names: Vec<String>,
-    /// Slots per ring; each a power of two in 2..=2^20.
-    pub features_capacity: usize,
-    pub forces_capacity: usize,
-    pub telemetry_capacity: usize,
-    pub commands_capacity: usize,
-}
-
-impl Default for Config {
-    /// No schema (the protocol names it); 1024 requests/answers in flight (a second at
-    /// 1 kHz), 8192 telemetry rows (8 s of plots at 1 kHz), 64 commands.
-    fn default() -> Self {
-        Config {
-            feature_names: Vec::new(),
-            features_capacity: 1024,
-            forces_capacity: 1024,
-            telemetry_capacity: 8192,
-            commands_capacity: 64,
-        }
-    }
+    /// Slots per ring, in the protocol's channel order; each a power of two in 2..=2^20, or 0
+    /// for the channel's [`ChannelSpec::default_capacity`]. `Default`: all 0.
+    pub capacities: [usize; CHANNELS],
 }
 
 impl Config {
-    fn capacities(&self) -> [usize; 4] {
-        [
-            self.features_capacity,
-            self.forces_capacity,
-            self.telemetry_capacity,
-            self.commands_capacity,
-        ]
+    /// The capacities to use: 0 replaced by the protocol's default.
+    fn resolved_capacities(&self, specs: &[ChannelSpec; CHANNELS]) -> [usize; CHANNELS] {
+        std::array::from_fn(|i| match self.capacities[i] {
+            0 => specs[i].default_capacity,
+            n => n,
+        })
     }
 
-    fn validate(&self) -> Result<Vec<FixedStr>, Error> {
-        for (channel, cap) in Channel::ALL.iter().zip(self.capacities()) {
+    fn validate(&self, specs: &[ChannelSpec; CHANNELS]) -> Result<Vec<FixedStr>, Error> {
+        for (spec, cap) in specs.iter().zip(self.resolved_capacities(specs)) {
             if !cap.is_power_of_two() || !(2..=MAX_CAPACITY).contains(&cap) {
                 return Err(Error::InvalidConfig(format!(
                     "{} capacity {cap} must be a power of two in 2..={MAX_CAPACITY}",
-                    channel.name()
+                    spec.name
                 )));
             }
         }
@@ -159,24 +173,6 @@ impl Config {
     }
 }
 
-/// Which side a handle is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Role {
-    /// rt-loop: created the segment.
-    Loop,
-    /// infer-server: attached to it.
-    Server,
-}
-
-impl Role {
-    fn name(self) -> &'static str {
-        match self {
-            Role::Loop => "loop",
-            Role::Server => "server",
-        }
-    }
-}
-
 /// What the header says about a segment.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SegmentInfo {
@@ -189,12 +185,12 @@ pub struct SegmentInfo {
     pub server_pid: u32,
     pub server_attachments: u64,
     pub feature_names: Vec<String>,
-    /// Capacities of features, forces, telemetry, commands.
-    pub capacities: [usize; 4],
+    /// Capacities, in the protocol's channel order.
+    pub capacities: [usize; CHANNELS],
     /// Byte offsets of each channel's control block (head, tail, signals) and slot array,
     /// in the same order (for diagnostics and the corruption tests).
-    pub control_offsets: [u64; 4],
-    pub slots_offsets: [u64; 4],
+    pub control_offsets: [u64; CHANNELS],
+    pub slots_offsets: [u64; CHANNELS],
     /// Whether the loop holds its liveness lock (filled by [`Segment::inspect`]; `info()` on a
     /// handle reports its own side as alive and asks for the peer).
     pub loop_alive: bool,
@@ -248,8 +244,11 @@ pub(crate) struct Shared {
     name: SegmentName,
     role: Role,
     layout: Layout,
-    /// The protocol's message shapes, in channel order (what the header was checked against).
-    shapes: [MessageShape; 4],
+    /// The protocol's channels, in order (what the header was checked against).
+    specs: [ChannelSpec; CHANNELS],
+    /// Which channels' ends this handle has given out (bit per channel): one producer and one
+    /// consumer per ring in all, each on its writer's or reader's side.
+    taken: AtomicU32,
     schema: Vec<String>,
     creator_pid: u64,
     /// Corruption found by this process's endpoints and audits (process-private).
@@ -268,13 +267,12 @@ impl Shared {
         unsafe { self.mapping.base().cast::<Header>().as_ref() }
     }
 
-    fn ring(self: &Arc<Self>, channel: Channel) -> RingMem {
-        let i = channel as usize;
+    fn ring(self: &Arc<Self>, i: usize) -> RingMem {
         let base = self.mapping.base().as_ptr();
         // The private, validated copy: never the header's word, which another process can
         // rewrite at any time (a capacity of 0 there would make the mask u64::MAX).
         let capacity = self.layout.capacities[i];
-        let payload = self.shapes[i].words;
+        let payload = self.specs[i].shape.words;
         // SAFETY: capacities and offsets are this process's `Layout::compute` result (checked
         // against the header and the file size when attaching; the mapping is `layout.total`
         // bytes, so every ring lies inside it); control blocks are aligned to
@@ -294,6 +292,11 @@ impl Shared {
                 self.clone(),
             )
         }
+    }
+
+    fn probe(self: &Arc<Self>) -> PeerProbe {
+        let shared = Arc::clone(self);
+        Some(Arc::new(move || shared.peer_alive()))
     }
 
     fn peer_byte(&self) -> u64 {
@@ -362,7 +365,7 @@ impl<P: Protocol> Segment<P> {
     /// Creates the segment (the loop's side). Replaces a segment left by a dead loop; refuses
     /// with [`Error::InstanceInUse`] if a live loop owns the name.
     pub fn create(name: &SegmentName, config: &Config) -> Result<Segment<P>, Error> {
-        let schema = config.validate()?;
+        let schema = config.validate(&P::CHANNELS)?;
 
         // 1. The instance lock: one creator per name at a time, for the creator's lifetime.
         let lock = lock_instance(name)?;
@@ -376,7 +379,7 @@ impl<P: Protocol> Segment<P> {
         schema: Vec<FixedStr>,
         lock: std::fs::File,
     ) -> Result<Segment<P>, Error> {
-        let capacities = config.capacities();
+        let capacities = config.resolved_capacities(&P::CHANNELS);
         let shapes = shapes::<P>();
         // 2. Create exclusively; a leftover is stale by construction (its creator released the
         //    instance lock, i.e. died) unless its loop byte is still locked (defensive check).
@@ -420,7 +423,8 @@ impl<P: Protocol> Segment<P> {
             name: name.clone(),
             role: Role::Loop,
             layout: layout.clone(),
-            shapes,
+            specs: P::CHANNELS,
+            taken: AtomicU32::new(0),
             schema: config.feature_names.clone(),
             creator_pid: u64::from(os::pid()),
             corrupt: CorruptSink::default(),
@@ -497,8 +501,7 @@ impl<P: Protocol> Segment<P> {
                 }
             });
         }
-        let shapes = shapes::<P>();
-        let (layout, schema) = validate(header, name, stat.size, &shapes)?;
+        let (layout, schema) = validate(header, name, stat.size, &P::CHANNELS)?;
         let creator_pid = header.creator_pid.load(Ordering::Relaxed) as u32;
         if !loop_alive() {
             return Err(Error::CreatorDead {
@@ -521,13 +524,25 @@ impl<P: Protocol> Segment<P> {
             name: name.clone(),
             role: Role::Server,
             layout,
-            shapes,
+            specs: P::CHANNELS,
+            taken: AtomicU32::new(0),
             schema,
             creator_pid: u64::from(creator_pid),
             corrupt: CorruptSink::default(),
             superseded: AtomicBool::new(false),
             _instance_lock: None,
         });
+        // A previous server that died while parked left its waiter registrations behind; the
+        // loop would then pay for a FUTEX_WAKE on every step. We are the only server now (we
+        // hold the server lock) and not parked yet, so they can only be stale.
+        for (i, spec) in P::CHANNELS.iter().enumerate() {
+            let ring = shared.ring(i);
+            if spec.writer == Role::Server {
+                crate::spsc::clear_space_waiters(&ring);
+            } else {
+                crate::spsc::clear_data_waiters(&ring);
+            }
+        }
         Ok(Segment {
             shared,
             replaced: None,
@@ -562,7 +577,7 @@ impl<P: Protocol> Segment<P> {
                 name: name.to_string(),
             });
         }
-        validate(header, name, stat.size, &shapes::<P>())?;
+        validate(header, name, stat.size, &P::CHANNELS)?;
         let mut info = info_of(header, name);
         info.loop_alive = os::byte_is_locked(&fd, LOOP_LOCK_BYTE).unwrap_or(false);
         info.server_alive = os::byte_is_locked(&fd, SERVER_LOCK_BYTE).unwrap_or(false);
@@ -603,26 +618,102 @@ impl<P: Protocol> Segment<P> {
         self.shared.peer_alive()
     }
 
-    /// The loop's endpoints. Fails if this handle was attached (the server's).
-    pub fn loop_side(self) -> Result<crate::endpoints::LoopSide<P>, Error> {
-        if self.shared.role != Role::Loop {
-            return Err(Error::WrongRole {
-                actual: self.shared.role.name(),
-                wanted: "loop",
-            });
-        }
-        Ok(crate::endpoints::LoopSide::new(self.shared))
+    /// The loop's endpoints, as the protocol builds them. Fails if this handle was attached
+    /// (the server's).
+    pub fn loop_side(self) -> Result<P::LoopSide, Error> {
+        self.check_role(Role::Loop)?;
+        P::loop_side(self)
     }
 
-    /// The server's endpoints. Fails if this handle created the segment (the loop's).
-    pub fn server_side(self) -> Result<crate::endpoints::ServerSide<P>, Error> {
-        if self.shared.role != Role::Server {
-            return Err(Error::WrongRole {
+    /// The server's endpoints, as the protocol builds them. Fails if this handle created the
+    /// segment (the loop's).
+    pub fn server_side(self) -> Result<P::ServerSide, Error> {
+        self.check_role(Role::Server)?;
+        P::server_side(self)
+    }
+
+    fn check_role(&self, wanted: Role) -> Result<(), Error> {
+        if self.shared.role == wanted {
+            Ok(())
+        } else {
+            Err(Error::WrongRole {
                 actual: self.shared.role.name(),
-                wanted: "server",
-            });
+                wanted: wanted.name(),
+            })
         }
-        Ok(crate::endpoints::ServerSide::new(self.shared))
+    }
+
+    /// Liveness, heartbeats, schema and status of this handle's side (for the endpoints).
+    pub fn link(&self) -> Link {
+        Link {
+            shared: Arc::clone(&self.shared),
+        }
+    }
+
+    /// Checks that channel `index` is of `kind`, carries `M`, and that this side is its writer
+    /// (`write`) or reader, and that its end was not given out before; then the ring.
+    fn take<M: Message>(
+        &self,
+        index: usize,
+        kind: ChannelKind,
+        write: bool,
+    ) -> Result<RingMem, Error> {
+        let spec = &self.shared.specs[index];
+        let refuse = |reason: String| {
+            Err(Error::Channel {
+                channel: spec.name,
+                reason,
+            })
+        };
+        if spec.kind != kind {
+            return refuse(format!("it is {:?}, not {kind:?}", spec.kind));
+        }
+        if spec.shape != MessageShape::of::<M>() {
+            return refuse("the message type is not the protocol's for it".into());
+        }
+        if (self.shared.role == spec.writer) != write {
+            let (end, side) = if write {
+                ("written", spec.writer)
+            } else {
+                ("read", spec.writer.peer())
+            };
+            return refuse(format!("it is {end} by the {} side only", side.name()));
+        }
+        let bit = 1 << index;
+        if self.shared.taken.fetch_or(bit, Ordering::AcqRel) & bit != 0 {
+            return refuse("its end was given out already (one producer, one consumer)".into());
+        }
+        Ok(self.shared.ring(index))
+    }
+
+    /// The producer of lossless channel `ch` (this side must be its writer).
+    pub fn producer<M: Message>(&self, ch: Lossless<M>) -> Result<Producer<M>, Error> {
+        let ring = self.take::<M>(ch.index(), ChannelKind::Lossless, true)?;
+        Ok(Producer::new(ring, self.shared.probe()))
+    }
+
+    /// The consumer of lossless channel `ch` (this side must be its reader).
+    pub fn consumer<M: Message>(&self, ch: Lossless<M>) -> Result<Consumer<M>, Error> {
+        let ring = self.take::<M>(ch.index(), ChannelKind::Lossless, false)?;
+        Ok(Consumer::new(ring, self.shared.probe()))
+    }
+
+    /// The producer of overwriting channel `ch` (this side must be its writer).
+    pub fn overwrite_producer<M: Message>(
+        &self,
+        ch: Overwrite<M>,
+    ) -> Result<OverwriteProducer<M>, Error> {
+        let ring = self.take::<M>(ch.index(), ChannelKind::Overwrite, true)?;
+        Ok(OverwriteProducer::new(ring))
+    }
+
+    /// The consumer of overwriting channel `ch` (this side must be its reader).
+    pub fn overwrite_consumer<M: Message>(
+        &self,
+        ch: Overwrite<M>,
+    ) -> Result<OverwriteConsumer<M>, Error> {
+        let ring = self.take::<M>(ch.index(), ChannelKind::Overwrite, false)?;
+        Ok(OverwriteConsumer::new(ring, self.shared.probe()))
     }
 }
 
@@ -656,7 +747,7 @@ pub(crate) fn validate(
     header: &Header,
     name: &SegmentName,
     file_size: u64,
-    shapes: &[MessageShape; 4],
+    specs: &[ChannelSpec; CHANNELS],
 ) -> Result<(Layout, Vec<String>), Error> {
     let r = Ordering::Relaxed;
     let name_s = || name.to_string();
@@ -703,10 +794,10 @@ pub(crate) fn validate(
         RingControl::ALIGN as u64,
     )?;
     let capacities = header.capacities();
-    for (i, channel) in Channel::ALL.iter().enumerate() {
+    for (i, spec) in specs.iter().enumerate() {
         let desc = &header.channels[i];
-        let (words, id) = (shapes[i].words, shapes[i].layout_id);
-        let ch = channel.name();
+        let (words, id) = (spec.shape.words, spec.shape.layout_id);
+        let ch = spec.name;
         mismatch(
             format!("{ch} message layout id"),
             desc.layout_id.load(r),
@@ -737,10 +828,10 @@ pub(crate) fn validate(
             });
         }
     }
-    let layout = Layout::compute(capacities, shapes);
-    for (i, channel) in Channel::ALL.iter().enumerate() {
+    let layout = Layout::compute(capacities, &specs.map(|c| c.shape));
+    for (i, spec) in specs.iter().enumerate() {
         let desc = &header.channels[i];
-        let ch = channel.name();
+        let ch = spec.name;
         mismatch(
             format!("{ch} control offset"),
             desc.control_offset.load(r),
@@ -798,9 +889,9 @@ fn audit(shared: &Shared) -> Result<(), Corruption> {
     field("control_align", &h.control_align, RingControl::ALIGN as u64)?;
     field("total_size", &h.total_size, layout.total as u64)?;
     field("creator_pid", &h.creator_pid, shared.creator_pid)?;
-    for (i, shape) in shared.shapes.iter().enumerate() {
+    for (i, spec) in shared.specs.iter().enumerate() {
         let d = &h.channels[i];
-        let (words, id) = (shape.words, shape.layout_id);
+        let (words, id) = (spec.shape.words, spec.shape.layout_id);
         field("capacity", &d.capacity, layout.capacities[i] as u64)?;
         field("payload_words", &d.payload_words, words as u64)?;
         field("slot_bytes", &d.slot_bytes, slot_words(words) as u64 * 8)?;
@@ -820,8 +911,7 @@ fn audit(shared: &Shared) -> Result<(), Corruption> {
     if h.schema().as_ref() != Some(&shared.schema) {
         return Err(Corruption::Schema);
     }
-    for channel in Channel::ALL {
-        let i = channel as usize;
+    for (i, spec) in shared.specs.iter().enumerate() {
         let capacity = layout.capacities[i] as u64;
         // SAFETY: as in `Shared::ring`: the private layout places the control block inside
         // the mapping, aligned, and it is only accessed through atomics.
@@ -839,7 +929,7 @@ fn audit(shared: &Shared) -> Result<(), Corruption> {
         let t1 = ctrl.tail.0.load(Ordering::Acquire);
         let head = ctrl.head.0.load(Ordering::Acquire);
         let t2 = ctrl.tail.0.load(Ordering::Acquire);
-        let ok = if channel == Channel::Telemetry {
+        let ok = if spec.kind == ChannelKind::Overwrite {
             // The overwrite ring's consumer may be any number of laps behind, never ahead.
             head <= t2
         } else {
@@ -847,7 +937,7 @@ fn audit(shared: &Shared) -> Result<(), Corruption> {
         };
         if !ok {
             return Err(Corruption::Indices {
-                channel: channel.name(),
+                channel: spec.name,
                 head,
                 tail: t2,
                 capacity,
@@ -1003,7 +1093,7 @@ impl Link {
     /// serves them any more. Off the real-time path: several syscalls and a 2 MB mapping.
     pub fn recreate<P: Protocol>(&self) -> Result<Segment<P>, Error> {
         let s = &self.shared;
-        if shapes::<P>() != s.shapes {
+        if P::CHANNELS != s.specs {
             return Err(Error::InvalidConfig(
                 "recreate with another protocol than the segment's".into(),
             ));
@@ -1019,12 +1109,9 @@ impl Link {
             .map_err(os_err("duplicate instance lock", &s.name))?;
         let config = Config {
             feature_names: s.schema.clone(),
-            features_capacity: s.layout.capacities[0],
-            forces_capacity: s.layout.capacities[1],
-            telemetry_capacity: s.layout.capacities[2],
-            commands_capacity: s.layout.capacities[3],
+            capacities: s.layout.capacities,
         };
-        let schema = config.validate()?;
+        let schema = config.validate(&P::CHANNELS)?;
         s.superseded.store(true, Ordering::Release);
         let _ = os::unlock_byte(&s.fd, LOOP_LOCK_BYTE);
         match os::shm_unlink(s.name.as_str()) {
@@ -1043,14 +1130,5 @@ impl Link {
     /// The segment's name.
     pub fn name(&self) -> &SegmentName {
         &self.shared.name
-    }
-
-    pub(crate) fn ring(&self, channel: Channel) -> RingMem {
-        self.shared.ring(channel)
-    }
-
-    pub(crate) fn probe(&self) -> crate::spsc::PeerProbe {
-        let shared = Arc::clone(&self.shared);
-        Some(Arc::new(move || shared.peer_alive()))
     }
 }

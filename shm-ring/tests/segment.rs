@@ -43,11 +43,11 @@ fn config_is_validated() {
     let name = unique("cfg");
     let bad = |c: Config| matches!(Segment::create(&name, &c), Err(Error::InvalidConfig(_)));
     assert!(bad(Config {
-        features_capacity: 1000,
+        capacities: [1000, 0, 0, 0],
         ..haptics_proto::layout::config()
     }));
     assert!(bad(Config {
-        telemetry_capacity: 1 << 21,
+        capacities: [0, 0, 1 << 21, 0],
         ..haptics_proto::layout::config()
     }));
     assert!(bad(Config {
@@ -68,14 +68,64 @@ fn config_is_validated() {
     );
 }
 
+/// The segment hands out each channel's ends only as the protocol describes them: the right
+/// kind and message type, on the writer's or the reader's side, once.
+#[test]
+fn channel_ends_follow_the_protocol() {
+    use haptics_proto::layout::{COMMANDS, FEATURES, FORCES, TELEMETRY};
+    use haptics_proto::{FeatureMsg, ForceMsg};
+    use shm_ring::{Lossless, Overwrite};
+    let name = unique("ends");
+    let refused = |r: Result<(), Error>, why: &str| match r {
+        Err(Error::Channel { reason, .. }) => assert!(reason.contains(why), "{reason}"),
+        other => panic!("expected a refusal ({why}), got {other:?}"),
+    };
+    let lp = Segment::create(&name, &haptics_proto::layout::config()).unwrap();
+    refused(
+        lp.consumer(FEATURES).map(drop),
+        "read by the server side only",
+    );
+    refused(
+        lp.producer(FORCES).map(drop),
+        "written by the server side only",
+    );
+    refused(
+        lp.producer(Lossless::<ForceMsg>::at(0)).map(drop),
+        "message type",
+    );
+    refused(
+        lp.producer(Lossless::<TelemetryRow>::at(2)).map(drop),
+        "Overwrite",
+    );
+    refused(
+        lp.overwrite_producer(Overwrite::<FeatureMsg>::at(0))
+            .map(drop),
+        "Lossless",
+    );
+    let features_tx = lp.producer(FEATURES).unwrap();
+    refused(lp.producer(FEATURES).map(drop), "given out already");
+    lp.overwrite_producer(TELEMETRY).unwrap();
+    lp.consumer(COMMANDS).unwrap();
+    // The bundle needs every end: a handle that gave one out cannot build it again.
+    assert!(matches!(lp.loop_side(), Err(Error::Channel { .. })));
+    drop(features_tx);
+
+    let lp = Segment::create(&unique("ends2"), &haptics_proto::layout::config()).unwrap();
+    let _lp = lp.loop_side().unwrap();
+    let sv = Segment::attach(&unique("ends2")).unwrap();
+    refused(
+        sv.producer(FEATURES).map(drop),
+        "written by the loop side only",
+    );
+    let mut forces_tx = sv.producer(FORCES).unwrap();
+    forces_tx.try_send(ForceMsg::default()).unwrap();
+}
+
 #[test]
 fn create_attach_and_header_contents() {
     let name = unique("info");
     let config = Config {
-        features_capacity: 64,
-        forces_capacity: 32,
-        telemetry_capacity: 128,
-        commands_capacity: 8,
+        capacities: [64, 32, 128, 8],
         ..haptics_proto::layout::config()
     };
     let lp = Segment::create(&name, &config).unwrap();

@@ -172,7 +172,7 @@ fn killed_server_is_noticed_and_a_new_one_reattaches() {
     let mut lp = Segment::create(
         &name,
         &Config {
-            features_capacity: 64,
+            capacities: [64, 0, 0, 0],
             ..haptics_proto::layout::config()
         },
     )

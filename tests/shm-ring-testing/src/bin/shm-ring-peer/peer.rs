@@ -96,7 +96,7 @@ fn loop_flood(name: &SegmentName, count: u64, wait: WaitStrategy) -> Result<(), 
             .send(pattern::feature(seq))
             .map_err(|e| format!("send {seq}: {e}"))?;
     }
-    let capacity = haptics_proto::layout::config().features_capacity as u64;
+    let capacity = lp.link.info().capacities[haptics_proto::layout::FEATURES.index()] as u64;
     if !wait_until(Duration::from_secs(30), || {
         lp.features_tx.free() == capacity || !lp.peer_alive()
     }) {

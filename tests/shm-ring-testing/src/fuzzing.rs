@@ -1,22 +1,20 @@
 //! Entry points for the `cargo fuzz` targets in `fuzz/` (hidden from the docs, not a stable
-//! API). They drive the crate's real code with arbitrary bytes: the header validation an
+//! API). They drive shm-ring's real code with arbitrary bytes: the header validation an
 //! attacher runs, the rings' index and slot handling with a hostile writer poking the shared
-//! words between operations, and the message decoders. Each panics only on a broken
-//! invariant (that is what the fuzzer reports); bad input must come back as an error.
-//! Generic over the protocol: haptics-proto's `fuzzing` module runs them with its messages.
+//! words between operations (`shm_ring::hostile`), and the haptics messages' decoders. Each
+//! panics only on a broken invariant (that is what the fuzzer reports); bad input must come
+//! back as an error.
 
 use std::collections::VecDeque;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use crate::header::{Header, MAGIC, MAX_SCHEMA_NAMES};
-use crate::message::Message;
-use crate::overwrite::{OverwriteConsumer, OverwriteProducer};
-use crate::protocol::{shapes, Protocol};
-use crate::ring_mem::{slot_words, RingControl, RingMem};
-use crate::segment::{validate, SegmentName};
-use crate::spsc::{Consumer, Producer, RecvError};
-use crate::wait::WaitStrategy;
+use haptics_proto::features::{MAX_FEATURES, THESIS_FEATURES};
+use haptics_proto::{Command, CommandKind, FeatureMsg, ForceMsg, Haptics, TelemetryRow};
+use shm_ring::hostile::{HostileHeader, HostileRing, RING_CONTROL_ALIGN, RING_CONTROL_SIZE};
+use shm_ring::{
+    slot_words, FixedStr, Message, Protocol, RecvError, WaitStrategy, MAX_SCHEMA_NAMES, MAX_WORDS,
+};
 
 /// Reads the input as little-endian words (the last partial word zero-padded).
 fn words_of(data: &[u8]) -> impl Iterator<Item = u64> + '_ {
@@ -27,49 +25,25 @@ fn words_of(data: &[u8]) -> impl Iterator<Item = u64> + '_ {
     })
 }
 
-/// A header-sized, header-aligned block of zeroed atomics (what a fresh mapping holds).
-struct HeaderBuf(Box<HeaderWords>);
-
-#[repr(C, align(128))]
-struct HeaderWords([AtomicU64; std::mem::size_of::<Header>() / 8]);
-
-impl HeaderBuf {
-    fn new() -> Self {
-        HeaderBuf(Box::new(HeaderWords(std::array::from_fn(|_| {
-            AtomicU64::new(0)
-        }))))
-    }
-    fn header(&self) -> &Header {
-        const { assert!(std::mem::size_of::<HeaderWords>() == std::mem::size_of::<Header>()) };
-        const { assert!(std::mem::align_of::<HeaderWords>() >= std::mem::align_of::<Header>()) };
-        // SAFETY: same size, sufficient alignment, and `Header` is `repr(C)` made only of
-        // atomics (any bit pattern is valid, all access is atomic).
-        unsafe { &*(self.0.as_ref() as *const HeaderWords).cast::<Header>() }
-    }
-}
-
 /// What an attacher does with a segment's header: the input's first word is the file size,
 /// the rest the header's words (a valid header's words when the input asks, so the checks
 /// past the magic are reached too). Whatever validation accepts must place every ring inside
 /// the file: that is the property that keeps the rings' accesses inside the mapping.
-pub fn header<P: Protocol>(data: &[u8], schema: &[&str]) {
-    let shapes = shapes::<P>();
+pub fn header(data: &[u8]) {
+    header_of::<Haptics>(data, &THESIS_FEATURES)
+}
+
+fn header_of<P: Protocol>(data: &[u8], schema: &[&str]) {
     let mut words = words_of(data);
     let file_size = words.next().unwrap_or(0);
-    let buf = HeaderBuf::new();
-    let h = buf.header();
     let start_valid = file_size & 1 == 1;
-    if start_valid {
-        let layout = crate::header::Layout::compute([1024, 1024, 8192, 64], &shapes);
-        let names: Vec<_> = schema
-            .iter()
-            .map(|n| crate::fixed_str::FixedStr::new(n).expect("valid name"))
-            .collect();
-        h.init([1024, 1024, 8192, 64], &names, &layout, &shapes, 0);
-        h.magic.store(MAGIC, Ordering::Relaxed);
-    }
+    let h = if start_valid {
+        HostileHeader::valid(&P::CHANNELS, schema)
+    } else {
+        HostileHeader::zeroed()
+    };
     // Overwrite words: (index, value) pairs when starting valid, else the words in order.
-    let cells = &buf.0 .0;
+    let cells = h.words();
     if start_valid {
         while let (Some(i), Some(v)) = (words.next(), words.next()) {
             cells[(i % cells.len() as u64) as usize].store(v, Ordering::Relaxed);
@@ -79,22 +53,19 @@ pub fn header<P: Protocol>(data: &[u8], schema: &[&str]) {
             cell.store(w, Ordering::Relaxed);
         }
     }
-    let name = SegmentName::new("/fuzz").expect("valid name");
     // Both outcomes are fine; an accepted layout must lie inside the file.
-    if let Ok((layout, schema)) = validate(h, &name, file_size, &shapes) {
-        assert!(schema.len() <= MAX_SCHEMA_NAMES);
-        assert!(layout.total as u64 <= file_size);
-        for (i, shape) in shapes.iter().enumerate() {
-            let cap = layout.capacities[i];
+    if let Ok(placed) = h.validate(&P::CHANNELS, file_size) {
+        assert!(placed.schema.len() <= MAX_SCHEMA_NAMES);
+        assert!(placed.total as u64 <= file_size);
+        for (i, spec) in P::CHANNELS.iter().enumerate() {
+            let cap = placed.capacities[i];
             assert!(cap.is_power_of_two() && cap >= 2);
-            assert!(layout.control_offsets[i] + RingControl::SIZE <= layout.total);
-            assert_eq!(layout.control_offsets[i] % RingControl::ALIGN, 0);
-            let slot_bytes = slot_words(shape.words) * 8;
-            assert!(layout.slots_offsets[i] + cap * slot_bytes <= layout.total);
+            assert!(placed.control_offsets[i] + RING_CONTROL_SIZE <= placed.total);
+            assert_eq!(placed.control_offsets[i] % RING_CONTROL_ALIGN, 0);
+            let slot_bytes = slot_words(spec.shape.words) * 8;
+            assert!(placed.slots_offsets[i] + cap * slot_bytes <= placed.total);
         }
     }
-    let _ = h.schema();
-    let _ = h.capacities();
 }
 
 /// Which operation the next input byte asks for.
@@ -119,23 +90,6 @@ impl Op {
             4 => Op::SkipPending,
             5 => Op::Counts,
             _ => Op::Reattach,
-        }
-    }
-}
-
-/// Sets one shared word of the ring (tail, head, a signal, a counter, or any slot word) the
-/// way a foreign process would.
-fn poke(mem: &RingMem, which: u64, value: u64) {
-    let c = mem.ctrl();
-    let stride = mem.slot(0).len() as u64;
-    match which % 8 {
-        0 => c.tail.0.store(value, Ordering::Release),
-        1 => c.head.0.store(value, Ordering::Release),
-        2 => c.data.0.parked.store(value as u32, Ordering::Relaxed),
-        3 => c.space.0.epoch.store(value as u32, Ordering::Relaxed),
-        _ => {
-            let word = which / 8 % (mem.capacity() * stride);
-            mem.slot(word / stride)[(word % stride) as usize].store(value, Ordering::Release);
         }
     }
 }
@@ -167,9 +121,9 @@ fn lossless<M: Message + Copy + PartialEq + std::fmt::Debug>(
     make: impl Fn(u64) -> M,
 ) {
     let capacity = 1usize << (input.byte().unwrap_or(0) % 5);
-    let mem = RingMem::heap(capacity, M::WORDS);
-    let mut tx = Producer::<M>::new(mem.twin(), None);
-    let mut rx = Consumer::<M>::new(mem.twin(), None);
+    let ring = HostileRing::new(capacity, M::WORDS);
+    let mut tx = ring.producer::<M>();
+    let mut rx = ring.consumer::<M>();
     rx.set_wait_strategy(WaitStrategy::Spin);
     let mut model = VecDeque::new();
     let mut poked = false;
@@ -200,7 +154,7 @@ fn lossless<M: Message + Copy + PartialEq + std::fmt::Debug>(
             Op::Poke => {
                 poked = true;
                 let which = input.word();
-                poke(&mem, which, input.word());
+                ring.poke(which, input.word());
                 None
             }
             Op::SkipPending => {
@@ -222,9 +176,9 @@ fn lossless<M: Message + Copy + PartialEq + std::fmt::Debug>(
             }
             Op::Reattach => {
                 // A new process's endpoints on the same memory (a server re-attaching).
-                tx = Producer::new(mem.twin(), None);
+                tx = ring.producer();
                 if b & 0x80 != 0 {
-                    rx = Consumer::new(mem.twin(), None);
+                    rx = ring.consumer();
                     rx.set_wait_strategy(WaitStrategy::Spin);
                 }
                 None
@@ -248,22 +202,25 @@ fn lossless<M: Message + Copy + PartialEq + std::fmt::Debug>(
 }
 
 /// The overwrite ring (telemetry): never blocks, counts what it loses, survives pokes.
-fn overwrite<P: FuzzProtocol>(input: &mut Input) {
+fn overwrite(input: &mut Input) {
     let capacity = 1usize << (input.byte().unwrap_or(0) % 5);
-    let mem = RingMem::heap(capacity, P::Telemetry::WORDS);
-    let mut tx = OverwriteProducer::<P::Telemetry>::new(mem.twin());
-    let mut rx = OverwriteConsumer::<P::Telemetry>::new(mem.twin(), None);
+    let ring = HostileRing::new(capacity, TelemetryRow::WORDS);
+    let mut tx = ring.overwrite_producer::<TelemetryRow>();
+    let mut rx = ring.overwrite_consumer::<TelemetryRow>();
     let (mut sent, mut received, mut poked) = (0u64, 0u64, false);
     while let Some(b) = input.byte() {
         match b % 4 {
             0 | 1 => {
-                tx.send(&P::telemetry(sent));
+                tx.send(&TelemetryRow {
+                    step: sent,
+                    ..TelemetryRow::default()
+                });
                 sent += 1;
             }
             2 => match rx.try_recv() {
                 Ok(Some(row)) => {
                     if !poked {
-                        assert_eq!(P::telemetry_step(&row), received + rx.dropped(), "in order");
+                        assert_eq!(row.step, received + rx.dropped(), "in order");
                     }
                     received += 1;
                 }
@@ -277,7 +234,7 @@ fn overwrite<P: FuzzProtocol>(input: &mut Input) {
             _ => {
                 poked = true;
                 let which = input.word();
-                poke(&mem, which, input.word());
+                ring.poke(which, input.word());
             }
         }
     }
@@ -287,42 +244,54 @@ fn overwrite<P: FuzzProtocol>(input: &mut Input) {
     }
 }
 
-/// How a protocol's messages are made from a counter for [`rings`] (each distinct per `n`).
-pub trait FuzzProtocol: Protocol {
-    fn features(n: u64) -> Self::Features;
-    fn forces(n: u64) -> Self::Forces;
-    fn commands(n: u64) -> Self::Commands;
-    /// A telemetry message carrying step `step`, and the step back out of one.
-    fn telemetry(step: u64) -> Self::Telemetry;
-    fn telemetry_step(row: &Self::Telemetry) -> u64;
-}
-
-/// The four rings' protocols under arbitrary operation sequences and hostile pokes.
-pub fn rings<P: FuzzProtocol>(data: &[u8])
-where
-    P::Features: Copy + PartialEq + std::fmt::Debug,
-    P::Forces: Copy + PartialEq + std::fmt::Debug,
-    P::Commands: Copy + PartialEq + std::fmt::Debug,
-{
-    let mut input = Input(data);
-    match input.byte().unwrap_or(0) % 4 {
-        0 => lossless(&mut input, P::features),
-        1 => lossless(&mut input, P::forces),
-        2 => lossless(&mut input, P::commands),
-        _ => overwrite::<P>(&mut input),
+/// A feature message distinct per `n`.
+fn features(n: u64) -> FeatureMsg {
+    FeatureMsg {
+        seq: n,
+        len: (n % (MAX_FEATURES as u64 + 1)) as u8,
+        values: [n as f64; MAX_FEATURES],
+        ..FeatureMsg::default()
     }
 }
 
-/// Decodes arbitrary words as each of the protocol's message types. Decoding either refuses
-/// or gives a value that encodes to words that decode to the same value (compared as words,
-/// so NaN payloads compare too).
-pub fn messages<P: Protocol>(data: &[u8]) {
+fn forces(n: u64) -> ForceMsg {
+    ForceMsg {
+        seq: n,
+        force: n as f64 * 0.5,
+        ..ForceMsg::default()
+    }
+}
+
+fn commands(n: u64) -> Command {
+    Command {
+        id: n,
+        kind: CommandKind::StopExperiment,
+        name: FixedStr::new("stop").expect("valid"),
+        values: [n as f64; 4],
+    }
+}
+
+/// The four rings' protocols under arbitrary operation sequences and hostile pokes.
+pub fn rings(data: &[u8]) {
+    let mut input = Input(data);
+    match input.byte().unwrap_or(0) % 4 {
+        0 => lossless(&mut input, features),
+        1 => lossless(&mut input, forces),
+        2 => lossless(&mut input, commands),
+        _ => overwrite(&mut input),
+    }
+}
+
+/// Decodes arbitrary words as each of the haptics message types. Decoding either refuses or
+/// gives a value that encodes to words that decode to the same value (compared as words, so
+/// NaN payloads compare too).
+pub fn messages(data: &[u8]) {
     let mut words: Vec<u64> = words_of(data).collect();
-    words.resize(crate::message::MAX_WORDS, 0);
-    round_trip::<P::Features>(&words);
-    round_trip::<P::Forces>(&words);
-    round_trip::<P::Telemetry>(&words);
-    round_trip::<P::Commands>(&words);
+    words.resize(MAX_WORDS, 0);
+    round_trip::<FeatureMsg>(&words);
+    round_trip::<ForceMsg>(&words);
+    round_trip::<TelemetryRow>(&words);
+    round_trip::<Command>(&words);
 }
 
 fn round_trip<M: Message>(words: &[u64]) {
