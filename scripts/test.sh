@@ -77,6 +77,9 @@ cargo fmt --all -- --check
 step "cargo clippy --all-targets -D warnings"
 cargo clippy --workspace --all-targets -- -D warnings
 
+step "crate layers (docs/architecture.md: what each crate may depend on)"
+bash scripts/crate-deps.sh --check
+
 # Each test step runs to its end and is counted even when it fails; the script goes on to the
 # next step (one failure should not hide the others) and exits non-zero at the end.
 failed_steps=()
