@@ -19,6 +19,7 @@ use std::time::{Duration, Instant};
 
 use haptics_proto::{FeatureMsg, ForceMsg, Segment, MAX_FEATURES};
 use hdrhistogram::Histogram;
+use shm_ring::os::rt_thread::{self, online_cpus};
 use shm_ring::{SegmentName, WaitStrategy};
 use shm_ring_bench_grpc::predictor_client::PredictorClient;
 use shm_ring_bench_grpc::predictor_server::{Predictor, PredictorServer};
@@ -100,36 +101,17 @@ fn count(base: u64) -> u64 {
 }
 
 /// Pins the calling thread to one CPU (when the machine has more than one), so the two sides
-/// of a spinning exchange do not fight over a core.
-/// CPUs online (not `available_parallelism`, which shrinks to 1 once this thread is pinned).
-fn online_cpus() -> usize {
-    // SAFETY: sysconf has no preconditions.
-    (unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) }).max(1) as usize
-}
-
+/// of a spinning exchange do not fight over a core (shm-ring's OS layer; a refusal only costs
+/// the pinning).
 fn pin(cpu: usize) {
     let cpus = online_cpus();
-    if cpus < 2 {
-        return;
-    }
-    // SAFETY: plain affinity syscall on the calling thread with an initialised cpu_set_t.
-    unsafe {
-        let mut set: libc::cpu_set_t = std::mem::zeroed();
-        libc::CPU_SET(cpu % cpus, &mut set);
-        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set);
+    if cpus >= 2 {
+        let _ = rt_thread::pin_current_thread(cpu % cpus);
     }
 }
 
 fn unpin() {
-    let cpus = online_cpus();
-    // SAFETY: as in `pin`.
-    unsafe {
-        let mut set: libc::cpu_set_t = std::mem::zeroed();
-        for c in 0..cpus {
-            libc::CPU_SET(c, &mut set);
-        }
-        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set);
-    }
+    let _ = rt_thread::unpin_current_thread();
 }
 
 fn bench_shm(

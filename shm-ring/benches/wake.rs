@@ -126,6 +126,29 @@ impl Drop for SharedPage {
     }
 }
 
+/// The pinger's side of a run: `ping(seq, sent_ns)` signals, `pong(seq)` waits for the answer;
+/// the round trips (ns) of every ping sent for `secs`.
+fn pinger(
+    pace: Pace,
+    secs: f64,
+    mut ping: impl FnMut(u64, u64),
+    mut pong: impl FnMut(u64),
+) -> Histogram<u64> {
+    let mut round_trip = hist();
+    let start = monotonic_ns();
+    let end = start + (secs * 1e9) as u64;
+    let mut i = 1;
+    while monotonic_ns() < end {
+        pace.before(start, i);
+        let sent_ns = monotonic_ns();
+        ping(i, sent_ns);
+        pong(i);
+        round_trip.saturating_record((monotonic_ns() - sent_ns).max(1));
+        i += 1;
+    }
+    round_trip
+}
+
 fn futex_run(pace: Pace, secs: f64) -> Run {
     let (mut ping_tx, mut ping_rx): (Producer<Ping>, Consumer<Ping>) = heap_channel(4);
     let (mut pong_tx, mut pong_rx): (Producer<Ping>, Consumer<Ping>) = heap_channel(4);
@@ -147,19 +170,12 @@ fn futex_run(pace: Pace, secs: f64) -> Run {
         }
         wake
     });
-    let mut round_trip = hist();
-    let start = monotonic_ns();
-    let end = start + (secs * 1e9) as u64;
-    let mut i = 1;
-    while monotonic_ns() < end {
-        pace.before(start, i);
-        let sent_ns = monotonic_ns();
-        ping_tx.send(Ping { seq: i, sent_ns }).expect("ping");
-        let back = pong_rx.recv().expect("pong");
-        assert_eq!(back.seq, i);
-        round_trip.saturating_record((monotonic_ns() - sent_ns).max(1));
-        i += 1;
-    }
+    let round_trip = pinger(
+        pace,
+        secs,
+        |seq, sent_ns| ping_tx.send(Ping { seq, sent_ns }).expect("ping"),
+        |seq| assert_eq!(pong_rx.recv().expect("pong").seq, seq),
+    );
     ping_tx.send(Ping::default()).expect("stop");
     Run {
         wake: ponger.join().expect("ponger"),
@@ -210,19 +226,15 @@ fn raw_sync_run(pace: Pace, secs: f64) -> Run {
             wake
         })
     };
-    let mut round_trip = hist();
-    let start = monotonic_ns();
-    let end = start + (secs * 1e9) as u64;
-    let mut i = 1;
-    while monotonic_ns() < end {
-        pace.before(start, i);
-        let sent_ns = monotonic_ns();
-        sent.store(sent_ns, Ordering::Release);
-        ping.set(EventState::Signaled).expect("set ping");
-        pong.wait(Timeout::Infinite).expect("wait pong");
-        round_trip.saturating_record((monotonic_ns() - sent_ns).max(1));
-        i += 1;
-    }
+    let round_trip = pinger(
+        pace,
+        secs,
+        |_, sent_ns| {
+            sent.store(sent_ns, Ordering::Release);
+            ping.set(EventState::Signaled).expect("set ping");
+        },
+        |_| pong.wait(Timeout::Infinite).expect("wait pong"),
+    );
     sent.store(0, Ordering::Release);
     ping.set(EventState::Signaled).expect("stop");
     let wake = ponger.join().expect("ponger");

@@ -129,24 +129,13 @@ impl Predictor for EngineService {
     }
 }
 
+/// Pins the calling thread to `cpu` (shm-ring's OS layer; a refusal only costs the pinning).
 fn pin(cpu: usize) {
-    // SAFETY: plain sched_setaffinity on the calling thread with a zeroed, filled cpu_set_t.
-    unsafe {
-        let mut set: libc::cpu_set_t = std::mem::zeroed();
-        libc::CPU_SET(cpu, &mut set);
-        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set);
-    }
+    let _ = shm_ring::os::rt_thread::pin_current_thread(cpu);
 }
 
 fn unpin() {
-    // SAFETY: as in `pin`, with every CPU of the set.
-    unsafe {
-        let mut set: libc::cpu_set_t = std::mem::zeroed();
-        for c in 0..libc::CPU_SETSIZE as usize {
-            libc::CPU_SET(c, &mut set);
-        }
-        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set);
-    }
+    let _ = shm_ring::os::rt_thread::unpin_current_thread();
 }
 
 /// Unary gRPC calls paced at 10 kHz for `secs`.
