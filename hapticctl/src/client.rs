@@ -2,8 +2,8 @@
 //! turned into sentences a user can act on.
 use std::time::Duration;
 
-use control_plane::pb::loop_service_client::LoopServiceClient;
-use control_plane::pb::model_service_client::ModelServiceClient;
+use haptics_proto::grpc::loop_service_client::LoopServiceClient;
+use haptics_proto::grpc::model_service_client::ModelServiceClient;
 use tonic::metadata::MetadataValue;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, Endpoint};

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use clap::{Parser, Subcommand};
-use control_plane::pb;
+use haptics_proto::grpc as pb;
 
 use client::{connect, explain, CliError, Client, EXIT_USAGE};
 

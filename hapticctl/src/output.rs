@@ -1,5 +1,5 @@
 //! Human-readable and JSON renderings of the control plane's messages.
-use control_plane::pb;
+use haptics_proto::grpc as pb;
 use serde_json::{json, Value};
 
 pub fn state_name(m: &pb::ModelInfo) -> &'static str {
