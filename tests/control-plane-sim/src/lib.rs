@@ -20,14 +20,9 @@ use control_plane::backend::*;
 use control_plane::telemetry::{series, Bucket, TelemetryBatch, TelemetryHub, N_SERIES};
 use control_plane::ControlError;
 
-/// Features the simulated loop provides.
-pub const SCHEMA: [&str; 5] = [
-    "position_x",
-    "velocity",
-    "acceleration",
-    "f_ref",
-    "f_res_prev",
-];
+/// Features the simulated loop provides: the real loop's schema (the segment's feature names,
+/// from haptics-proto), so a model file that fits the sim fits rt-loop and the other way round.
+pub const SCHEMA: &[&str] = &haptics_proto::features::SCHEMA_NAMES;
 /// Every `SPIKE_EVERY` steps F_res has a spike of `SPIKE_N` newtons, so tests can check that
 /// decimation keeps spikes.
 pub const SPIKE_EVERY: u64 = 997;
