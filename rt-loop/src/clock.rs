@@ -3,8 +3,10 @@
 //! jitter in HDR histograms (allocated up front; recording into them allocates nothing).
 //! The lockstep clock needs no code: the loop just runs the next step at once.
 
+use crate::percentiles::PercentilesUs;
 use hdrhistogram::Histogram;
 use serde::{Deserialize, Serialize};
+use shm_ring::os::rt_thread::{CpuChoice, RtRequest};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -27,145 +29,15 @@ impl Default for RealtimeConfig {
     }
 }
 
-/// What [`make_thread_realtime`] changed, restored when dropped (the loop thread goes back to
-/// its previous scheduling, affinity and memory locking after the run).
-pub struct RealtimeGuard {
-    policy: libc::c_int,
-    param: libc::sched_param,
-    affinity: Option<libc::cpu_set_t>,
-    locked: bool,
-    sched_changed: bool,
-    /// What was obtained, for the loop-status block: the CPU pinned to, the SCHED_FIFO
-    /// priority, and why SCHED_FIFO was refused (errno name).
-    pinned_cpu: Option<i32>,
-    fifo_priority: Option<i32>,
-    fifo_refused: Option<String>,
-    /// One line per step that was not permitted (the run carries on without it).
-    pub warnings: Vec<String>,
-}
-
-fn last_cpu() -> i32 {
-    // SAFETY: sysconf has no memory effects.
-    let n = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) };
-    (n.max(1) - 1) as i32
-}
-
-/// Tries to make the calling thread real-time: mlockall, pinning to a CPU (`cpu >= 0`, or the
-/// last online CPU for `cpu == -2`), SCHED_FIFO. Each step that is not permitted becomes a
-/// warning and the run carries on.
-pub fn make_thread_realtime(cfg: &RealtimeConfig) -> RealtimeGuard {
-    let mut g = RealtimeGuard {
-        // SAFETY: plain queries of the calling thread.
-        policy: unsafe { libc::sched_getscheduler(0) },
-        param: libc::sched_param { sched_priority: 0 },
-        affinity: None,
-        locked: false,
-        sched_changed: false,
-        pinned_cpu: None,
-        fifo_priority: None,
-        fifo_refused: None,
-        warnings: Vec::new(),
-    };
-    // SAFETY: valid pointer to a local sched_param.
-    unsafe { libc::sched_getparam(0, &mut g.param) };
-    if cfg.lock_memory {
-        // SAFETY: plain syscall without pointers.
-        let r = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
-        if r == 0 {
-            g.locked = true;
-        } else {
-            g.warnings.push(format!(
-                "mlockall failed: {}",
-                std::io::Error::last_os_error()
-            ));
-        }
-    }
-    let cpu = if cfg.cpu == -2 { last_cpu() } else { cfg.cpu };
-    if cpu >= 0 {
-        // SAFETY: cpu_set_t is plain data, zero-initialised, handled through the libc macros.
-        unsafe {
-            let mut old: libc::cpu_set_t = std::mem::zeroed();
-            if libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut old) == 0 {
-                g.affinity = Some(old);
-            }
-            let mut set: libc::cpu_set_t = std::mem::zeroed();
-            libc::CPU_SET(cpu as usize, &mut set);
-            if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) == 0 {
-                g.pinned_cpu = Some(cpu);
-            } else {
-                g.affinity = None;
-                g.warnings.push(format!(
-                    "pinning to CPU {cpu} failed: {}",
-                    std::io::Error::last_os_error()
-                ));
-            }
-        }
-    }
-    if cfg.priority > 0 {
-        let param = libc::sched_param {
-            sched_priority: cfg.priority.clamp(1, 99),
-        };
-        // SAFETY: valid pointer to a local sched_param.
-        let r = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
-        if r == 0 {
-            g.sched_changed = true;
-            g.fifo_priority = Some(param.sched_priority);
-        } else {
-            g.fifo_refused = Some(errno_name(std::io::Error::last_os_error()));
-            g.warnings.push(format!(
-                "SCHED_FIFO priority {} not permitted: {}",
-                cfg.priority,
-                std::io::Error::last_os_error()
-            ));
-        }
-    }
-    g
-}
-
-/// `EPERM`, `EINVAL`, ... for the status line (the number for anything else).
-fn errno_name(e: std::io::Error) -> String {
-    match e.raw_os_error() {
-        Some(libc::EPERM) => "EPERM".into(),
-        Some(libc::EINVAL) => "EINVAL".into(),
-        Some(libc::EACCES) => "EACCES".into(),
-        Some(libc::ESRCH) => "ESRCH".into(),
-        Some(n) => format!("errno {n}"),
-        None => e.to_string(),
-    }
-}
-
-impl RealtimeGuard {
-    /// What the thread actually obtained, for the status: "SCHED_FIFO 80 cpu 1 mlocked",
-    /// "SCHED_OTHER (FIFO refused: EPERM) cpu 1", ...
-    pub fn describe(&self) -> String {
-        let mut s = match (self.fifo_priority, &self.fifo_refused) {
-            (Some(p), _) => format!("SCHED_FIFO {p}"),
-            (None, Some(why)) => format!("SCHED_OTHER (FIFO refused: {why})"),
-            (None, None) => "SCHED_OTHER".into(),
-        };
-        if let Some(cpu) = self.pinned_cpu {
-            s.push_str(&format!(" cpu {cpu}"));
-        }
-        if self.locked {
-            s.push_str(" mlocked");
-        }
-        s
-    }
-}
-
-impl Drop for RealtimeGuard {
-    fn drop(&mut self) {
-        // SAFETY: restoring values read from this same thread; pointers are to owned locals.
-        unsafe {
-            if self.sched_changed {
-                libc::sched_setscheduler(0, self.policy, &self.param);
-            }
-            if let Some(set) = self.affinity.as_ref() {
-                libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), set);
-            }
-            if self.locked {
-                libc::munlockall();
-            }
+impl RealtimeConfig {
+    /// The loop thread's real-time set-up as asked by this configuration (the one set-up of
+    /// both processes, `shm_ring::os::rt_thread`: each refused step is reported, never fatal,
+    /// and everything is undone when the run's guard drops).
+    pub fn request(&self) -> RtRequest {
+        RtRequest {
+            fifo_priority: (self.priority > 0).then_some(self.priority),
+            cpu: CpuChoice::from_i32(self.cpu),
+            lock_memory: self.lock_memory,
         }
     }
 }
@@ -174,37 +46,14 @@ impl Drop for RealtimeGuard {
 // infer-server's period-synchronised wait.
 use shm_ring::{monotonic_ns as now_ns, sleep_until_ns};
 
-/// Percentiles of a histogram in microseconds.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
-pub struct Percentiles {
-    pub p50_us: f64,
-    pub p99_us: f64,
-    pub p999_us: f64,
-    pub max_us: f64,
-    pub samples: u64,
-}
-
-impl Percentiles {
-    fn of(h: &Histogram<u64>) -> Percentiles {
-        let us = |v: u64| v as f64 / 1000.0;
-        Percentiles {
-            p50_us: us(h.value_at_quantile(0.5)),
-            p99_us: us(h.value_at_quantile(0.99)),
-            p999_us: us(h.value_at_quantile(0.999)),
-            max_us: us(h.max()),
-            samples: h.len(),
-        }
-    }
-}
-
 /// Realtime clock statistics.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct JitterStats {
     pub period_us: f64,
     /// |actual period - nominal period|.
-    pub period_jitter: Percentiles,
+    pub period_jitter: PercentilesUs,
     /// Wake-up time minus deadline.
-    pub wake_latency: Percentiles,
+    pub wake_latency: PercentilesUs,
     /// Steps whose work ended after the next deadline (that deadline was skipped).
     pub overruns: u64,
 }
@@ -274,8 +123,8 @@ impl RealtimeClock {
     pub fn stats(&self) -> JitterStats {
         JitterStats {
             period_us: self.period_ns as f64 / 1000.0,
-            period_jitter: Percentiles::of(&self.jitter),
-            wake_latency: Percentiles::of(&self.latency),
+            period_jitter: PercentilesUs::of(&self.jitter),
+            wake_latency: PercentilesUs::of(&self.latency),
             overruns: self.overruns,
         }
     }

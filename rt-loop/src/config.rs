@@ -6,6 +6,7 @@ use crate::clock::RealtimeConfig;
 use crate::experiment::{RampConfig, ReproductionConfig};
 use crate::features::FeatureParams;
 use crate::hand::HandConfig;
+use crate::invalid::InvalidSetting;
 use crate::params::LoopParams;
 use crate::record::Format;
 use serde::{Deserialize, Serialize};
@@ -118,12 +119,9 @@ impl RunConfig {
         })
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         if !(self.rate_hz.is_finite() && self.rate_hz >= 10.0 && self.rate_hz <= 100_000.0) {
-            return Err(format!(
-                "rate must be within 10..100000 Hz (got {})",
-                self.rate_hz
-            ));
+            return Err(format!("rate must be within 10..100000 Hz (got {})", self.rate_hz).into());
         }
         if self.decimate == 0 {
             return Err("decimate must be >= 1".into());
@@ -162,7 +160,7 @@ pub const MAX_GAIN_PERIOD: f64 = 1.0;
 
 impl RunConfig {
     /// Refuses filter gains the loop cannot run at its rate (forward Euler: `g T < 1`).
-    fn validate_rates(&self) -> Result<(), String> {
+    fn validate_rates(&self) -> Result<(), InvalidSetting> {
         let t = 1.0 / self.rate_hz;
         let p = &self.params;
         for (name, g) in [
@@ -177,27 +175,29 @@ impl RunConfig {
                     self.rate_hz,
                     g * t,
                     g / MAX_GAIN_PERIOD
-                ));
+                ).into());
             }
         }
         Ok(())
     }
 
     /// `[reproduction]`: the force limit and the fallback law's coefficients.
-    fn validate_reproduction(&self) -> Result<(), String> {
+    fn validate_reproduction(&self) -> Result<(), InvalidSetting> {
         let r = &self.reproduction;
         if !(r.max_force_n.is_finite() && r.max_force_n > 0.0 && r.max_force_n <= 50.0) {
             return Err(format!(
                 "reproduction.max_force_n must be within (0, 50] N (got {})",
                 r.max_force_n
-            ));
+            )
+            .into());
         }
         let fb = &r.fallback;
         for (name, v) in [("k1", fb.k1), ("k2", fb.k2), ("b", fb.b)] {
             if !(v.is_finite() && v.abs() <= 1e7) {
                 return Err(format!(
                     "reproduction.fallback.{name} must be a finite number within +-1e7 (got {v})"
-                ));
+                )
+                .into());
             }
         }
         Ok(())

@@ -4,6 +4,7 @@
 
 use crate::features::Features;
 use crate::filters::{Estimate, PseudoDerivative};
+use crate::invalid::{InvalidSeries, InvalidSetting};
 use crate::model::{ForceModel, SpringDamper};
 use crate::params::LoopParams;
 use serde::{Deserialize, Serialize};
@@ -65,12 +66,26 @@ impl Default for RampConfig {
 }
 
 impl RampConfig {
-    pub fn validate(&self) -> Result<(), String> {
+    /// The options a start sets (`--ramp-rate`, `--cycles`, `--f-max-start`, `--f-max-step`,
+    /// or a start command's values) over this configuration.
+    pub fn override_with(&mut self, a: &haptics_proto::experiment_args::ExperimentArgs) {
+        if let Some(v) = a.ramp_rate {
+            self.ramp_rate = v;
+        }
+        if let Some(v) = a.cycles {
+            self.cycles = v;
+        }
+        if let Some(v) = a.f_max_start {
+            self.f_max_start = v;
+        }
+        if let Some(v) = a.f_max_step {
+            self.f_max_step = v;
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         if !(self.ramp_rate.is_finite() && self.ramp_rate > 0.0) {
-            return Err(format!(
-                "ramp rate must be > 0 N/s (got {})",
-                self.ramp_rate
-            ));
+            return Err(format!("ramp rate must be > 0 N/s (got {})", self.ramp_rate).into());
         }
         if self.cycles == 0 {
             return Err("cycles must be >= 1".into());
@@ -80,13 +95,10 @@ impl RampConfig {
             .iter()
             .find(|v| !(v.is_finite() && **v > 0.0))
         {
-            return Err(format!("every F_max in the list must be > 0 N (got {v})"));
+            return Err(format!("every F_max in the list must be > 0 N (got {v})").into());
         }
         if !(self.minor_depth.is_finite() && self.minor_depth > 0.0 && self.minor_depth < 1.0) {
-            return Err(format!(
-                "minor_depth must be in (0, 1) (got {})",
-                self.minor_depth
-            ));
+            return Err(format!("minor_depth must be in (0, 1) (got {})", self.minor_depth).into());
         }
         for (n, v) in [
             ("f_max_start", self.f_max_start),
@@ -97,7 +109,7 @@ impl RampConfig {
             ("final_hold_s", self.final_hold_s),
         ] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("{n} must be >= 0 (got {v})"));
+                return Err(format!("{n} must be >= 0 (got {v})").into());
             }
         }
         if self.f_max_limit > 15.0 {
@@ -205,23 +217,19 @@ pub struct Trajectory {
 }
 
 impl Trajectory {
-    pub fn new(t: Vec<f64>, x: Vec<f64>) -> Result<Self, String> {
+    pub fn new(t: Vec<f64>, x: Vec<f64>) -> Result<Self, InvalidSeries> {
         if t.len() != x.len() || t.len() < 2 {
             return Err("a trajectory needs at least two (time, position) samples".into());
         }
         // every value checked, the first one included (a NaN compares false both ways)
         if let Some(i) = t.iter().position(|v| !v.is_finite()) {
-            return Err(format!("row {}: time = {} is not finite", i + 1, t[i]));
+            return Err(format!("row {}: time = {} is not finite", i + 1, t[i]).into());
         }
         if let Some(i) = x.iter().position(|v| !v.is_finite()) {
-            return Err(format!(
-                "row {}: position_x = {} is not finite",
-                i + 1,
-                x[i]
-            ));
+            return Err(format!("row {}: position_x = {} is not finite", i + 1, x[i]).into());
         }
         if let Some(i) = t.windows(2).position(|w| w[1] < w[0]) {
-            return Err(format!("row {}: time goes backwards", i + 2));
+            return Err(format!("row {}: time goes backwards", i + 2).into());
         }
         Ok(Trajectory { t, x, cursor: 0 })
     }
@@ -338,6 +346,9 @@ pub struct Decision {
     pub fallback: bool,
     /// The force the features take as "the step's force" (F_res, or F_pred in reproduction).
     pub feature_force: f64,
+    /// The served model whose answer the step rendered or held (`ForceMsg.model_id`); 0 when
+    /// none did (other experiments, the fallback, a built-in model).
+    pub model_id: u32,
 }
 
 // One Experiment lives in the Rig for the whole run and is never moved in the step: its size
@@ -388,6 +399,22 @@ impl Experiment {
         }
     }
 
+    /// The model, given back when the run is over (`None`: this experiment has none).
+    pub fn into_model(self) -> Option<Box<dyn ForceModel>> {
+        match self {
+            Experiment::Reproduction { model, .. } => Some(model),
+            _ => None,
+        }
+    }
+
+    /// The ladder's figures of a reproduction/shadow run (`None` for other experiments).
+    pub fn ladder_report(&self) -> Option<crate::ladder::LadderReport> {
+        match self {
+            Experiment::Reproduction { ladder, .. } => Some(ladder.report()),
+            _ => None,
+        }
+    }
+
     pub fn model_stats(&self) -> Option<ModelStats> {
         match self {
             Experiment::Reproduction { stats, .. } => Some(*stats),
@@ -419,6 +446,7 @@ impl Experiment {
                     f_pred: f64::NAN,
                     fallback: false,
                     feature_force: est.f_ext,
+                    model_id: 0,
                 }
             }
             Experiment::PositionReplay { trajectory, .. } => {
@@ -432,6 +460,7 @@ impl Experiment {
                     f_pred: f64::NAN,
                     fallback: false,
                     feature_force: est.f_ext,
+                    model_id: 0,
                 }
             }
             Experiment::Reproduction {
@@ -449,12 +478,18 @@ impl Experiment {
                         f_pred: f64::NAN,
                         fallback: false,
                         feature_force: 0.0,
+                        model_id: 0,
                     };
                 }
                 // the ladder asks the model and replaces a missing answer without a jump;
                 // `fallback` marks every step not rendered by the model's on-time answer
                 let r = ladder.render(model.as_mut(), step, time, feats);
                 let (f_pred, fallback) = (r.force, r.level != crate::ladder::Level::OnTime);
+                // the held value is the last served answer; the fallback is no served model's
+                let model_id = match r.level {
+                    crate::ladder::Level::Fallback => 0,
+                    _ => model.model_id(),
+                };
                 if fallback {
                     stats.fallbacks += 1;
                 } else {
@@ -466,6 +501,7 @@ impl Experiment {
                     f_pred,
                     fallback,
                     feature_force: f_pred,
+                    model_id,
                 }
             }
         }

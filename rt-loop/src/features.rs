@@ -17,6 +17,7 @@
 //!   crossing: where the object stops pushing back) become the `area_fx` / `deformation`
 //!   features, and `cycle_no` counts up. Cycle 1 has deformation 0 and area 0.
 
+use crate::invalid::InvalidSetting;
 use serde::{Deserialize, Serialize};
 
 /// The feature names in the order of thesis Table 3.1 (and of [`Features::as_array`]).
@@ -101,7 +102,7 @@ impl Default for FeatureParams {
 }
 
 impl FeatureParams {
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         if !(self.contact_off_n.is_finite()
             && self.contact_on_n.is_finite()
             && self.contact_off_n < self.contact_on_n)

@@ -13,6 +13,8 @@
 //!
 //! REAL-TIME PATH: [`Friction::force`] is a few flops, no allocation, no lock.
 
+use crate::invalid::InvalidSetting;
+use crate::lstsq::{FitError, NormalEquations3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -50,7 +52,7 @@ impl Friction {
         self.coulomb_n == 0.0 && self.static_n == 0.0 && self.viscous == 0.0
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         for (n, v) in [
             ("friction.coulomb_n", self.coulomb_n),
             ("friction.static_n", self.static_n),
@@ -58,14 +60,15 @@ impl Friction {
             ("friction.smooth_mps", self.smooth_mps),
         ] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("{n} must be >= 0 (got {v})"));
+                return Err(format!("{n} must be >= 0 (got {v})").into());
             }
         }
         if !(self.stribeck_mps.is_finite() && self.stribeck_mps > 0.0) {
             return Err(format!(
                 "friction.stribeck_mps must be > 0 (got {})",
                 self.stribeck_mps
-            ));
+            )
+            .into());
         }
         if self.coulomb_n.max(self.static_n) > 5.0 {
             return Err(
@@ -136,34 +139,28 @@ pub struct FrictionFit {
 /// other three; negative levels are clipped to 0, so data without a Stribeck peak give
 /// `static_n` = `coulomb_n`).
 /// Uses the commanded velocity (exact) as the abscissa, the measured mean force as ordinate.
-pub fn fit(points: &[SweepPoint]) -> Result<FrictionFit, String> {
+pub fn fit(points: &[SweepPoint]) -> Result<FrictionFit, FitError> {
     let pts: Vec<&SweepPoint> = points
         .iter()
         .filter(|p| p.v_cmd != 0.0 && p.force_mean.is_finite() && p.samples > 0)
         .collect();
     if pts.len() < 4 {
-        return Err(format!(
-            "only {} usable sweep segments: need at least 4 speeds",
-            pts.len()
-        ));
+        return Err(FitError::TooFew {
+            found: pts.len(),
+            needed: 4,
+            what: "usable sweep segments (speeds)",
+        });
     }
     let mut best: Option<(f64, [f64; 3], f64)> = None;
     for k in 0..=80 {
         let vs = 2e-4 * 10f64.powf(2.0 * k as f64 / 80.0);
-        let mut ata = [[0.0f64; 3]; 3];
-        let mut atb = [0.0f64; 3];
+        let mut eq = NormalEquations3::default();
         for p in &pts {
             let s = p.v_cmd.signum();
             let r = p.v_cmd / vs;
-            let row = [s, s * (-r * r).exp(), p.v_cmd];
-            for i in 0..3 {
-                for j in 0..3 {
-                    ata[i][j] += row[i] * row[j];
-                }
-                atb[i] += row[i] * p.force_mean;
-            }
+            eq.add([s, s * (-r * r).exp(), p.v_cmd], p.force_mean);
         }
-        let Some(sol) = crate::model::solve3(ata, atb) else {
+        let Some(sol) = eq.solve() else {
             continue;
         };
         // physical: no negative levels
@@ -181,7 +178,7 @@ pub fn fit(points: &[SweepPoint]) -> Result<FrictionFit, String> {
             best = Some((ss, sol, vs));
         }
     }
-    let (ss, sol, vs) = best.ok_or("the sweep data admit no fit")?;
+    let (ss, sol, vs) = best.ok_or(FitError::Singular("the sweep data admit no fit"))?;
     let friction = Friction {
         coulomb_n: sol[0],
         static_n: sol[0] + sol[1],
@@ -191,7 +188,7 @@ pub fn fit(points: &[SweepPoint]) -> Result<FrictionFit, String> {
     };
     friction
         .validate()
-        .map_err(|e| format!("the fitted friction is not plausible ({e}): check the sweeps"))?;
+        .map_err(|e| FitError::Implausible(format!("{e}: check the sweeps")))?;
     Ok(FrictionFit {
         friction,
         rms_residual_n: (ss / pts.len() as f64).sqrt(),

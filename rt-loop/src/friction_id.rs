@@ -16,6 +16,7 @@ use crate::board::Board;
 use crate::config::RunConfig;
 use crate::experiment::{Experiment, PositionPid, Trajectory};
 use crate::friction::{fit, BenchFile, FrictionFit, SweepPoint};
+use crate::invalid::InvalidSetting;
 use crate::rig::{Rig, Stop};
 use anyhow::{anyhow, bail, Result};
 use serde::Serialize;
@@ -60,7 +61,7 @@ struct Segment {
 }
 
 impl SweepPlan {
-    pub fn validate(&self, position_limit: f64) -> Result<(), String> {
+    pub fn validate(&self, position_limit: f64) -> Result<(), InvalidSetting> {
         if self.speeds_mps.is_empty()
             || self
                 .speeds_mps
@@ -73,7 +74,8 @@ impl SweepPlan {
             return Err(format!(
                 "the stroke must lie in (-{position_limit}, 0) m, far end first (got {}..{})",
                 self.x_far, self.x_near
-            ));
+            )
+            .into());
         }
         if !(self.segment_s > 0.0 && self.rest_s >= 0.0) {
             return Err("segment_s must be > 0 and rest_s >= 0".into());

@@ -2,6 +2,7 @@
 //! damping toward a moving set-point) following a press-hold-release trajectory. The hand
 //! only pushes (it rests against the shaft, it does not grip it).
 
+use crate::invalid::InvalidSetting;
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -41,7 +42,7 @@ impl Default for HandConfig {
 }
 
 impl HandConfig {
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         for (n, v) in [
             ("hand.stiffness", self.stiffness),
             ("hand.depth_m", self.depth_m),
@@ -49,7 +50,7 @@ impl HandConfig {
             ("hand.release_s", self.release_s),
         ] {
             if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{n} must be > 0 (got {v})"));
+                return Err(format!("{n} must be > 0 (got {v})").into());
             }
         }
         for (n, v) in [
@@ -59,7 +60,7 @@ impl HandConfig {
             ("hand.depth_step_m", self.depth_step_m),
         ] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("{n} must be >= 0 (got {v})"));
+                return Err(format!("{n} must be >= 0 (got {v})").into());
             }
         }
         if self.repeats == 0 {

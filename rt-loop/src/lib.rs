@@ -7,10 +7,13 @@
 //! [`experiment`], [`features`], [`model`] (the force-model hook), [`record`], [`clock`],
 //! [`config`], [`run`], [`import`] (the `features` subcommand).
 
+pub mod app;
 pub mod board;
+pub mod cli;
 pub mod clock;
 pub mod config;
 pub mod dac;
+pub mod daemon;
 pub mod experiment;
 pub mod features;
 pub mod filters;
@@ -18,17 +21,21 @@ pub mod friction;
 pub mod friction_id;
 pub mod hand;
 pub mod import;
+pub mod invalid;
 pub mod ladder;
+pub mod lstsq;
 pub mod material;
 pub mod model;
 pub mod oracle;
 pub mod params;
+pub mod percentiles;
 pub mod record;
 pub mod rig;
 pub mod rng;
 pub mod run;
-pub mod serve;
 pub mod shm_io;
 pub mod shm_model;
 pub mod shm_renew;
+pub mod sink;
 pub mod sponge;
+pub mod stop;

@@ -2,8 +2,13 @@
 //! new TOML file, not new code. Format documented in docs/rt-loop.md; `materials/sponge.toml`
 //! is the default.
 
+use crate::invalid::InvalidSetting;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+
+/// Maxwell branches a material may have: the simulated sponge keeps their state inline (fixed
+/// arrays, so stepping it allocates nothing), and the file is checked against the same bound.
+pub const MAX_BRANCHES: usize = 6;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -90,7 +95,7 @@ impl Material {
         Ok(m)
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         let e = &self.equilibrium;
         let checks = [
             ("equilibrium.plateau_n", e.plateau_n, true),
@@ -128,7 +133,8 @@ impl Material {
                 return Err(format!(
                     "{name} must be {} (got {v})",
                     if zero_ok { ">= 0" } else { "> 0" }
-                ));
+                )
+                .into());
             }
         }
         if !(0.0..1.0).contains(&self.hysteresis.fraction) {
@@ -145,19 +151,16 @@ impl Material {
             ),
         ] {
             if !(0.0..=1.0).contains(&v) {
-                return Err(format!("{name} must be in [0, 1] (got {v})"));
+                return Err(format!("{name} must be in [0, 1] (got {v})").into());
             }
         }
         for (i, b) in self.maxwell.iter().enumerate() {
             if !(b.gain.is_finite() && b.gain >= 0.0 && b.tau_s.is_finite() && b.tau_s > 0.0) {
-                return Err(format!("maxwell[{i}]: gain must be >= 0 and tau_s > 0"));
+                return Err(format!("maxwell[{i}]: gain must be >= 0 and tau_s > 0").into());
             }
         }
-        if self.maxwell.len() > crate::sponge::MAX_BRANCHES {
-            return Err(format!(
-                "at most {} maxwell branches are supported",
-                crate::sponge::MAX_BRANCHES
-            ));
+        if self.maxwell.len() > MAX_BRANCHES {
+            return Err(format!("at most {} maxwell branches are supported", MAX_BRANCHES).into());
         }
         Ok(())
     }

@@ -13,6 +13,7 @@
 //! must not allocate, lock or do I/O, and must bound its wait.
 
 use crate::features::Features;
+use crate::lstsq::{FitError, NormalEquations3};
 use serde::{Deserialize, Serialize};
 
 /// Why a step has no usable answer of its own (the ladder counts one reason per such step).
@@ -46,7 +47,9 @@ pub enum Answer {
     Missing(Miss),
 }
 
-pub trait ForceModel: Send {
+/// `Any`: a run gives its model back as `Box<dyn ForceModel>`, and the caller that lent a
+/// concrete model recognises it there (`ShmModel::from_model`).
+pub trait ForceModel: Send + std::any::Any {
     /// Short name for the run metadata and the summary.
     fn name(&self) -> &str;
     /// Called once before the run's first step, off the real-time path: a shared-memory client
@@ -71,6 +74,13 @@ pub trait ForceModel: Send {
             Some(f) => Answer::OnTime(f),
             None => Answer::Missing(Miss::Late),
         }
+    }
+    /// Which served model gave the answer last used: the server's registry id
+    /// (`ForceMsg.model_id`), so telemetry says which model drew each step. 0: none (a
+    /// built-in model, or no answer yet). Same real-time contract as `predict`.
+    #[inline]
+    fn model_id(&self) -> u32 {
+        0
     }
     /// Fills what the model knows for the loop-status block (deadline misses, round-trip
     /// percentiles). Called about every 100 ms on the loop thread: no allocation, no lock.
@@ -108,29 +118,24 @@ impl SpringDamper {
     }
 
     /// Least-squares fit of (k1, k2, b) on the samples in contact (x > 0, finite force).
-    pub fn fit(x: &[f64], v: &[f64], f: &[f64]) -> Result<SpringDamper, String> {
-        let mut ata = [[0.0f64; 3]; 3];
-        let mut atb = [0.0f64; 3];
-        let mut n = 0usize;
+    pub fn fit(x: &[f64], v: &[f64], f: &[f64]) -> Result<SpringDamper, FitError> {
+        let mut eq = NormalEquations3::default();
         for i in 0..x.len().min(v.len()).min(f.len()) {
             if !(x[i] > 0.0 && f[i].is_finite() && v[i].is_finite()) {
                 continue;
             }
-            let row = [x[i], x[i] * x[i], v[i]];
-            for r in 0..3 {
-                for c in 0..3 {
-                    ata[r][c] += row[r] * row[c];
-                }
-                atb[r] += row[r] * f[i];
-            }
-            n += 1;
+            eq.add([x[i], x[i] * x[i], v[i]], f[i]);
         }
-        if n < 10 {
-            return Err(format!(
-                "only {n} samples in contact: cannot fit a spring-damper"
-            ));
+        if eq.rows() < 10 {
+            return Err(FitError::TooFew {
+                found: eq.rows(),
+                needed: 10,
+                what: "samples in contact",
+            });
         }
-        let sol = solve3(ata, atb).ok_or("singular fit (no motion in the data?)")?;
+        let sol = eq
+            .solve()
+            .ok_or(FitError::Singular("no motion in the data?"))?;
         Ok(SpringDamper {
             k1: sol[0],
             k2: sol[1],
@@ -139,33 +144,13 @@ impl SpringDamper {
     }
 }
 
-#[allow(clippy::needless_range_loop)] // index form mirrors the textbook elimination
-pub(crate) fn solve3(mut a: [[f64; 3]; 3], mut b: [f64; 3]) -> Option<[f64; 3]> {
-    // Column-scaled Gaussian elimination with partial pivoting.
-    for col in 0..3 {
-        let piv = (col..3).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
-        if a[piv][col].abs() < 1e-300 {
-            return None;
-        }
-        a.swap(col, piv);
-        b.swap(col, piv);
-        for r in col + 1..3 {
-            let k = a[r][col] / a[col][col];
-            for c in col..3 {
-                a[r][c] -= k * a[col][c];
-            }
-            b[r] -= k * b[col];
-        }
+impl SpringDamper {
+    /// [`SpringDamper::fit`] on a recording's `position_x`, `velocity` and `force_col`.
+    pub fn fit_recording(path: &std::path::Path, force_col: &str) -> anyhow::Result<SpringDamper> {
+        let cols = crate::record::read::read_columns(path, &["position_x", "velocity", force_col])?;
+        SpringDamper::fit(&cols[0], &cols[1], &cols[2])
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
     }
-    let mut x = [0.0; 3];
-    for r in (0..3).rev() {
-        let mut s = b[r];
-        for c in r + 1..3 {
-            s -= a[r][c] * x[c];
-        }
-        x[r] = s / a[r][r];
-    }
-    x.iter().all(|v| v.is_finite()).then_some(x)
 }
 
 /// The built-in model as a served model: the spring-damper law on the features.

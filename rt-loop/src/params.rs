@@ -1,6 +1,7 @@
 //! The loop's parameters (SPEC section 2, thesis Tables 5.1-5.6 and its C code).
 //! Every value defaults to the thesis's and can be overridden from the config file.
 
+use crate::invalid::InvalidSetting;
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -74,7 +75,7 @@ impl Default for LoopParams {
 
 impl LoopParams {
     /// Refuses values that would make the loop unsafe or meaningless.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         let positive = [
             ("m_n", self.m_n),
             ("k_fn", self.k_fn),
@@ -89,9 +90,7 @@ impl LoopParams {
         ];
         for (name, v) in positive {
             if !(v.is_finite() && v > 0.0) {
-                return Err(format!(
-                    "parameter {name} must be a positive number, got {v}"
-                ));
+                return Err(format!("parameter {name} must be a positive number, got {v}").into());
             }
         }
         for (name, v) in [
@@ -102,7 +101,7 @@ impl LoopParams {
             ("pid_i", self.pid_i),
         ] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("parameter {name} must be >= 0, got {v}"));
+                return Err(format!("parameter {name} must be >= 0, got {v}").into());
             }
         }
         self.friction.validate()?;
@@ -110,13 +109,15 @@ impl LoopParams {
             return Err(format!(
                 "current_limit {} A exceeds the DAC full scale {} A",
                 self.current_limit, self.dac_full_scale
-            ));
+            )
+            .into());
         }
         if self.current_limit > 0.62 {
             return Err(format!(
                 "current_limit {} A exceeds the motor's continuous rating 0.62 A",
                 self.current_limit
-            ));
+            )
+            .into());
         }
         Ok(())
     }

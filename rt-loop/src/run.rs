@@ -1,19 +1,25 @@
 //! Puts a run together from its configuration: board, experiment, loop, clock, recorder,
-//! and reports what happened.
+//! and reports what happened. The run's per-step output besides the recording goes to a
+//! [`StepSink`] (the shared-memory side channel, or nothing); the model it is given comes
+//! back with its result ([`RunOutcome`]), so a long-running loop keeps one served model across
+//! runs without lending it.
 
 use crate::board::replay::ReplayBoard;
 use crate::board::sim::{SimBoard, SimTime, SimWorld};
 use crate::board::Board;
-use crate::clock::{make_thread_realtime, JitterStats, RealtimeClock};
+use crate::clock::{JitterStats, RealtimeClock};
 use crate::config::{BoardKind, ClockKind, ExperimentKind, RunConfig};
 use crate::experiment::{Experiment, ModelStats, PositionPid, RampSchedule, Trajectory};
 use crate::material::Material;
 use crate::model::{ForceModel, SpringDamperModel};
+use crate::percentiles::Percentiles;
+use crate::record::row::Row;
 use crate::record::{RecorderHandle, RecorderReport, Target};
 use crate::rig::{Rig, Stop};
+use crate::sink::{RunFigures, StepAction, StepSink};
+use crate::stop::{Shutdown, StopReason};
 use anyhow::{anyhow, Result};
 use serde::Serialize;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 #[derive(Clone, Debug, Serialize)]
@@ -21,9 +27,9 @@ pub struct RunSummary {
     pub experiment: String,
     pub clock: String,
     pub steps: u64,
-    /// How the run ended: finished, position-limit, board-fault: ..., watchdog,
-    /// recorder-failed, time-limit, interrupted (SIGINT/SIGTERM).
-    pub stop: String,
+    /// How the run ended (written as its text: finished, position-limit, board-fault: ...,
+    /// watchdog, recorder-failed, time-limit, interrupted, stopped).
+    pub stop: StopReason,
     pub loop_time_s: f64,
     pub wall_s: f64,
     pub steps_per_s: f64,
@@ -32,7 +38,8 @@ pub struct RunSummary {
     pub recorder: Option<RecorderReport>,
     pub jitter: Option<JitterStats>,
     pub model: Option<ModelStats>,
-    /// The shared-memory client's counters (runs with a served model), filled in by the caller.
+    /// The shared-memory client's counters (runs with a served model), filled in by the caller
+    /// from the model the run gives back.
     pub shm: Option<crate::shm_model::ShmCountersSnapshot>,
     /// Loop-observed round trip to the server (runs with a served model), filled in by the caller.
     pub round_trip_us: Option<Percentiles>,
@@ -64,22 +71,8 @@ impl RunSummary {
         let rec_ok = self.recorder.as_ref().is_none_or(|r| {
             r.error.is_none() && r.rows_written == r.rows_received && self.drops == 0
         });
-        (self.stop == "finished"
-            || self.stop == "time-limit"
-            || self.stop == "interrupted"
-            || self.stop == "stopped")
-            && rec_ok
+        self.stop.planned() && rec_ok
     }
-}
-
-/// Latency percentiles, microseconds.
-#[derive(Clone, Copy, Debug, Serialize)]
-pub struct Percentiles {
-    pub p50: f64,
-    pub p99: f64,
-    pub p999: f64,
-    pub max: f64,
-    pub count: u64,
 }
 
 /// The run's metadata JSON (`haptics.run`).
@@ -194,102 +187,91 @@ pub fn build_rig(
     Ok(rig)
 }
 
-/// The ladder's figures of a reproduction/shadow run (`None` for other experiments).
-pub fn ladder_report(e: &Experiment) -> Option<crate::ladder::LadderReport> {
-    match e {
-        Experiment::Reproduction { ladder, .. } => Some(ladder.report()),
-        _ => None,
-    }
-}
-
-static STOP_REQUESTED: AtomicBool = AtomicBool::new(false);
-
-/// Asks a running [`run`] to stop at its next step (0 A, recording finished and renamed,
-/// summary with stop "interrupted"). Async-signal-safe: one atomic store.
-pub fn request_stop() {
-    STOP_REQUESTED.store(true, Ordering::Relaxed);
-}
-
-/// Whether SIGINT/SIGTERM (or [`request_stop`]) asked the process to stop.
-pub fn stop_requested() -> bool {
-    STOP_REQUESTED.load(Ordering::Relaxed)
-}
-
-extern "C" fn on_signal(_: libc::c_int) {
-    request_stop();
-}
-
-/// Makes SIGINT and SIGTERM request a clean stop instead of killing the process mid-step.
-pub fn install_stop_signals() {
-    // SAFETY: the handler only performs an atomic store, which is async-signal-safe.
-    unsafe {
-        libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
-        libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
-    }
-}
-
-/// The run's figures into the loop-status block (no allocation, no lock): steps, fallbacks,
-/// the model's misses and round trip, the clock's overruns and jitter, the recorder's rows.
-fn fill_status(
-    io: &mut crate::shm_io::LoopIo,
-    rig: &Rig<Box<dyn Board>>,
-    clock: Option<&RealtimeClock>,
-    recorder: Option<&RecorderHandle>,
-) {
-    let rows = recorder.map(|r| (r.pushed(), r.failed()));
-    match rows {
-        Some((_, true)) => io.set_recorder_text("failed (the run ends at 0 A; see its summary)"),
-        Some((n, false)) => io.set_recorder_rows(n),
-        None => io.set_recorder_rows(0),
-    }
-    let s = io.status_mut();
-    s.steps = rig.steps();
-    s.fallbacks = rig.experiment.model_stats().map_or(0, |m| m.fallbacks);
-    if let Some(l) = ladder_report(&rig.experiment) {
-        s.on_time = l.counts.on_time;
-        s.late_one = l.counts.late_one;
-        s.held = l.counts.held;
-        s.fallback_steps = l.counts.fallback;
-        s.max_transition_step_n = l.max_transition_step_n;
-    }
-    rig.experiment.report_status(s);
-    if let Some(c) = clock {
-        s.overruns = c.overruns();
-        s.period_jitter = crate::shm_io::quantiles_of(c.jitter());
-    }
-}
-
 /// Progress reporting for long lockstep runs (called off the step, every few thousand steps).
 pub trait Progress {
     fn update(&mut self, loop_time_s: f64);
     fn finish(&mut self) {}
 }
 
-/// Runs a configured experiment to its end.
+/// A finished run: its result, and the model it was given (`None` if it was given none), so
+/// the caller can read the model's own figures or hand it to the next run.
+pub struct RunOutcome {
+    pub result: Result<RunSummary>,
+    pub model: Option<Box<dyn ForceModel>>,
+}
+
+/// Runs a configured experiment to its end (no side channel, nothing to stop it early; the
+/// model is dropped after).
 pub fn run(
     cfg: &RunConfig,
     model: Option<Box<dyn ForceModel>>,
     progress: Option<&mut dyn Progress>,
 ) -> Result<RunSummary> {
-    run_with(cfg, model, progress, None)
+    let never = Shutdown::new()?;
+    run_with(cfg, model, &never, progress, None).result
 }
 
-/// [`run`] with the loop's shared-memory side channel: every step's row goes out as telemetry,
-/// the heartbeat is bumped, and a stop command from the mailbox ends the run (stop "stopped").
+/// [`run`] with a shutdown signal (a request ends the run at its next step, stop
+/// "interrupted") and a [`StepSink`] for its per-step output (the shared-memory side channel:
+/// every step's row goes out as telemetry, the heartbeat is bumped, and a stop command from
+/// the mailbox ends the run with stop "stopped"). The model comes back in the outcome whatever
+/// the result.
 pub fn run_with(
     cfg: &RunConfig,
-    model: Option<Box<dyn ForceModel>>,
-    mut progress: Option<&mut dyn Progress>,
-    mut io: Option<&mut crate::shm_io::LoopIo>,
+    mut model: Option<Box<dyn ForceModel>>,
+    shutdown: &Shutdown,
+    progress: Option<&mut dyn Progress>,
+    sink: Option<&mut dyn StepSink>,
+) -> RunOutcome {
+    let result = set_up_and_run(cfg, &mut model, shutdown, progress, sink);
+    RunOutcome { result, model }
+}
+
+/// Builds the run and drives it; the model goes back into `model` on every path.
+fn set_up_and_run(
+    cfg: &RunConfig,
+    model: &mut Option<Box<dyn ForceModel>>,
+    shutdown: &Shutdown,
+    progress: Option<&mut dyn Progress>,
+    sink: Option<&mut dyn StepSink>,
 ) -> Result<RunSummary> {
     cfg.validate().map_err(|e| anyhow!(e))?;
     let (material, material_text) = Material::load(&cfg.material)?;
-    let experiment = build_experiment(cfg, model)?;
-    let model_name = match &experiment {
-        Experiment::Reproduction { model, .. } => model.name().to_string(),
-        _ => "none".to_string(),
+    // Only reproduction and shadow use a model: the others leave it with the caller.
+    let uses_model = matches!(
+        cfg.experiment,
+        ExperimentKind::Reproduction | ExperimentKind::Shadow
+    );
+    let given = if uses_model { model.take() } else { None };
+    // Without a model of its own, reproduction renders its fallback: that one stays here.
+    let given_some = given.is_some();
+    let give_back = |e: Experiment, model: &mut Option<Box<dyn ForceModel>>| {
+        if given_some {
+            *model = e.into_model();
+        }
     };
-    let board = build_board(cfg, Some(&material))?;
+    let experiment = build_experiment(cfg, given)?;
+    let board = build_board(cfg, Some(&material)).and_then(|b| {
+        refuse_existing_recording(cfg)?;
+        Ok(b)
+    });
+    let board = match board {
+        Ok(b) => b,
+        Err(e) => {
+            give_back(experiment, model);
+            return Err(e);
+        }
+    };
+    // Rig::new writes 0 A and arms the watchdog, then lets the model wait for its server.
+    let mut rig = Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone());
+    rig.set_period(1.0 / cfg.rate_hz);
+    let result = drive(cfg, &mut rig, &material_text, shutdown, progress, sink);
+    give_back(rig.experiment, model);
+    result
+}
+
+/// A recording is never overwritten unless asked (`--overwrite`).
+fn refuse_existing_recording(cfg: &RunConfig) -> Result<()> {
     if let Some(p) = &cfg.record {
         if p.exists() && !cfg.overwrite {
             anyhow::bail!(
@@ -298,9 +280,22 @@ pub fn run_with(
             );
         }
     }
-    // Rig::new writes 0 A and arms the watchdog, then lets the model wait for its server.
-    let mut rig = Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone());
-    rig.set_period(1.0 / cfg.rate_hz);
+    Ok(())
+}
+
+/// Runs the built loop to its end: clock, recorder, sink, stop conditions, summary.
+fn drive(
+    cfg: &RunConfig,
+    rig: &mut Rig<Box<dyn Board>>,
+    material_text: &str,
+    shutdown: &Shutdown,
+    mut progress: Option<&mut dyn Progress>,
+    mut sink: Option<&mut dyn StepSink>,
+) -> Result<RunSummary> {
+    let model_name = match &rig.experiment {
+        Experiment::Reproduction { model, .. } => model.name().to_string(),
+        _ => "none".to_string(),
+    };
     let start_error = match &rig.experiment {
         Experiment::Reproduction { model, .. } => model.start_error().map(str::to_string),
         _ => None,
@@ -313,7 +308,7 @@ pub fn run_with(
         Some(p) => Some(RecorderHandle::start(
             Target::File(p.clone()),
             cfg.format(),
-            metadata_json(cfg, &material_text, &model_name),
+            metadata_json(cfg, material_text, &model_name),
             cfg.queue_capacity,
         )?),
         None => None,
@@ -326,9 +321,9 @@ pub fn run_with(
     // Restores the thread's scheduling, affinity and memory locking when the run ends.
     let mut _rt_guard = None;
     if cfg.clock == ClockKind::Realtime {
-        let g = make_thread_realtime(&cfg.realtime);
+        let g = cfg.realtime.request().apply();
         scheduling = g.describe();
-        warnings = g.warnings.clone();
+        warnings = g.obtained().warnings();
         for w in &warnings {
             eprintln!("rt-loop: warning: {w} (continuing without it)");
         }
@@ -337,14 +332,14 @@ pub fn run_with(
         c.start();
         clock = Some(c);
     }
-    if let Some(io) = io.as_deref_mut() {
-        io.begin_run_status(cfg, &scheduling, cfg.record.as_deref());
+    if let Some(s) = sink.as_deref_mut() {
+        s.begin_run(cfg, &scheduling);
     }
     let lockstep = cfg.clock == ClockKind::Lockstep;
     let wall = Instant::now();
     let mut last_time = 0.0;
-    let mut last_row: Option<crate::record::row::Row> = None;
-    let stop: String = loop {
+    let mut last_row: Option<Row> = None;
+    let stop = loop {
         if let Some(c) = clock.as_mut() {
             c.wait();
         }
@@ -364,28 +359,27 @@ pub fn run_with(
                     if r.failed() {
                         // Nothing more can be recorded: end the run with the motor at 0 A.
                         rig.safe_stop();
-                        break "recorder-failed".into();
+                        break StopReason::RecorderFailed;
                     }
                 }
-                if let Some(io) = io.as_deref_mut() {
-                    if io.on_step(&row) == crate::shm_io::StepAction::Stop {
+                if let Some(s) = sink.as_deref_mut() {
+                    if s.on_step(&row) == StepAction::Stop {
                         rig.safe_stop();
-                        break "stopped".into();
+                        break StopReason::Stopped;
                     }
                     // about every 100 ms, never per step; allocation-free
-                    if io.status_due() {
-                        fill_status(io, &rig, clock.as_ref(), recorder.as_ref());
-                        io.publish_status();
+                    if s.report_due() {
+                        s.report(&figures(rig, clock.as_ref(), recorder.as_ref()));
                     }
                 }
                 if row.time >= max_time {
                     rig.safe_stop();
-                    break "time-limit".into();
+                    break StopReason::TimeLimit;
                 }
                 // one relaxed atomic load per step: the signal handler's request
-                if STOP_REQUESTED.load(Ordering::Relaxed) {
+                if shutdown.is_requested() {
                     rig.safe_stop();
-                    break "interrupted".into();
+                    break StopReason::Interrupted;
                 }
                 if lockstep && row.step & 0x3FFF == 0 {
                     if let Some(p) = progress.as_deref_mut() {
@@ -393,10 +387,10 @@ pub fn run_with(
                     }
                 }
             }
-            Err(Stop::Finished) => break "finished".into(),
-            Err(Stop::PositionLimit) => break "position-limit".into(),
-            Err(Stop::Watchdog) => break "watchdog".into(),
-            Err(Stop::BoardFault(m)) => break format!("board-fault: {m}"),
+            Err(Stop::Finished) => break StopReason::Finished,
+            Err(Stop::PositionLimit) => break StopReason::PositionLimit,
+            Err(Stop::Watchdog) => break StopReason::Watchdog,
+            Err(Stop::BoardFault(m)) => break StopReason::BoardFault(m),
         }
     };
     if let Some(p) = progress {
@@ -404,21 +398,18 @@ pub fn run_with(
     }
     // Tell the telemetry reader (infer-server's status) at once that the run is over: one last
     // row in phase `done`, at 0 A.
-    if let (Some(io), Some(mut r)) = (io.as_deref_mut(), last_row) {
+    if let (Some(s), Some(mut r)) = (sink.as_deref_mut(), last_row) {
         r.step += 1;
         r.phase = crate::experiment::Phase::Done as u8;
         r.f_ref = 0.0;
         r.i_a_ref = 0.0;
         r.i_motor = 0.0;
         r.analog_out_motor = 32768;
-        io.publish(&r);
-        io.heartbeat();
+        s.last_row(&r);
     }
     let wall_s = wall.elapsed().as_secs_f64();
     let steps = rig.steps();
-    if let Some(io) = io.as_deref_mut() {
-        fill_status(io, &rig, clock.as_ref(), recorder.as_ref());
-    }
+    let at_end = figures(rig, clock.as_ref(), recorder.as_ref()).recorder;
     let (rows_pushed, drops, report) = match recorder {
         Some(r) => {
             let (p, d) = (r.pushed(), r.dropped());
@@ -426,20 +417,14 @@ pub fn run_with(
         }
         None => (0, 0, None),
     };
-    if let Some(io) = io.as_deref_mut() {
-        if let Some(r) = &report {
-            match (&r.error, &r.path) {
-                (Some(e), _) => io.set_recorder_text(&format!("failed: {e}")),
-                (None, Some(p)) => {
-                    io.set_recorder_text(&format!("wrote {} rows {}", p.display(), r.rows_written))
-                }
-                (None, None) => {}
-            }
-        }
-        io.end_run_status();
-    }
-    let ladder = ladder_report(&rig.experiment);
-    let corrupt = io.as_ref().map_or(0, |io| io.status().corrupt);
+    let totals = sink.map(|s| {
+        let f = RunFigures {
+            recorder: at_end,
+            ..figures(rig, clock.as_ref(), None)
+        };
+        s.end_run(&f, report.as_ref())
+    });
+    let ladder = rig.experiment.ladder_report();
     Ok(RunSummary {
         experiment: rig.experiment.name().into(),
         clock: format!("{:?}", cfg.clock).to_lowercase(),
@@ -455,14 +440,28 @@ pub fn run_with(
         model: rig.experiment.model_stats(),
         shm: None,
         round_trip_us: None,
-        telemetry_rows: io.map_or(0, |io| io.rows_sent),
+        telemetry_rows: totals.map_or(0, |t| t.rows_sent),
         ladder: ladder.map(|l| l.counts),
         degraded_reasons: ladder.map(|l| l.reasons),
         max_transition_step_n: ladder.map_or(0.0, |l| l.max_transition_step_n),
         transition_steps: ladder.map_or(0, |l| l.transition_steps),
-        corrupt,
+        corrupt: totals.map_or(0, |t| t.corrupt),
         long_steps: rig.long_steps(),
         max_step_ms: rig.max_dt() * 1e3,
         warnings,
     })
+}
+
+/// The run's figures for its sink (no allocation).
+fn figures<'a>(
+    rig: &'a Rig<Box<dyn Board>>,
+    clock: Option<&'a RealtimeClock>,
+    recorder: Option<&RecorderHandle>,
+) -> RunFigures<'a> {
+    RunFigures {
+        steps: rig.steps(),
+        experiment: &rig.experiment,
+        clock,
+        recorder: recorder.map(|r| (r.pushed(), r.failed())),
+    }
 }

@@ -6,15 +6,19 @@
 //! overwrite-ring push (never blocks, never fails), one atomic heartbeat store, and every
 //! [`COMMAND_POLL_EVERY`] steps one non-blocking mailbox poll.
 
+use crate::config::RunConfig;
 use crate::features::SCHEMA_NAMES;
+use crate::percentiles::quantiles;
 use crate::record::row::Row;
+use crate::record::RecorderReport;
 use crate::shm_model::ShmClient;
+use crate::sink::{RunFigures, SinkTotals, StepAction, StepSink};
 use anyhow::{anyhow, bail, Result};
+use haptics_proto::experiment_args::ExperimentArgs;
 use haptics_proto::{
     Command, CommandKind, LoopClock, LoopStatus, LoopStatusLink, Quantiles, Segment, StatusText,
     TelemetryRow, RECORDER_BYTES,
 };
-use hdrhistogram::Histogram;
 use shm_ring::{Config, Consumer, Link, OverwriteProducer, SegmentName, WaitStrategy};
 use std::fmt::Write as _;
 use std::time::{Duration, Instant};
@@ -25,21 +29,6 @@ pub const COMMAND_POLL_EVERY: u64 = 16;
 pub const STATUS_EVERY: Duration = Duration::from_millis(100);
 /// Steps between two looks at the clock for [`STATUS_EVERY`] (6.4 ms at 10 kHz).
 const STATUS_CHECK_EVERY: u32 = 64;
-
-/// Percentiles of an HDR histogram (ns) for the status block. No allocation: it walks the
-/// preallocated buckets (a few microseconds; called about every 100 ms, never per step).
-pub fn quantiles_of(h: &Histogram<u64>) -> Quantiles {
-    if h.is_empty() {
-        return Quantiles::default();
-    }
-    Quantiles {
-        p50_ns: h.value_at_quantile(0.5),
-        p99_ns: h.value_at_quantile(0.99),
-        p999_ns: h.value_at_quantile(0.999),
-        max_ns: h.max(),
-        count: h.len(),
-    }
-}
 
 fn unix_ns() -> u64 {
     std::time::SystemTime::now()
@@ -91,21 +80,13 @@ pub fn create_segment(instance: &str, answer_wait: WaitStrategy) -> Result<LoopS
     Ok(LoopSegment { client, io, name })
 }
 
-/// What the step loop should do after a step.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum StepAction {
-    Continue,
-    /// A stop command arrived: end the run safely (0 A).
-    Stop,
-}
-
 /// A validated experiment request from the mailbox.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StartRequest {
     pub id: u64,
     pub experiment: crate::config::ExperimentKind,
-    /// `[ramp_rate, cycles, f_max_start, f_max_step]`, `None` = the loop's default.
-    pub values: [Option<f64>; 4],
+    /// What the start sets over the loop's defaults.
+    pub params: ExperimentArgs,
 }
 
 /// A command, checked like any outside input.
@@ -148,30 +129,14 @@ pub fn parse_command(c: &Command) -> LoopCommand {
                     }
                 }
             };
-            let mut values = [None; 4];
-            for (i, v) in c.values.iter().enumerate() {
-                if v.is_nan() {
-                    continue;
-                }
-                let ok = v.is_finite()
-                    && match i {
-                        0 => *v > 0.0,
-                        1 => *v >= 1.0 && v.fract() == 0.0 && *v <= 1000.0,
-                        2 => *v > 0.0,
-                        _ => *v >= 0.0,
-                    };
-                if !ok {
-                    return LoopCommand::Refused {
-                        id: c.id,
-                        reason: "bad experiment parameter (ramp rate > 0, cycles integer 1..1000, f_max_start > 0, f_max_step >= 0)",
-                    };
-                }
-                values[i] = Some(*v);
-            }
+            let params = match ExperimentArgs::from_values(&c.values) {
+                Ok(p) => p,
+                Err(reason) => return LoopCommand::Refused { id: c.id, reason },
+            };
             LoopCommand::Start(StartRequest {
                 id: c.id,
                 experiment,
-                values,
+                params,
             })
         }
     }
@@ -241,7 +206,7 @@ impl LoopIo {
     /// obtained and its recording (`None`: "off") are set, and the block is published.
     pub fn begin_run_status(
         &mut self,
-        cfg: &crate::config::RunConfig,
+        cfg: &RunConfig,
         scheduling: &str,
         recording: Option<&std::path::Path>,
     ) {
@@ -315,6 +280,34 @@ impl LoopIo {
     pub fn end_run_status(&mut self) {
         self.status.running = false;
         self.publish_status();
+    }
+
+    /// The run's figures into the status block (no allocation, no lock): steps, fallbacks, the
+    /// ladder's counts, the model's misses and round trip, the clock's overruns and jitter,
+    /// the recorder's rows.
+    pub fn fill_status(&mut self, f: &RunFigures<'_>) {
+        match f.recorder {
+            Some((_, true)) => {
+                self.set_recorder_text("failed (the run ends at 0 A; see its summary)")
+            }
+            Some((n, false)) => self.set_recorder_rows(n),
+            None => self.set_recorder_rows(0),
+        }
+        let s = &mut self.status;
+        s.steps = f.steps;
+        s.fallbacks = f.experiment.model_stats().map_or(0, |m| m.fallbacks);
+        if let Some(l) = f.experiment.ladder_report() {
+            s.on_time = l.counts.on_time;
+            s.late_one = l.counts.late_one;
+            s.held = l.counts.held;
+            s.fallback_steps = l.counts.fallback;
+            s.max_transition_step_n = l.max_transition_step_n;
+        }
+        f.experiment.report_status(s);
+        if let Some(c) = f.clock {
+            s.overruns = c.overruns();
+            s.period_jitter = quantiles(c.jitter());
+        }
     }
 
     /// The status being built; [`LoopIo::publish_status`] writes it.
@@ -433,7 +426,7 @@ impl LoopIo {
     }
 }
 
-/// A recording row as a telemetry row (the same columns plus the run id).
+/// A recording row as the telemetry ring sends it: the same row, with the run's id.
 #[inline]
 pub fn telemetry_row(r: &Row, run_id: u32) -> TelemetryRow {
     TelemetryRow {
@@ -462,5 +455,57 @@ pub fn telemetry_row(r: &Row, run_id: u32) -> TelemetryRow {
         f_previous_a: r.f_previous_a,
         deformation: r.deformation,
         area_fx: r.area_fx,
+    }
+}
+
+/// The loop's side channel as the run's sink: telemetry and heartbeat every step, the mailbox
+/// every [`COMMAND_POLL_EVERY`] steps, the status block about every [`STATUS_EVERY`].
+impl StepSink for LoopIo {
+    fn begin_run(&mut self, cfg: &RunConfig, scheduling: &str) {
+        self.begin_run_status(cfg, scheduling, cfg.record.as_deref());
+    }
+
+    #[inline]
+    fn on_step(&mut self, row: &Row) -> StepAction {
+        LoopIo::on_step(self, row)
+    }
+
+    #[inline]
+    fn report_due(&mut self) -> bool {
+        self.status_due()
+    }
+
+    fn report(&mut self, figures: &RunFigures<'_>) {
+        self.fill_status(figures);
+        self.publish_status();
+    }
+
+    fn last_row(&mut self, row: &Row) {
+        self.publish(row);
+        self.heartbeat();
+    }
+
+    fn end_run(
+        &mut self,
+        figures: &RunFigures<'_>,
+        recorder: Option<&RecorderReport>,
+    ) -> SinkTotals {
+        self.fill_status(figures);
+        if let Some(r) = recorder {
+            match (&r.error, &r.path) {
+                (Some(e), _) => self.set_recorder_text(&format!("failed: {e}")),
+                (None, Some(p)) => self.set_recorder_text(&format!(
+                    "wrote {} rows {}",
+                    p.display(),
+                    r.rows_written
+                )),
+                (None, None) => {}
+            }
+        }
+        self.end_run_status();
+        SinkTotals {
+            rows_sent: self.rows_sent,
+            corrupt: self.status.corrupt,
+        }
     }
 }

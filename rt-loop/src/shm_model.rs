@@ -18,11 +18,13 @@
 
 use crate::features::Features;
 use crate::model::{Answer, ForceModel, Miss};
+use crate::stop::Shutdown;
 use haptics_proto::{FeatureMsg, ForceMsg};
 use hdrhistogram::Histogram;
 use shm_ring::{Consumer, Link, Producer, RecvError, SendError, WaitStrategy};
+use std::any::Any;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// Steps between two liveness probes of the server (one `fcntl` each): 0.1 s at 10 kHz.
@@ -45,6 +47,20 @@ pub enum AnswerWait {
         safety: Duration,
         give_up_after: u32,
     },
+}
+
+/// Why [`ShmClient::wait_for_model`] saw no model answer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ModelWaitError {
+    #[error("the server went away")]
+    ServerGone,
+    #[error("interrupted")]
+    Interrupted,
+    /// The server answers, flagged (no model active, schema mismatch, ...).
+    #[error("the server answers with flags {0} (1: no model active, 4: schema mismatch)")]
+    Flagged(u32),
+    #[error("the server does not answer")]
+    NoAnswer,
 }
 
 /// Default of `give_up_after` (`--give-up-after`).
@@ -151,9 +167,23 @@ pub struct ShmClient {
     pub counters: Arc<ShmCounters>,
     /// Fresh endpoints when the segment is re-created after corruption (`shm_renew`).
     pub renewal: Option<crate::shm_renew::Renewal>,
+    /// Ends the waits for a server or a model early (Ctrl-C while waiting).
+    shutdown: Option<Shutdown>,
+    /// The server's id of the model whose answer was last used (`ForceMsg.model_id`; 0: none
+    /// yet this run).
+    last_model_id: u32,
 }
 
 impl ShmClient {
+    /// The waits for a server and for its model give up at once when `shutdown` is requested.
+    pub fn stop_on(&mut self, shutdown: Shutdown) {
+        self.shutdown = Some(shutdown);
+    }
+
+    fn stop_requested(&self) -> bool {
+        self.shutdown.as_ref().is_some_and(Shutdown::is_requested)
+    }
+
     /// The segment's schema must be [`crate::features::SCHEMA_NAMES`] (checked by
     /// `shm_io::create_segment`): the values sent are `Features::as_schema_array()`.
     pub fn new(
@@ -186,6 +216,8 @@ impl ShmClient {
                 .expect("valid histogram bounds"),
             counters: Arc::new(ShmCounters::default()),
             renewal: None,
+            shutdown: None,
+            last_model_id: 0,
         }
     }
 
@@ -241,7 +273,7 @@ impl ShmClient {
                 return true;
             }
             // Ctrl-C while waiting: give up at once
-            if Instant::now() >= end || crate::run::stop_requested() {
+            if Instant::now() >= end || self.stop_requested() {
                 return false;
             }
             std::thread::sleep(Duration::from_millis(5));
@@ -253,7 +285,7 @@ impl ShmClient {
     /// model starts the real run fresh anyway). Lockstep runs call it first, so that every
     /// step of the run is answered by the model; an answer still flagged at the end is
     /// returned as the error (its flags, e.g. 1 = no model active).
-    pub fn wait_for_model(&mut self, timeout: Duration) -> Result<(), String> {
+    pub fn wait_for_model(&mut self, timeout: Duration) -> Result<(), ModelWaitError> {
         let end = Instant::now() + timeout;
         let mut last_flags = None;
         loop {
@@ -278,18 +310,18 @@ impl ShmClient {
                             last_flags = Some(a.flags);
                             break;
                         }
-                        Err(RecvError::PeerGone) => return Err("the server went away".into()),
+                        Err(RecvError::PeerGone) => return Err(ModelWaitError::ServerGone),
                         Err(_) => break,
                     }
                 }
             }
-            if crate::run::stop_requested() {
-                return Err("interrupted".into());
+            if self.stop_requested() {
+                return Err(ModelWaitError::Interrupted);
             }
             if Instant::now() >= end {
                 return Err(match last_flags {
-                    Some(f) => format!("the server answers with flags {f} (1: no model active, 4: schema mismatch)"),
-                    None => "the server does not answer".into(),
+                    Some(f) => ModelWaitError::Flagged(f),
+                    None => ModelWaitError::NoAnswer,
                 });
             }
             std::thread::sleep(Duration::from_millis(20));
@@ -309,6 +341,7 @@ impl ShmClient {
         self.connected = self.server_alive();
         self.seen_attachments = self.link.server_attachments();
         self.late_at_run_start = self.counters.late.load(Ordering::Relaxed);
+        self.last_model_id = 0;
         self.pending_prev = None;
         self.timeouts_in_a_row = 0;
         self.hung_at_heartbeat = None;
@@ -323,11 +356,16 @@ impl ShmClient {
             .late
             .load(Ordering::Relaxed)
             .saturating_sub(self.late_at_run_start);
-        status.round_trip = crate::shm_io::quantiles_of(&self.round_trip_ns);
+        status.round_trip = crate::percentiles::quantiles(&self.round_trip_ns);
     }
 
     pub fn run_id(&self) -> u32 {
         self.run_id
+    }
+
+    /// The server's id of the model whose answer was last used (0: none yet this run).
+    pub fn last_model_id(&self) -> u32 {
+        self.last_model_id
     }
 
     /// One request/answer exchange: this step's answer if it comes in time, `None` otherwise.
@@ -429,7 +467,7 @@ impl ShmClient {
                 AnswerWait::Deadline(d) => d,
                 AnswerWait::Lockstep { safety, .. } => safety,
             };
-        let mut late_prev: Option<f64> = None;
+        let mut late_prev: Option<(f64, u32)> = None;
         loop {
             match self.forces_rx.recv_deadline(deadline) {
                 Ok(a) if a.seq < seq => match pending_prev {
@@ -438,7 +476,7 @@ impl ShmClient {
                         let rtt = pt.elapsed().as_nanos() as u64;
                         self.round_trip_ns.saturating_record(rtt.max(1));
                         if a.flags == 0 && a.force.is_finite() {
-                            late_prev = Some(a.force);
+                            late_prev = Some((a.force, a.model_id));
                         } else {
                             bump(&c.stale_discarded);
                         }
@@ -459,6 +497,7 @@ impl ShmClient {
                         return Answer::Missing(Miss::Flagged);
                     }
                     bump(&c.answered);
+                    self.last_model_id = a.model_id;
                     return Answer::OnTime(a.force);
                 }
                 Ok(_) => {
@@ -477,8 +516,9 @@ impl ShmClient {
                         }
                     }
                     return match late_prev {
-                        Some(f) => {
+                        Some((f, model_id)) => {
                             bump(&c.late_used);
+                            self.last_model_id = model_id;
                             Answer::LateOne(f)
                         }
                         None => Answer::Missing(Miss::Late),
@@ -498,11 +538,11 @@ impl ShmClient {
     }
 }
 
-/// A [`ShmClient`] lent to one run as its [`ForceModel`]; handed back to `home` when the run's
-/// loop is dropped (so a long-running `serve` keeps one client across experiments).
+/// A [`ShmClient`] as a run's [`ForceModel`]. The run gives its model back with its result
+/// ([`crate::run::RunOutcome`]); [`ShmModel::from_model`] recognises it there, so a long-running
+/// loop keeps one client (its counters, its sequence numbers) across experiments.
 pub struct ShmModel {
-    client: Option<ShmClient>,
-    home: Option<Arc<Mutex<Option<ShmClient>>>>,
+    client: ShmClient,
     wait: AnswerWait,
     server_wait: Duration,
     /// `rt-loop run --model shm`: the run needs a server with an active model before its
@@ -516,8 +556,7 @@ impl ShmModel {
     /// run starts on the fallback and switches to the model when a server comes).
     pub fn new(client: ShmClient, wait: AnswerWait, server_wait: Duration) -> Self {
         ShmModel {
-            client: Some(client),
-            home: None,
+            client,
             wait,
             server_wait,
             require: None,
@@ -525,21 +564,10 @@ impl ShmModel {
         }
     }
 
-    /// Lends `home`'s client; it goes back there when this model is dropped.
-    pub fn borrow_from(
-        home: &Arc<Mutex<Option<ShmClient>>>,
-        wait: AnswerWait,
-        server_wait: Duration,
-    ) -> Option<Self> {
-        let client = home.lock().ok()?.take()?;
-        Some(ShmModel {
-            client: Some(client),
-            home: Some(home.clone()),
-            wait,
-            server_wait,
-            require: None,
-            start_error: None,
-        })
+    /// The served model a run gave back; `None` when `model` is another kind of model.
+    pub fn from_model(model: Box<dyn ForceModel>) -> Option<ShmModel> {
+        let any: Box<dyn Any> = model;
+        any.downcast::<ShmModel>().ok().map(|m| *m)
     }
 
     /// The run must not start without a server serving a model: `begin_run` (called after
@@ -551,25 +579,15 @@ impl ShmModel {
     }
 
     pub fn client(&self) -> &ShmClient {
-        self.client.as_ref().expect("client present until drop")
+        &self.client
     }
 
     pub fn client_mut(&mut self) -> &mut ShmClient {
-        self.client.as_mut().expect("client present until drop")
+        &mut self.client
     }
 
-    pub fn into_client(mut self) -> ShmClient {
-        self.client.take().expect("client present until drop")
-    }
-}
-
-impl Drop for ShmModel {
-    fn drop(&mut self) {
-        if let (Some(c), Some(home)) = (self.client.take(), self.home.as_ref()) {
-            if let Ok(mut slot) = home.lock() {
-                *slot = Some(c);
-            }
-        }
+    pub fn into_client(self) -> ShmClient {
+        self.client
     }
 }
 
@@ -582,6 +600,8 @@ impl ForceModel for ShmModel {
         let server_wait = self.server_wait;
         let require = self.require.clone();
         let c = self.client_mut();
+        // each run's round trip on its own (zeroes the buckets: no allocation)
+        c.round_trip_ns.reset();
         let mut error = None;
         if let Some(instance) = require {
             // off the real-time path, before the first step; the loop is at 0 A
@@ -615,25 +635,21 @@ impl ForceModel for ShmModel {
     }
 
     fn report_status(&self, status: &mut haptics_proto::LoopStatus) {
-        if let Some(c) = self.client.as_ref() {
-            c.report_status(status);
-        }
+        self.client.report_status(status);
     }
 
     #[inline]
     fn predict(&mut self, step: u64, features: &Features) -> Option<f64> {
-        let wait = self.wait;
-        self.client
-            .as_mut()
-            .and_then(|c| c.exchange(step, features, wait))
+        self.client.exchange(step, features, self.wait)
     }
 
     #[inline]
     fn answer(&mut self, step: u64, features: &Features) -> Answer {
-        let wait = self.wait;
-        match self.client.as_mut() {
-            Some(c) => c.answer(step, features, wait),
-            None => Answer::Missing(Miss::NoServer),
-        }
+        self.client.answer(step, features, self.wait)
+    }
+
+    #[inline]
+    fn model_id(&self) -> u32 {
+        self.client.last_model_id()
     }
 }

@@ -236,12 +236,21 @@ fn collect_old(handoff: &Handoff) {
     drop(take(&handoff.io));
 }
 
+/// Why a corrupt segment could not be re-created.
+#[derive(Debug, thiserror::Error)]
+enum RenewError {
+    #[error("{0}")]
+    Segment(#[from] shm_ring::Error),
+    /// A thread panicked while holding the hand-off of fresh endpoints.
+    #[error("hand-off poisoned")]
+    Poisoned,
+}
+
 /// Re-creates the segment and leaves its endpoints in the hand-off; returns the new link.
-fn renew(link: &Link, handoff: &Handoff, answer_wait: WaitStrategy) -> Result<Link, String> {
+fn renew(link: &Link, handoff: &Handoff, answer_wait: WaitStrategy) -> Result<Link, RenewError> {
     let side = link
         .recreate::<haptics_proto::Haptics>()
-        .and_then(|s| s.loop_side())
-        .map_err(|e| e.to_string())?;
+        .and_then(|s| s.loop_side())?;
     let mut features_tx = side.features_tx;
     features_tx.set_wait_strategy(WaitStrategy::Park);
     let mut forces_rx = side.forces_rx;
@@ -261,13 +270,13 @@ fn renew(link: &Link, handoff: &Handoff, answer_wait: WaitStrategy) -> Result<Li
     let stale_client = handoff
         .client
         .lock()
-        .map_err(|_| "hand-off poisoned")?
+        .map_err(|_| RenewError::Poisoned)?
         .fresh
         .replace(client);
     let stale_io = handoff
         .io
         .lock()
-        .map_err(|_| "hand-off poisoned")?
+        .map_err(|_| RenewError::Poisoned)?
         .fresh
         .replace(io);
     handoff.generation.fetch_add(1, Ordering::Release);

@@ -4,10 +4,7 @@
 //! partly recovers, and unilateral contact (it pushes, never pulls). All state is inline
 //! (fixed arrays), so stepping it allocates nothing.
 
-use crate::material::Material;
-
-/// Maxwell branches supported (fixed so the state lives inline, without allocation).
-pub const MAX_BRANCHES: usize = 6;
+use crate::material::{Material, MAX_BRANCHES};
 
 #[derive(Clone, Debug)]
 pub struct Sponge {

@@ -185,7 +185,7 @@ fn realtime_clock_runs_at_its_rate() {
     cfg.params.watchdog_us = 5_000_000;
     cfg.record = Some(dir.join("rt.parquet"));
     let s = rt_loop::run::run(&cfg, None, None).unwrap();
-    assert_eq!(s.stop, "time-limit");
+    assert_eq!(s.stop, rt_loop::stop::StopReason::TimeLimit);
     assert!(s.wall_s > 0.28 && s.wall_s < 2.0, "wall {}", s.wall_s);
     assert!(s.steps > 1000 && s.steps <= 3100, "steps {}", s.steps);
     let j = s.jitter.unwrap();

@@ -143,13 +143,12 @@ fn server_gone_falls_back_without_waiting_and_a_new_server_resumes() {
     let stop = Arc::new(AtomicBool::new(false));
     let seen = Arc::new(Mutex::new(Vec::new()));
     let server = scripted_server(name.clone(), stop.clone(), seen.clone());
-    let home = Arc::new(Mutex::new(Some(seg.client)));
     // lockstep: the model waits for every answer (safety 2 s)
     let wait = AnswerWait::Lockstep {
         safety: Duration::from_secs(2),
         give_up_after: 3,
     };
-    let mut model = ShmModel::borrow_from(&home, wait, Duration::from_secs(5)).unwrap();
+    let mut model = ShmModel::new(seg.client, wait, Duration::from_secs(5));
     model.begin_run();
     // seq 1..4: answered
     for s in 0..4 {
@@ -196,9 +195,16 @@ fn server_gone_falls_back_without_waiting_and_a_new_server_resumes() {
         "the new server's first message starts a run"
     );
     assert_eq!(model.client().counters.snapshot().attachments_seen, 1);
-    // the client goes home when the model is dropped
-    drop(model);
-    assert!(home.lock().unwrap().is_some());
+    // a run gives its model back as a `dyn ForceModel`: recognised, with its client's state
+    let back: Box<dyn ForceModel> = Box::new(model);
+    let model = ShmModel::from_model(back).expect("the served model is recognised");
+    assert_eq!(model.client().counters.snapshot().attachments_seen, 1);
+    let other: Box<dyn ForceModel> =
+        Box::new(rt_loop::model::SpringDamperModel(Default::default()));
+    assert!(
+        ShmModel::from_model(other).is_none(),
+        "another model is not"
+    );
 }
 
 #[test]

@@ -222,14 +222,14 @@ struct LoopPass {
     overruns: u64,
 }
 
-/// One realtime reproduction run of `secs` through rt-loop's `run_with`, the client lent from
-/// `home` and given back at the end.
+/// One realtime reproduction run of `secs` through rt-loop's `run_with`: the client goes in as
+/// the run's model and comes back with its result.
 fn loop_pass(
-    home: &Arc<Mutex<Option<ShmClient>>>,
+    client: ShmClient,
     io: &mut rt_loop::shm_io::LoopIo,
     deadline: Duration,
     secs: f64,
-) -> LoopPass {
+) -> (LoopPass, ShmClient) {
     let mut cfg = RunConfig {
         experiment: ExperimentKind::Reproduction,
         clock: ClockKind::Realtime,
@@ -238,25 +238,24 @@ fn loop_pass(
     };
     cfg.material = repo_root().join("materials/sponge.toml");
     cfg.max_duration_s = Some(secs);
-    let before = {
-        let mut g = home.lock().unwrap();
-        let c = g.as_mut().unwrap();
-        c.round_trip_ns.reset();
-        c.counters.snapshot()
-    };
-    let model = ShmModel::borrow_from(home, AnswerWait::Deadline(deadline), Duration::ZERO)
-        .expect("client at home");
-    let s = rt_loop::run::run_with(&cfg, Some(Box::new(model)), None, Some(io)).expect("run");
-    let g = home.lock().unwrap();
-    let c = g.as_ref().expect("client returned");
+    let before = client.counters.snapshot();
+    let model = ShmModel::new(client, AnswerWait::Deadline(deadline), Duration::ZERO);
+    let out = rt_loop::run::run_with(&cfg, Some(Box::new(model)), None, Some(io));
+    let s = out.result.expect("run");
+    let c = out
+        .model
+        .and_then(ShmModel::from_model)
+        .expect("the model comes back")
+        .into_client();
     let after = c.counters.snapshot();
-    LoopPass {
+    let pass = LoopPass {
         rtt: c.round_trip_ns.clone(),
         steps: s.steps,
         late: after.late - before.late,
         fallbacks: s.model.map_or(0, |m| m.fallbacks),
         overruns: s.jitter.map_or(0, |j| j.overruns),
-    }
+    };
+    (pass, c)
 }
 
 fn main() {
@@ -310,11 +309,10 @@ fn main() {
             "infer-server did not attach:\n{}",
             server.output()
         );
-        let home = Arc::new(Mutex::new(Some(client)));
         // warm-up (model activation, caches), then the two passes
-        let _ = loop_pass(&home, &mut io, Duration::from_millis(5), 0.5);
-        let a = loop_pass(&home, &mut io, Duration::from_micros(50), secs);
-        let b = loop_pass(&home, &mut io, Duration::from_millis(5), secs);
+        let (_, client) = loop_pass(client, &mut io, Duration::from_millis(5), 0.5);
+        let (a, client) = loop_pass(client, &mut io, Duration::from_micros(50), secs);
+        let (b, _) = loop_pass(client, &mut io, Duration::from_millis(5), secs);
         server.signal(libc::SIGINT);
         let _ = server.wait_exit(Duration::from_secs(10));
         let rtt = q(&b.rtt);

@@ -4,6 +4,7 @@
 //! passed through.
 
 use super::{Board, BoardStop, Snapshot};
+use crate::invalid::InvalidSeries;
 
 pub struct ReplayBoard {
     counts: Vec<i32>,
@@ -14,7 +15,11 @@ pub struct ReplayBoard {
 }
 
 impl ReplayBoard {
-    pub fn new(counts: Vec<i32>, timestamps: Vec<u32>, f_true: Vec<f64>) -> Result<Self, String> {
+    pub fn new(
+        counts: Vec<i32>,
+        timestamps: Vec<u32>,
+        f_true: Vec<f64>,
+    ) -> Result<Self, InvalidSeries> {
         if counts.len() != timestamps.len() || (!f_true.is_empty() && f_true.len() != counts.len())
         {
             return Err("replay columns have different lengths".into());

@@ -9,6 +9,7 @@
 use super::{Board, BoardStop, Snapshot};
 use crate::dac;
 use crate::hand::HandConfig;
+use crate::invalid::InvalidSetting;
 use crate::material::Material;
 use crate::rng::Rng;
 use crate::sponge::Sponge;
@@ -67,7 +68,7 @@ impl Default for SimConfig {
 }
 
 impl SimConfig {
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         for (n, v) in [
             ("sim.mass_kg", self.mass_kg),
             ("sim.force_constant", self.force_constant),
@@ -78,7 +79,7 @@ impl SimConfig {
             ("sim.dac_full_scale", self.dac_full_scale),
         ] {
             if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{n} must be > 0 (got {v})"));
+                return Err(format!("{n} must be > 0 (got {v})").into());
             }
         }
         for (n, v) in [
@@ -89,7 +90,7 @@ impl SimConfig {
             ("sim.current_noise_a", self.current_noise_a),
         ] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("{n} must be >= 0 (got {v})"));
+                return Err(format!("{n} must be >= 0 (got {v})").into());
             }
         }
         Ok(())

@@ -1,20 +1,24 @@
-//! `rt-loop serve`: the long-running loop of the system (scripts, the web page). It owns the
-//! instance's shared-memory segment for its whole life, idles at 0 A (or loops a default
-//! experiment), and runs the experiments the mailbox asks for, one at a time, with telemetry
-//! and the heartbeat flowing. SIGINT/SIGTERM end the running experiment at 0 A, finish its
-//! recording, remove the segment and exit.
+//! The daemon: the long-running loop of the system behind `rt-loop serve` (scripts, the web
+//! page). It owns the instance's shared-memory segment for its whole life, idles at 0 A (or
+//! loops a default experiment), and runs the experiments the mailbox asks for, one at a time,
+//! with telemetry and the heartbeat flowing. It keeps one served model (the segment's client)
+//! for its whole life: each run is given it and gives it back with its result. SIGINT/SIGTERM
+//! end the running experiment at 0 A, finish its recording, remove the segment and exit.
 
 use crate::config::{ClockKind, ExperimentKind, RunConfig};
+use crate::model::ForceModel;
+use crate::percentiles::Percentiles;
 use crate::shm_io::{create_segment, LoopCommand, StartRequest};
-use crate::shm_model::{AnswerWait, ShmClient, ShmModel};
+use crate::shm_model::{AnswerWait, ShmModel};
+use crate::stop::{Shutdown, StopReason};
 use anyhow::{anyhow, Result};
 use shm_ring::WaitStrategy;
 use std::path::PathBuf;
-use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+/// What `rt-loop serve` runs with.
 #[derive(Clone, Debug)]
-pub struct ServeConfig {
+pub struct DaemonConfig {
     /// Everything a run needs (clock, rate, board, material, ramp defaults...).
     pub base: RunConfig,
     pub instance: String,
@@ -33,7 +37,7 @@ pub struct ServeConfig {
     pub answer_wait: WaitStrategy,
 }
 
-impl ServeConfig {
+impl DaemonConfig {
     pub fn answer_wait_mode(&self) -> AnswerWait {
         match self.base.clock {
             ClockKind::Realtime => AnswerWait::Deadline(self.deadline),
@@ -49,18 +53,7 @@ impl ServeConfig {
 pub fn experiment_config(base: &RunConfig, req: &StartRequest) -> RunConfig {
     let mut c = base.clone();
     c.experiment = req.experiment;
-    if let Some(v) = req.values[0] {
-        c.ramp.ramp_rate = v;
-    }
-    if let Some(v) = req.values[1] {
-        c.ramp.cycles = v as u32;
-    }
-    if let Some(v) = req.values[2] {
-        c.ramp.f_max_start = v;
-    }
-    if let Some(v) = req.values[3] {
-        c.ramp.f_max_step = v;
-    }
+    c.ramp.override_with(&req.params);
     c.max_duration_s = None;
     c
 }
@@ -71,9 +64,8 @@ fn unix_s() -> u64 {
         .map_or(0, |d| d.as_secs())
 }
 
-/// Runs until SIGINT/SIGTERM ([`crate::run::request_stop`]). Returns the number of
-/// experiments run.
-pub fn serve(cfg: &ServeConfig) -> Result<u64> {
+/// Runs until `shutdown` is requested (SIGINT/SIGTERM). Returns the number of experiments run.
+pub fn run(cfg: &DaemonConfig, shutdown: &Shutdown) -> Result<u64> {
     cfg.base.validate().map_err(|e| anyhow!(e))?;
     if let Some(d) = &cfg.record_dir {
         std::fs::create_dir_all(d).map_err(|e| anyhow!("--record-dir {}: {e}", d.display()))?;
@@ -87,7 +79,14 @@ pub fn serve(cfg: &ServeConfig) -> Result<u64> {
         cfg.base.rate_hz,
     );
     io.publish_status();
-    let home: Arc<Mutex<Option<ShmClient>>> = Arc::new(Mutex::new(Some(seg.client)));
+    // The served model, given to each reproduction/shadow run and given back by it.
+    let mut client = seg.client;
+    client.stop_on(shutdown.clone());
+    let mut served = Some(ShmModel::new(
+        client,
+        cfg.answer_wait_mode(),
+        cfg.server_wait,
+    ));
     eprintln!(
         "rt-loop: serving segment {name} ({:?} clock, {} Hz, board {:?}); autostart {}",
         cfg.base.clock,
@@ -101,12 +100,12 @@ pub fn serve(cfg: &ServeConfig) -> Result<u64> {
     let mut next: Option<StartRequest> = cfg.autostart.map(|e| StartRequest {
         id: 0,
         experiment: e,
-        values: [None; 4],
+        params: Default::default(),
     });
     let mut runs = 0u64;
     let mut run_id = 0u32;
     loop {
-        if crate::run::stop_requested() {
+        if shutdown.is_requested() {
             break;
         }
         let Some(req) = next.take() else {
@@ -127,7 +126,7 @@ pub fn serve(cfg: &ServeConfig) -> Result<u64> {
         if let Err(e) = rc.validate() {
             eprintln!(
                 "rt-loop: command {} refused: {e} (parameters {:?})",
-                req.id, req.values
+                req.id, req.params
             );
             continue;
         }
@@ -141,25 +140,16 @@ pub fn serve(cfg: &ServeConfig) -> Result<u64> {
             );
             rc.record = Some(d.join(n));
         }
-        // Before the client is lent to the run: its counters, and a fresh histogram per run.
-        let counters = home.lock().ok().and_then(|mut h| {
-            h.as_mut().map(|c| {
-                c.round_trip_ns.reset();
-                c.counters.clone()
-            })
-        });
-        let model: Option<Box<dyn crate::model::ForceModel>> = match rc.experiment {
-            ExperimentKind::Reproduction | ExperimentKind::Shadow => {
-                match ShmModel::borrow_from(&home, cfg.answer_wait_mode(), cfg.server_wait) {
-                    Some(m) => Some(Box::new(m)),
-                    None => {
-                        eprintln!(
-                            "rt-loop: the shared-memory client is not available: fallback only"
-                        );
-                        None
-                    }
+        // The client's counters (shared atomics), read before and after the run.
+        let counters = served.as_ref().map(|m| m.client().counters.clone());
+        let model: Option<Box<dyn ForceModel>> = match rc.experiment {
+            ExperimentKind::Reproduction | ExperimentKind::Shadow => match served.take() {
+                Some(m) => Some(Box::new(m)),
+                None => {
+                    eprintln!("rt-loop: the shared-memory client is not available: fallback only");
+                    None
                 }
-            }
+            },
             _ => None,
         };
         let before = counters.as_ref().map(|c| c.snapshot());
@@ -175,7 +165,11 @@ pub fn serve(cfg: &ServeConfig) -> Result<u64> {
                 .as_ref()
                 .map_or(String::new(), |p| format!(", recording {}", p.display()))
         );
-        let result = crate::run::run_with(&rc, model, None, Some(&mut io));
+        let outcome = crate::run::run_with(&rc, model, shutdown, None, Some(&mut io));
+        if served.is_none() {
+            served = outcome.model.and_then(ShmModel::from_model);
+        }
+        let result = outcome.result;
         runs += 1;
         if io.refused_during_run > 0 {
             if let Some((id, why)) = io.last_refused {
@@ -191,21 +185,15 @@ pub fn serve(cfg: &ServeConfig) -> Result<u64> {
                 let shm = match (counters.as_ref(), before) {
                     (Some(c), Some(b)) if s.model.is_some() => {
                         let a = c.snapshot();
-                        let rtt = home
-                            .lock()
-                            .ok()
-                            .and_then(|h| {
-                                h.as_ref().filter(|c| !c.round_trip_ns.is_empty()).map(|c| {
-                                    let h = &c.round_trip_ns;
-                                    format!(
-                                        ", round trip p50 {:.1} us p99 {:.1} us max {:.1} us",
-                                        h.value_at_quantile(0.5) as f64 / 1e3,
-                                        h.value_at_quantile(0.99) as f64 / 1e3,
-                                        h.max() as f64 / 1e3
-                                    )
-                                })
-                            })
-                            .unwrap_or_default();
+                        let rtt = served
+                            .as_ref()
+                            .and_then(|m| Percentiles::of(&m.client().round_trip_ns))
+                            .map_or(String::new(), |p| {
+                                format!(
+                                    ", round trip p50 {:.1} us p99 {:.1} us max {:.1} us",
+                                    p.p50, p.p99, p.max
+                                )
+                            });
                         format!(
                             "; shm: {} sent, {} answered, {} late, {} no server, {} flagged{rtt}",
                             a.sent - b.sent,
@@ -235,15 +223,15 @@ pub fn serve(cfg: &ServeConfig) -> Result<u64> {
                         r.late, r.no_server, r.flagged, r.ring_full, r.server_lost, r.hung, r.rejected
                     );
                 }
-                if s.stop == "interrupted" {
+                if s.stop == StopReason::Interrupted {
                     break;
                 }
                 // A finished autostart experiment starts again; a stopped one leaves the loop idle.
-                if s.stop != "stopped" {
+                if s.stop != StopReason::Stopped {
                     next = cfg.autostart.map(|e| StartRequest {
                         id: 0,
                         experiment: e,
-                        values: [None; 4],
+                        params: Default::default(),
                     });
                 }
             }
@@ -252,7 +240,7 @@ pub fn serve(cfg: &ServeConfig) -> Result<u64> {
     }
     // Dropping the client and the side channel unlinks the segment (clean exit).
     drop(io);
-    drop(home);
+    drop(served);
     eprintln!("rt-loop: serve stopped after {runs} experiment(s); segment {name} removed");
     Ok(runs)
 }
