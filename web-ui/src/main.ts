@@ -226,36 +226,43 @@ function modelAt(cols: Columns, i: number): string {
   return a === b ? modelNames.name(a) : `${modelNames.name(a)}…${modelNames.name(b)}`;
 }
 
-let stripKey = "";
+let stripBox = "";
 /**
  * The strip under the force plot: one labelled segment per run of a model, lined up with the
- * plot's time axis. Rebuilt only when what it shows changed (runs, names or the plot's width).
+ * plot's time axis. Its elements are kept and only what changed is written (in the live view the
+ * segments slide every frame; a write that changes nothing costs no style or layout pass).
  */
 function renderModelStrip(runs: ModelRun[], t0: number, t1: number): void {
   shownRuns = runs;
   const strip = $("model-strip");
   const bbox = timePlots[0].u.bbox;
   const dpr = window.devicePixelRatio || 1;
+  const box = `${bbox.left / dpr}px ${bbox.width / dpr}px`;
+  if (box !== stripBox) {
+    stripBox = box;
+    strip.style.marginLeft = `${bbox.left / dpr}px`;
+    strip.style.width = `${bbox.width / dpr}px`;
+  }
+  while (strip.children.length > runs.length) strip.lastElementChild?.remove();
+  while (strip.children.length < runs.length) strip.append(document.createElement("span"));
   const span = t1 - t0 || 1;
-  const named = runs.map((r) => ({ ...r, name: modelNames.name(r.id) }));
-  const key = `${Math.round(bbox.left)}:${Math.round(bbox.width)}|${named.map((r) => `${r.name}@${(((r.t0 - t0) / span) * 1000).toFixed(0)}-${(((r.t1 - t0) / span) * 1000).toFixed(0)}`).join(",")}`;
-  if (key === stripKey) return;
-  stripKey = key;
-  strip.style.marginLeft = `${bbox.left / dpr}px`;
-  strip.style.width = `${bbox.width / dpr}px`;
-  strip.replaceChildren(
-    ...named.map((r) => {
-      const seg = document.createElement("span");
-      seg.className = r.id === 0 ? "run none" : r.id === null ? "run swap" : "run";
-      const a = Math.max(0, (r.t0 - t0) / span);
-      const b = Math.min(1, (r.t1 - t0) / span);
-      seg.style.left = `${(a * 100).toFixed(3)}%`;
-      seg.style.width = `${(Math.max(0, b - a) * 100).toFixed(3)}%`;
-      seg.textContent = r.id === null ? "" : r.name;
-      seg.title = `${r.name}: ${r.t0.toFixed(2)}–${r.t1.toFixed(2)} s`;
-      return seg;
-    }),
-  );
+  runs.forEach((r, k) => {
+    const seg = strip.children[k] as HTMLElement;
+    const name = modelNames.name(r.id);
+    const a = Math.max(0, (r.t0 - t0) / span);
+    const b = Math.min(1, (r.t1 - t0) / span);
+    const set = (el: HTMLElement, key: "left" | "width", v: string) => {
+      if (el.style[key] !== v) el.style[key] = v;
+    };
+    set(seg, "left", `${(a * 100).toFixed(2)}%`);
+    set(seg, "width", `${(Math.max(0, b - a) * 100).toFixed(2)}%`);
+    const cls = r.id === 0 ? "run none" : r.id === null ? "run swap" : "run";
+    if (seg.className !== cls) seg.className = cls;
+    const text = r.id === null ? "" : name;
+    if (seg.textContent !== text) seg.textContent = text;
+    // The name in full for a pointer resting on a segment too narrow for it.
+    if (seg.title !== name) seg.title = name;
+  });
 }
 
 /** Force-depth points of the last xyWindowS seconds ending at t1, at most ~1500 points. */
@@ -607,7 +614,6 @@ async function refreshModels(): Promise<void> {
     models = normalizeModels(await api.models());
     modelNames.learn(models);
     dirty = true; // the model strip may now name an id it showed by number
-    stripKey = "";
     renderModels();
   } catch (e) {
     if (conn === "open") log(`Model list: ${(e as Error).message}`, "err");
