@@ -6,32 +6,17 @@
 
 mod common;
 
-use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::time::{Duration, Instant};
 
 use clap::Parser;
-use haptics_proto::{FeatureMsg, Segment, MAX_FEATURES};
+use haptics_proto::Segment;
 use infer_server::app::App;
 use infer_server::cli::{Cli, Command};
 use shm_ring::os::shutdown::Shutdown;
 use shm_ring::{SegmentName, WaitStrategy};
 
 const TIMEOUT: Duration = Duration::from_secs(20);
-
-/// `GET path` over HTTP/1.1: the whole response.
-fn get(addr: std::net::SocketAddr, path: &str) -> String {
-    let mut s = TcpStream::connect(addr).unwrap();
-    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
-    write!(
-        s,
-        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
-    )
-    .unwrap();
-    let mut text = String::new();
-    s.read_to_string(&mut text).unwrap();
-    text
-}
 
 #[test]
 fn the_real_server_runs_in_process_and_stops_on_its_shutdown_signal() {
@@ -88,22 +73,11 @@ fn the_real_server_runs_in_process_and_stops_on_its_shutdown_signal() {
     }
     let mut answered_by_model = 0;
     for seq in 1.. {
-        let mut values = [0.0; MAX_FEATURES];
-        (values[0], values[1]) = (1e-3 * (seq % 7) as f64, 0.25);
-        let msg = FeatureMsg {
-            seq,
-            timestamp_ns: seq * 100_000,
-            run_id: 1,
-            flags: 0,
-            len: 9,
-            values,
-        };
-        lp.features_tx.try_send(msg).unwrap();
-        let a = lp.forces_rx.recv_timeout(Duration::from_secs(10)).unwrap();
-        assert_eq!(a.seq, seq, "answers in order");
+        let (x, v) = (1e-3 * (seq % 7) as f64, 0.25);
+        let a = common::lockstep(&mut lp, seq, x, v);
         if a.flags == 0 {
             // linear.onnx: 2 v - 3 x + 0.5.
-            let want = 2.0 * values[1] - 3.0 * values[0] + 0.5;
+            let want = 2.0 * v - 3.0 * x + 0.5;
             assert!((a.force - want).abs() < 1e-5, "{} vs {want}", a.force);
             answered_by_model += 1;
             if answered_by_model == 200 {
@@ -120,8 +94,8 @@ fn the_real_server_runs_in_process_and_stops_on_its_shutdown_signal() {
     }
 
     // The control plane of the same server answers on its bound port.
-    let status = get(http, "/api/status");
-    assert!(status.starts_with("HTTP/1.1 200"), "{status}");
+    let (line, status) = common::http_get(&http.to_string(), "/api/status");
+    assert!(line.starts_with("HTTP/1.1 200"), "{line}");
     assert!(status.contains("linear.onnx"), "the active model: {status}");
 
     // The shutdown signal ends `run_until`: the control plane closes, the threads stop.

@@ -166,7 +166,7 @@ fn predict_steps_a_csv_in_order() {
 
 #[test]
 fn serve_answers_a_loop_over_shared_memory_and_exits_when_it_leaves() {
-    use haptics_proto::{FeatureMsg, Segment, MAX_FEATURES};
+    use haptics_proto::Segment;
     use shm_ring::{SegmentName, WaitStrategy};
     use std::time::{Duration, Instant};
 
@@ -200,23 +200,7 @@ fn serve_answers_a_loop_over_shared_memory_and_exits_when_it_leaves() {
         assert!(Instant::now() < deadline, "the server did not attach");
         std::thread::sleep(Duration::from_millis(10));
     }
-    let mut step = |seq: u64, position_x: f64, velocity: f64| {
-        let mut values = [0.0; MAX_FEATURES];
-        values[0] = position_x;
-        values[1] = velocity;
-        let msg = FeatureMsg {
-            seq,
-            timestamp_ns: 0,
-            run_id: 1,
-            flags: 0,
-            len: 9,
-            values,
-        };
-        lp.features_tx.try_send(msg).unwrap();
-        let a = lp.forces_rx.recv_timeout(Duration::from_secs(10)).unwrap();
-        assert_eq!(a.seq, seq);
-        a
-    };
+    let mut step = |seq: u64, x: f64, v: f64| common::lockstep(&mut lp, seq, x, v);
     // The model is activated right after the attach; until then answers say NO_MODEL.
     let mut seq = 0;
     loop {

@@ -605,24 +605,6 @@ async fn models_load_activate_swap_and_refusals_over_grpc() {
     drop(lp);
 }
 
-/// A raw HTTP/1.1 GET: (status line, body).
-fn http_get(addr: &str, path: &str) -> (String, String) {
-    let mut s = TcpStream::connect(addr).unwrap();
-    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
-    write!(
-        s,
-        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
-    )
-    .unwrap();
-    let mut text = String::new();
-    s.read_to_string(&mut text).unwrap();
-    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
-    (
-        head.lines().next().unwrap_or("").to_string(),
-        body.to_string(),
-    )
-}
-
 async fn status(c: &mut LoopServiceClient<Channel>) -> pb::Status {
     c.get_status(pb::GetStatusRequest {})
         .await
@@ -708,7 +690,7 @@ async fn status_experiments_and_telemetry_from_the_segment() {
         .await
         .unwrap_err();
     assert_eq!(e.code(), Code::NotFound);
-    let (line, body) = http_get(&server.http, "/api/status");
+    let (line, body) = common::http_get(&server.http, "/api/status");
     assert!(line.contains("200"), "{line}");
     assert!(body.contains("\"alive\":false"), "{body}");
 

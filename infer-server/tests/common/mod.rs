@@ -104,3 +104,51 @@ macro_rules! model_or_skip {
         }
     };
 }
+
+/// A raw HTTP/1.1 GET: (status line, body).
+pub fn http_get(addr: &str, path: &str) -> (String, String) {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(std::time::Duration::from_secs(5)))
+        .unwrap();
+    write!(
+        s,
+        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut text = String::new();
+    s.read_to_string(&mut text).unwrap();
+    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+    (
+        head.lines().next().unwrap_or("").to_string(),
+        body.to_string(),
+    )
+}
+
+/// One lockstep step of a loop with the standard nine features: `position_x` and `velocity`
+/// set (the linear fixture's inputs), the rest zero; sends it and returns its answer (checked to
+/// be this step's).
+pub fn lockstep(
+    lp: &mut haptics_proto::LoopSide,
+    seq: u64,
+    position_x: f64,
+    velocity: f64,
+) -> haptics_proto::ForceMsg {
+    let mut values = [0.0; haptics_proto::MAX_FEATURES];
+    (values[0], values[1]) = (position_x, velocity);
+    let msg = haptics_proto::FeatureMsg {
+        seq,
+        timestamp_ns: 0,
+        run_id: 1,
+        flags: 0,
+        len: 9,
+        values,
+    };
+    lp.features_tx.try_send(msg).unwrap();
+    let a = lp
+        .forces_rx
+        .recv_timeout(std::time::Duration::from_secs(10))
+        .unwrap();
+    assert_eq!(a.seq, seq, "answers in order, tagged with their step");
+    a
+}
