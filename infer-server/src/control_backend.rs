@@ -18,7 +18,10 @@ use shm_ring::{FixedStr, SendError};
 
 use crate::latency::LatencySnapshot;
 use crate::registry::Registry;
-use crate::telemetry::{LoopObserver, PHASE_DONE, PHASE_NAMES};
+use crate::telemetry::LoopObserver;
+use haptics_proto::{Phase, PHASE_NAMES};
+
+const PHASE_DONE: u8 = Phase::Done as u8;
 
 /// How long a posted start counts as running before the loop's telemetry confirms it.
 const START_GRACE: Duration = Duration::from_millis(1500);

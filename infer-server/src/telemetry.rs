@@ -14,39 +14,23 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use control_plane::telemetry::{series, N_SERIES};
 use control_plane::{Bucket, TelemetryHub};
 use haptics_proto::TelemetryRow;
 use shm_ring::{Link, OverwriteConsumer};
 
 use crate::attachment::SharedEndpoints;
 
-/// `TelemetryRow::phase` values (docs/recording-format.md).
-pub const PHASE_NAMES: [&str; 7] = [
-    "hold-zero",
-    "ramp-up",
-    "hold-max",
-    "ramp-down",
-    "position",
-    "reproduction",
-    "done",
-];
-pub const PHASE_DONE: u8 = 6;
-
 /// A loop whose heartbeat and telemetry have both been still this long counts as not alive.
 pub const STALE_AFTER: Duration = Duration::from_secs(1);
 
 /// One telemetry row as a one-step bucket, series in the web protocol's order.
 pub fn bucket_of(row: &TelemetryRow) -> Bucket {
-    let mut v = [f64::NAN; N_SERIES];
-    v[series::F_REF] = row.f_ref;
-    v[series::F_RES] = row.rtob_force;
-    v[series::F_PRED] = row.f_pred;
-    v[series::POSITION_X] = row.position_x;
-    v[series::VELOCITY] = row.velocity;
-    v[series::ACCELERATION] = row.acceleration;
-    v[series::F_TRUE] = row.f_true;
-    Bucket::step(row.step, row.time, v, row.fallback)
+    Bucket::step(
+        row.step,
+        row.time,
+        haptics_proto::series::values(row),
+        row.fallback,
+    )
 }
 
 /// What the telemetry thread learned about the loop of the current attachment. Single writer

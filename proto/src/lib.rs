@@ -8,6 +8,8 @@
 //! - [`telemetry`]: `TelemetryRow`, one loop step's state.
 //! - [`command`]: commands to the loop.
 //! - [`status`]: the loop-status block (`LoopStatus`).
+//! - [`phase`]: `Phase`, the loop's phases, and their names.
+//! - [`series`]: the names of the series telemetry plots show.
 //! - [`layout`]: the haptics segment (its channels' message types, default config).
 //! - `grpc` (cargo feature `grpc`): the tonic/prost types of `proto/haptics/v1/haptics.proto`.
 
@@ -18,6 +20,8 @@ pub mod features;
 pub mod grpc;
 pub mod layout;
 pub mod messages;
+pub mod phase;
+pub mod series;
 pub mod status;
 pub mod telemetry;
 
@@ -25,8 +29,9 @@ pub use command::{Command, CommandKind, COMMAND_VALUES};
 pub use features::{MAX_FEATURES, SCHEMA_NAMES, THESIS_FEATURES};
 pub use layout::{Haptics, LoopSide, Segment, ServerSide};
 pub use messages::{FeatureMsg, ForceMsg};
+pub use phase::{Phase, PHASE_NAMES};
 pub use status::{
     LoopClock, LoopStatus, LoopStatusLink, Quantiles, StatusText, BOARD_BYTES, EXPERIMENT_BYTES,
     RECORDER_BYTES, SCHEDULING_BYTES,
 };
-pub use telemetry::TelemetryRow;
+pub use telemetry::{TelemetryRow, RECORDING_COLUMNS};

@@ -1,14 +1,53 @@
-//! The telemetry row: the full state of one loop step, loop to server (the overwriting
-//! telemetry channel), and its word encoding.
+//! The telemetry row: the full state of one loop step. ONE type for the recorder (rt-loop's
+//! `record::Row` is this type: its recorded columns are [`RECORDING_COLUMNS`]), the telemetry
+//! ring (loop to server, overwriting) and the server's plots; and its word encoding.
 
 use shm_ring::{layout_id, DecodeError, Message};
 
-/// The full state of one loop step, loop to server, for live plots and statistics: the same
-/// columns as a recording row (`docs/recording-format.md`), plus the run id.
+/// The recording's columns in file order (docs/recording-format.md): the fields of a
+/// [`TelemetryRow`] but `run_id`, `model_id` and `f_previous`, which only telemetry carries.
+pub const RECORDING_COLUMNS: [&str; 24] = [
+    "step",
+    "timestamp",
+    "time",
+    "dt",
+    "F_ref",
+    "rtob_force",
+    "dob_force",
+    "counts",
+    "position_x",
+    "velocity",
+    "acceleration",
+    "I_a_ref",
+    "I_motor",
+    "analog_out_motor",
+    "phase",
+    "F_true",
+    "F_pred",
+    "fallback",
+    "cycle_no",
+    "f_previous_x",
+    "f_previous_v",
+    "f_previous_a",
+    "deformation",
+    "area_fx",
+];
+
+/// The full state of one loop step: a recording row (`docs/recording-format.md`, columns
+/// [`RECORDING_COLUMNS`]) plus what live telemetry adds: the run id, the served model that drew
+/// the step, and F(t-1). A plain `Copy` struct: pushing it through a ring copies bytes.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 #[allow(missing_docs)]
 pub struct TelemetryRow {
+    /// The run this step belongs to (telemetry only; 0 in the recorder).
     pub run_id: u32,
+    /// The served model whose answer the step rendered or held (`ForceMsg.model_id`, the
+    /// server's registry id); 0 when none did (other experiments, the fallback, a built-in
+    /// model). Telemetry only.
+    pub model_id: u32,
+    /// F(t-1), N: the force committed the step before, as the features give it to a model
+    /// (the schema's `f_previous`). Telemetry only.
+    pub f_previous: f64,
     pub step: u64,
     pub timestamp: u32,
     pub time: f64,
@@ -36,7 +75,7 @@ pub struct TelemetryRow {
 }
 
 impl TelemetryRow {
-    const FLOATS: usize = 17;
+    const FLOATS: usize = 18;
 
     fn floats(&self) -> [f64; Self::FLOATS] {
         [
@@ -57,6 +96,7 @@ impl TelemetryRow {
             self.f_previous_a,
             self.deformation,
             self.area_fx,
+            self.f_previous,
         ]
     }
 }
@@ -64,14 +104,14 @@ impl TelemetryRow {
 impl Message for TelemetryRow {
     const WORDS: usize = 4 + Self::FLOATS;
     const LAYOUT_ID: u64 = layout_id(
-        "TelemetryRow v1: run_id u64, step u64, timestamp u32|counts i32, \
+        "TelemetryRow v2: run_id u32|model_id u32<<32, step u64, timestamp u32|counts i32, \
          analog_out_motor u16|phase u8<<16|fallback u8<<24|cycle_no u32<<32, time, dt, f_ref, \
          rtob_force, dob_force, position_x, velocity, acceleration, i_a_ref, i_motor, f_true, \
-         f_pred, f_previous_x, f_previous_v, f_previous_a, deformation, area_fx (f64)",
+         f_pred, f_previous_x, f_previous_v, f_previous_a, deformation, area_fx, f_previous (f64)",
     );
 
     fn encode(&self, out: &mut [u64]) {
-        out[0] = self.run_id as u64;
+        out[0] = self.run_id as u64 | (self.model_id as u64) << 32;
         out[1] = self.step;
         out[2] = self.timestamp as u64 | (self.counts as u32 as u64) << 32;
         out[3] = self.analog_out_motor as u64
@@ -94,6 +134,7 @@ impl Message for TelemetryRow {
         let f = |i: usize| f64::from_bits(w[4 + i]);
         Ok(TelemetryRow {
             run_id: w[0] as u32,
+            model_id: (w[0] >> 32) as u32,
             step: w[1],
             timestamp: w[2] as u32,
             counts: (w[2] >> 32) as u32 as i32,
@@ -118,6 +159,34 @@ impl Message for TelemetryRow {
             f_previous_a: f(14),
             deformation: f(15),
             area_fx: f(16),
+            f_previous: f(17),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_row_round_trips_through_its_words() {
+        let row = TelemetryRow {
+            run_id: 7,
+            model_id: u32::MAX,
+            f_previous: -2.5,
+            step: 11,
+            timestamp: 12,
+            counts: -13,
+            analog_out_motor: 40_000,
+            phase: 5,
+            fallback: true,
+            cycle_no: 3,
+            rtob_force: 1.25,
+            area_fx: 0.5,
+            ..TelemetryRow::default()
+        };
+        let mut words = [0u64; TelemetryRow::WORDS];
+        row.encode(&mut words);
+        assert_eq!(TelemetryRow::decode(&words), Ok(row));
     }
 }

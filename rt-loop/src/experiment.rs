@@ -9,18 +9,8 @@ use crate::model::{ForceModel, SpringDamper};
 use crate::params::LoopParams;
 use serde::{Deserialize, Serialize};
 
-/// The `phase` column.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[repr(u8)]
-pub enum Phase {
-    HoldZero = 0,
-    RampUp = 1,
-    HoldMax = 2,
-    RampDown = 3,
-    Position = 4,
-    Reproduction = 5,
-    Done = 6,
-}
+/// The `phase` column: haptics-proto's.
+pub use haptics_proto::Phase;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]

@@ -394,6 +394,9 @@ pub fn rows_from_series(
                 f_previous_a: f.f_previous_a,
                 deformation: f.deformation,
                 area_fx: f.area_fx,
+                run_id: 0,
+                model_id: 0,
+                f_previous: f.f_previous,
             }
         })
         .collect())

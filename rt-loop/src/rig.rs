@@ -215,6 +215,9 @@ impl<B: Board> Rig<B> {
             f_previous_a: feats.f_previous_a,
             deformation: feats.deformation,
             area_fx: feats.area_fx,
+            run_id: 0,
+            model_id: d.model_id,
+            f_previous: feats.f_previous,
         };
         debug_assert!(d.phase != Phase::Done);
         self.step += 1;

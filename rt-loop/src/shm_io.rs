@@ -429,33 +429,7 @@ impl LoopIo {
 /// A recording row as the telemetry ring sends it: the same row, with the run's id.
 #[inline]
 pub fn telemetry_row(r: &Row, run_id: u32) -> TelemetryRow {
-    TelemetryRow {
-        run_id,
-        step: r.step,
-        timestamp: r.timestamp,
-        time: r.time,
-        dt: r.dt,
-        f_ref: r.f_ref,
-        rtob_force: r.rtob_force,
-        dob_force: r.dob_force,
-        counts: r.counts,
-        position_x: r.position_x,
-        velocity: r.velocity,
-        acceleration: r.acceleration,
-        i_a_ref: r.i_a_ref,
-        i_motor: r.i_motor,
-        analog_out_motor: r.analog_out_motor,
-        phase: r.phase,
-        f_true: r.f_true,
-        f_pred: r.f_pred,
-        fallback: r.fallback,
-        cycle_no: r.cycle_no,
-        f_previous_x: r.f_previous_x,
-        f_previous_v: r.f_previous_v,
-        f_previous_a: r.f_previous_a,
-        deformation: r.deformation,
-        area_fx: r.area_fx,
-    }
+    TelemetryRow { run_id, ..*r }
 }
 
 /// The loop's side channel as the run's sink: telemetry and heartbeat every step, the mailbox

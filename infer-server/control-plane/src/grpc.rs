@@ -9,7 +9,7 @@ use crate::backend::{ExperimentRequest, Latency, ModelInfo, ModelState, StatusSn
 use crate::core::Core;
 use crate::pb;
 use crate::stats::{GaugeGuard, Stats};
-use crate::telemetry::{Bucket, Decimator, N_SERIES};
+use crate::telemetry::{Bucket, Decimator};
 
 /// Decimation used when a client asks for 0.
 pub const DEFAULT_DECIMATION: u32 = 100;
@@ -199,8 +199,8 @@ pub fn sample_to_pb(b: &Bucket) -> pb::TelemetrySample {
         step: b.first_step,
         time_s: b.time_s,
         f_ref: b.last[F_REF],
-        f_res_min: b.min[F_RES],
-        f_res_max: b.max[F_RES],
+        f_res_min: b.min[RTOB_FORCE],
+        f_res_max: b.max[RTOB_FORCE],
         f_pred: b.last[F_PRED],
         position_x: b.last[POSITION_X],
         velocity: b.last[VELOCITY],

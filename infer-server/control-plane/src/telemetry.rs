@@ -2,28 +2,9 @@
 //! binary WebSocket frame of `docs/web-protocol.md`.
 use std::sync::Arc;
 
-/// Series, in the order of the web protocol and of `TelemetrySample.min/max`.
-pub const SERIES: [&str; N_SERIES] = [
-    "F_ref",
-    "F_res",
-    "F_pred",
-    "position_x",
-    "velocity",
-    "acceleration",
-    "F_true",
-];
-pub const N_SERIES: usize = 7;
-
-/// Index of each series in `Bucket::min/max/last`.
-pub mod series {
-    pub const F_REF: usize = 0;
-    pub const F_RES: usize = 1;
-    pub const F_PRED: usize = 2;
-    pub const POSITION_X: usize = 3;
-    pub const VELOCITY: usize = 4;
-    pub const ACCELERATION: usize = 5;
-    pub const F_TRUE: usize = 6;
-}
+/// Series, in the order of the web protocol and of `TelemetrySample.min/max`, and the index of
+/// each in `Bucket::min/max/last`: haptics-proto's.
+pub use haptics_proto::series::{self, N_SERIES, SERIES};
 
 /// `steps` consecutive loop steps starting at `first_step`: the minimum, maximum and last value
 /// of every series. A single step is a bucket with min == max == last.
@@ -244,7 +225,7 @@ mod tests {
                 let mut v = [i as f64; N_SERIES];
                 v[series::F_PRED] = f64::NAN;
                 if Some(i) == spike_at {
-                    v[series::F_RES] = 1000.0;
+                    v[series::RTOB_FORCE] = 1000.0;
                 }
                 Bucket::step(i, i as f64 * 1e-4, v, i % 2 == 0)
             })
@@ -266,8 +247,8 @@ mod tests {
         assert_eq!(out[1].time_s, 110.0 * 1e-4);
         assert_eq!(out[1].min[series::F_REF], 110.0);
         assert_eq!(out[1].max[series::F_REF], 119.0);
-        assert_eq!(out[1].max[series::F_RES], 1000.0, "the spike survives");
-        assert_eq!(out[0].max[series::F_RES], 109.0);
+        assert_eq!(out[1].max[series::RTOB_FORCE], 1000.0, "the spike survives");
+        assert_eq!(out[0].max[series::RTOB_FORCE], 109.0);
         assert!(out[1].min[series::F_PRED].is_nan());
         assert_eq!(out[1].last[series::F_REF], 119.0);
         assert_eq!(out[1].fallbacks, 5);
@@ -303,12 +284,12 @@ mod tests {
         }
         let mut bytes = Vec::new();
         encode_frame(&buckets, &mut bytes);
-        assert_eq!(bytes.len(), 16 + 2 * 8 + 2 * 7 * 8);
+        assert_eq!(bytes.len(), 16 + 2 * 8 + 2 * N_SERIES * 8);
         assert_eq!(&bytes[..4], b"HPT1");
-        assert_eq!(u16::from_le_bytes([bytes[6], bytes[7]]), 7);
+        assert_eq!(u16::from_le_bytes([bytes[6], bytes[7]]), N_SERIES as u16);
         let f = decode_frame(&bytes).unwrap();
         assert_eq!(f.t, vec![0.0, 4.0 * 1e-4]);
-        assert_eq!(f.min_max[1][series::F_RES], (4.0, 1000.0));
+        assert_eq!(f.min_max[1][series::RTOB_FORCE], (4.0, 1000.0));
         assert_eq!(f.min_max[0][series::F_REF], (0.0, 3.0));
         assert!(f.min_max[0][series::F_PRED].0.is_nan());
         assert!(decode_frame(&bytes[..bytes.len() - 1]).is_err());

@@ -543,7 +543,8 @@ async fn telemetry_is_decimated_with_min_max_and_spikes_survive() {
         assert!((w[1].time_s - w[0].time_s - 50.0 / RATE_HZ).abs() < 1e-9);
     }
     for x in &samples {
-        assert_eq!((x.min.len(), x.max.len()), (7, 7));
+        let n = control_plane::telemetry::N_SERIES;
+        assert_eq!((x.min.len(), x.max.len()), (n, n));
         assert_eq!(x.f_res_max, x.max[1]);
         assert_eq!(x.f_res_min, x.min[1]);
         assert!(x

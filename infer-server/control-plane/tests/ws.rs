@@ -35,12 +35,12 @@ async fn collect(ws: &mut Ws, for_how_long: Duration, into: &mut Collected) {
         match msg.unwrap() {
             Message::Binary(bytes) => {
                 let f = decode_frame(&bytes).unwrap();
-                assert_eq!(f.n_series, 7);
+                assert_eq!(f.n_series, control_plane::telemetry::N_SERIES);
                 assert!(!f.t.is_empty(), "no empty frames");
                 into.frames += 1;
                 for (t, mm) in f.t.iter().zip(&f.min_max) {
                     into.buckets
-                        .push((*t, mm[series::F_RES], mm[series::F_PRED]));
+                        .push((*t, mm[series::RTOB_FORCE], mm[series::F_PRED]));
                 }
             }
             Message::Text(text) => into.statuses.push(serde_json::from_str(&text).unwrap()),

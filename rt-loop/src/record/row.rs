@@ -1,58 +1,9 @@
-//! One recorded control step: the columns of docs/recording-format.md, in that order.
+//! One recorded control step: haptics-proto's `TelemetryRow`, the one row type of the
+//! recorder, the telemetry ring and the server. The recorder writes its
+//! [`COLUMNS`] (docs/recording-format.md, in that order); `run_id`, `model_id` and
+//! `f_previous` are telemetry only.
 
 /// Column names in file order (docs/recording-format.md).
-pub const COLUMNS: [&str; 24] = [
-    "step",
-    "timestamp",
-    "time",
-    "dt",
-    "F_ref",
-    "rtob_force",
-    "dob_force",
-    "counts",
-    "position_x",
-    "velocity",
-    "acceleration",
-    "I_a_ref",
-    "I_motor",
-    "analog_out_motor",
-    "phase",
-    "F_true",
-    "F_pred",
-    "fallback",
-    "cycle_no",
-    "f_previous_x",
-    "f_previous_v",
-    "f_previous_a",
-    "deformation",
-    "area_fx",
-];
-
+pub use haptics_proto::telemetry::RECORDING_COLUMNS as COLUMNS;
 /// A plain `Copy` struct: pushing it through the SPSC ring copies bytes, nothing more.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Row {
-    pub step: u64,
-    pub timestamp: u32,
-    pub time: f64,
-    pub dt: f64,
-    pub f_ref: f64,
-    pub rtob_force: f64,
-    pub dob_force: f64,
-    pub counts: i32,
-    pub position_x: f64,
-    pub velocity: f64,
-    pub acceleration: f64,
-    pub i_a_ref: f64,
-    pub i_motor: f64,
-    pub analog_out_motor: u16,
-    pub phase: u8,
-    pub f_true: f64,
-    pub f_pred: f64,
-    pub fallback: bool,
-    pub cycle_no: u32,
-    pub f_previous_x: f64,
-    pub f_previous_v: f64,
-    pub f_previous_a: f64,
-    pub deformation: f64,
-    pub area_fx: f64,
-}
+pub use haptics_proto::TelemetryRow as Row;

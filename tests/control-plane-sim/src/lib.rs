@@ -290,7 +290,7 @@ fn run_loop(inner: &Inner) {
             let f_true = 2000.0 * x + 5.0 * v;
             let mut values = [0.0; N_SERIES];
             values[series::F_REF] = if ramp { 2.0 * (t % 2.0) } else { 0.0 };
-            values[series::F_RES] = f_true + if i % SPIKE_EVERY == 0 { SPIKE_N } else { 0.0 };
+            values[series::RTOB_FORCE] = f_true + if i % SPIKE_EVERY == 0 { SPIKE_N } else { 0.0 };
             values[series::F_PRED] = gain.map_or(f64::NAN, |g| g * f_true);
             values[series::POSITION_X] = x;
             values[series::VELOCITY] = v;
