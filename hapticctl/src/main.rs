@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use clap::{Parser, Subcommand};
+use haptics_proto::experiment_args::ExperimentArgs;
 use haptics_proto::grpc as pb;
 
 use client::{connect, explain, CliError, Client, EXIT_USAGE};
@@ -99,18 +100,9 @@ enum ExperimentAction {
     Start {
         /// abstraction | reproduction | shadow | position-replay
         kind: String,
-        /// Force ramp rate, N/s.
-        #[arg(long)]
-        ramp_rate: Option<f64>,
-        /// Number of ramp cycles.
-        #[arg(long)]
-        cycles: Option<u32>,
-        /// Peak force of the first cycle, N.
-        #[arg(long)]
-        f_max_start: Option<f64>,
-        /// Peak force added each cycle, N.
-        #[arg(long)]
-        f_max_step: Option<f64>,
+        /// The same options as `rt-loop run`/`serve` (one definition, in haptics-proto).
+        #[command(flatten)]
+        params: ExperimentArgs,
     },
     /// Stop the running experiment.
     Stop,
@@ -255,20 +247,14 @@ async fn run(cli: Cli) -> Result<(), CliError> {
             }
         }
         Command::Experiment { action } => match action {
-            ExperimentAction::Start {
-                kind,
-                ramp_rate,
-                cycles,
-                f_max_start,
-                f_max_step,
-            } => {
+            ExperimentAction::Start { kind, params } => {
                 c.looper
                     .start_experiment(pb::StartExperimentRequest {
                         kind: kind.clone(),
-                        ramp_rate,
-                        cycles,
-                        f_max_start,
-                        f_max_step,
+                        ramp_rate: params.ramp_rate,
+                        cycles: params.cycles,
+                        f_max_start: params.f_max_start,
+                        f_max_step: params.f_max_step,
                     })
                     .await
                     .map_err(fail)?;

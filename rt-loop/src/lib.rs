@@ -4,8 +4,12 @@
 //!
 //! Layout: [`board`] (trait + `sim` + `replay`), [`sponge`]/[`material`]/[`hand`] (the
 //! simulated world), [`filters`] (pseudo-derivatives, observers), [`rig`] (the step),
-//! [`experiment`], [`features`], [`model`] (the force-model hook), [`record`], [`clock`],
-//! [`config`], [`run`], [`import`] (the `features` subcommand).
+//! [`experiment`], [`ladder`], [`features`], [`model`] (the force-model hook), [`record`],
+//! [`clock`], [`config`], [`run`] (one run; its per-step output to a [`sink`]), [`daemon`]
+//! (`rt-loop serve`), [`shm_io`]/[`shm_model`]/[`shm_renew`] (the shared-memory side),
+//! [`stop`], [`percentiles`], [`invalid`], [`lstsq`] (small shared leaves), [`import`] (the
+//! `features` subcommand), [`cli`] and [`app`] (the command line and what it runs; `main` only
+//! parses and calls [`app::run`]). See docs/rt-loop.md, "Layout".
 
 pub mod app;
 pub mod board;
