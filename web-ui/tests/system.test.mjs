@@ -278,7 +278,7 @@ describe("page against the real rt-loop and infer-server", () => {
     await page.screenshot({ path: shot, fullPage: true });
   });
 
-  it("shadow started from the page: the served model's predicted force reaches the plots", async () => {
+  it("shadow started from the page: the served model's predicted force reaches the plots, and the page names the model that drew them", async () => {
     const page = ctx.page;
     assert.ok((await hook.status(page)).active_model, "a model is active (swapped in above)");
     await page.click("#exp-stop");
@@ -288,6 +288,20 @@ describe("page against the real rt-loop and infer-server", () => {
     await waitFor(async () => finite((await hook.points(page, "F_pred")).max).length > 20, { timeoutMs: 10000, what: "F_pred on the force plot" });
     assert.equal(await page.textContent("#nodata-F_pred"), "");
     assert.ok(finite((await hook.xy(page)).y).length > 20);
+    // Which model drew each point: the loop's telemetry carries the model_id of the answers it
+    // used, and the strip under the force plot names the served model for the newest stretch.
+    const active = (await hook.status(page)).active_model;
+    const runs = await waitFor(
+      async () => {
+        const r = await page.evaluate(() => window.__haptics.modelRuns());
+        return r.length && r.at(-1).name === active.name ? r : null;
+      },
+      { timeoutMs: 10000, what: `the model strip names ${active.name}` },
+    );
+    assert.equal(runs.at(-1).id, active.model_id, "the telemetry's model_id is the one the status gives the active model");
+    assert.ok((await page.$$eval("#model-strip .run", (els) => els.map((e) => e.textContent))).includes(active.name));
+    // F(t-1), the previous force the loop gives a model, reaches the page too.
+    assert.ok(finite((await hook.points(page, "f_previous")).max).length > 20, "f_previous has data");
   });
 
   it("loop gone: the page says so, and recovers when a loop attaches again", async () => {
