@@ -69,7 +69,10 @@ mod spsc;
 mod sync;
 mod wait;
 
-/// Hooks for the loom models in `tests/loom.rs` (compiled only under `--cfg loom`).
+/// Hooks for the loom models in `tests/loom.rs` (compiled only under `--cfg loom`). Kept in the
+/// library, unlike the other test support (`tests/shm-ring-testing`), because they drive the
+/// private wake signal (`ring_mem::Signal`, `wait::register_waiter` / `notify`), which no public
+/// API exposes; outside loom builds they do not exist.
 #[cfg(loom)]
 #[doc(hidden)]
 pub mod loom_hooks {
