@@ -233,3 +233,56 @@ fn run_with_model_shm_and_no_server_says_what_to_start_and_leaves_no_segment() {
         "segment removed on exit"
     );
 }
+
+/// Issue 15 item 8, the loop's side: every row says which served model drew it (the answer's
+/// `model_id`, 1 here; 0 where the fallback did), and carries the `f_previous` the server was
+/// sent. (Before contact F(t-1) is 0 on every step, so the f_previous comparison here only
+/// checks that the row and the request agree.)
+#[test]
+fn rows_carry_the_answering_model_id() {
+    let seg = create_segment(&instance("modelid"), WaitStrategy::Park).unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let server = scripted_server(seg.name.clone(), stop.clone(), seen.clone());
+    let model = ShmModel::new(
+        seg.client,
+        AnswerWait::Deadline(Duration::from_millis(20)),
+        Duration::from_secs(5),
+    );
+    let cfg = rt_loop::config::RunConfig {
+        experiment: rt_loop::config::ExperimentKind::Reproduction,
+        material: concat!(env!("CARGO_MANIFEST_DIR"), "/../materials/sponge.toml").into(),
+        ..Default::default()
+    };
+    let mut rig = rt_loop::run::build_rig(&cfg, Some(Box::new(model))).unwrap();
+    let rows: Vec<_> = (0..60).map(|_| rig.step().unwrap()).collect();
+    stop.store(true, Ordering::Relaxed);
+    server.join().unwrap();
+    let on_time = rows.iter().filter(|r| !r.fallback).count();
+    assert!(on_time >= 30, "most steps answered in time ({on_time})");
+    for r in &rows {
+        if !r.fallback {
+            assert_eq!(
+                r.model_id, 1,
+                "step {}: drawn by the server's model 1",
+                r.step
+            );
+        }
+        assert!(r.model_id <= 1, "step {}: {}", r.step, r.model_id);
+    }
+    // what the server was sent as f_previous (schema slot 9) is what the row carries
+    let seen = seen.lock().unwrap();
+    for m in seen.iter().filter(|m| !m.is_run_start()) {
+        let step = m.seq - seen[0].seq;
+        assert_eq!(
+            rows[step as usize].f_previous, m.values[9],
+            "step {step}: f_previous"
+        );
+    }
+    // the server gone: after the ladder's hold the fallback renders, drawn by no served model
+    let later: Vec<_> = (0..3000).map(|_| rig.step().unwrap()).collect();
+    assert!(
+        later[2000..].iter().all(|r| r.fallback && r.model_id == 0),
+        "fallback steps carry model 0"
+    );
+}
