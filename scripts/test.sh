@@ -47,6 +47,11 @@ count_node() {
        END { print p+0, f+0, s+0 }' >>"$counts"
 }
 
+# A check that is one test: passed when its output ends in "are current", else failed.
+count_check() {
+  awk '/are current$/ {ok = 1} END { print ok + 0, 1 - ok, 0 }' >>"$counts"
+}
+
 summary() {
   local status=$?
   local recorded
@@ -94,6 +99,9 @@ run_counted() {
     failed_steps+=("$name (exit $rc)")
   fi
 }
+
+step "generated name lists current (haptics-vocab --check: train/ vocab.py, web-ui/ vocab.ts)"
+run_counted vocab count_check cargo run --release -q -p haptics-proto --bin haptics-vocab -- --check
 
 step "cargo test (workspace, release: real-time tests need optimised code)"
 run_counted rust count_rust cargo test --workspace --release --no-fail-fast

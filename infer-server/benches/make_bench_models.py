@@ -22,17 +22,10 @@ from pathlib import Path
 import numpy as np
 import onnx
 
-FEATURES = [
-    "position_x",
-    "velocity",
-    "acceleration",
-    "f_previous_x",
-    "f_previous_v",
-    "f_previous_a",
-    "cycle_no",
-    "deformation",
-    "area_fx",
-]
+from haptics_train.vocab import THESIS_FEATURES
+
+#: The nine features of thesis Table 3.1: the vocabulary's (train/'s generated vocab.py).
+FEATURES = list(THESIS_FEATURES)
 N = len(FEATURES)
 
 

@@ -10,6 +10,7 @@
 //! - [`status`]: the loop-status block (`LoopStatus`).
 //! - [`phase`]: `Phase`, the loop's phases, and their names.
 //! - [`series`]: the names of the series telemetry plots show.
+//! - [`vocab_gen`]: the generated Python and TypeScript name lists (`haptics-vocab`).
 //! - [`layout`]: the haptics segment (its channels' message types, default config).
 //! - `grpc` (cargo feature `grpc`): the tonic/prost types of `proto/haptics/v1/haptics.proto`.
 
@@ -24,6 +25,7 @@ pub mod phase;
 pub mod series;
 pub mod status;
 pub mod telemetry;
+pub mod vocab_gen;
 
 pub use command::{Command, CommandKind, COMMAND_VALUES};
 pub use features::{MAX_FEATURES, SCHEMA_NAMES, THESIS_FEATURES};

@@ -12,18 +12,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-#: The nine features of thesis Table 3.1, in its order (docs/recording-format.md).
-NINE: tuple[str, ...] = (
-    "position_x",
-    "velocity",
-    "acceleration",
-    "f_previous_x",
-    "f_previous_v",
-    "f_previous_a",
-    "cycle_no",
-    "deformation",
-    "area_fx",
-)
+from .vocab import THESIS_FEATURES
+
+#: The nine features of thesis Table 3.1, in its order (docs/recording-format.md): the
+#: vocabulary's (vocab.py, generated from proto/), never a copy.
+NINE: tuple[str, ...] = THESIS_FEATURES
 
 #: Ratio features: name -> the column it divides the previous force by. On a zero divisor the
 #: ratio keeps its previous value (thesis code), which the closed loop reproduces.
