@@ -9,15 +9,15 @@
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use crate::channel::{ChannelSpec, CHANNELS};
-use crate::error::Error;
 use crate::fixed_str::FixedStr;
-use crate::header::{Header, Layout, MAGIC};
-use crate::message::Message;
-use crate::overwrite::{OverwriteConsumer, OverwriteProducer};
-use crate::ring_mem::{RingControl, RingMem};
+use crate::ring::mem::{RingControl, RingMem};
+use crate::ring::message::Message;
+use crate::ring::overwrite::{OverwriteConsumer, OverwriteProducer};
+use crate::ring::spsc::{Consumer, Producer};
+use crate::segment::channel::{ChannelSpec, CHANNELS};
+use crate::segment::error::Error;
+use crate::segment::header::{Header, Layout, MAGIC};
 use crate::segment::{validate, SegmentName};
-use crate::spsc::{Consumer, Producer};
 
 /// A zeroed ring on the heap whose ends can be made (again, like a re-attaching process) and
 /// whose shared words can be overwritten.

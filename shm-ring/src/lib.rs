@@ -2,15 +2,15 @@
 //!
 //! Layered like iceoryx2's building blocks and concepts (`docs/shm-ring.md`, "Layers"):
 //!
-//! - building blocks, each usable alone: `sync` (atomics, std or loom), `message` (a message
-//!   as `u64` words), `fixed_str`, `ring_mem` (a ring's memory), `wait` (spinning and the futex
-//!   event count), `spsc` (the lossless ring), `overwrite` (the ring that overwrites the oldest),
-//!   `status_block` (a seqlock block), [`os`] (shared memory, liveness locks, real-time thread
-//!   set-up, shutdown);
-//! - concepts on top: `channel` (what a segment carries, described by the layer above),
-//!   `header` (the segment's header and layout), `segment` (a named segment of channels with
-//!   liveness, validation and recovery; [`Protocol`] is how the layer above says which message
-//!   types travel where and builds its endpoints).
+//! - building blocks, each usable alone: `ring` (the rings in any memory: `sync` atomics, std
+//!   or loom; `message`, a message as `u64` words; `mem`, a ring's memory; `wait`, spinning and
+//!   the futex event count; `spsc`, the lossless ring; `overwrite`, the ring that overwrites
+//!   the oldest), `fixed_str`, `status_block` (a seqlock block), [`os`] (shared memory, liveness
+//!   locks, real-time thread set-up, shutdown);
+//! - the concept on top: `segment` (a named segment of channels with liveness, validation and
+//!   recovery: `segment::channel`, what a segment carries, described by the layer above;
+//!   `segment::header`, its header and layout; [`Protocol`], how the layer above says which
+//!   message types travel where and builds its endpoints).
 //!
 //! One segment per loop instance (`/haptics-<instance>`, mode 0600) holds a validated header
 //! and four single-producer single-consumer channels. Every byte of the segment is accessed
@@ -60,24 +60,18 @@
 //! # Ok(()) }
 //! ```
 
-mod channel;
 mod fixed_str;
-mod message;
-mod overwrite;
-mod ring_mem;
-mod spsc;
-mod sync;
-mod wait;
+mod ring;
 
 /// Hooks for the loom models in `tests/loom.rs` (compiled only under `--cfg loom`). Kept in the
 /// library, unlike the other test support (`tests/shm-ring-testing`), because they drive the
-/// private wake signal (`ring_mem::Signal`, `wait::register_waiter` / `notify`), which no public
+/// private wake signal (`ring::mem::Signal`, `ring::wait::register_waiter` / `notify`), which no public
 /// API exposes; outside loom builds they do not exist.
 #[cfg(loom)]
 #[doc(hidden)]
 pub mod loom_hooks {
-    use crate::ring_mem::Signal;
-    use crate::sync::{AtomicU32, Ordering};
+    use crate::ring::mem::Signal;
+    use crate::ring::sync::{AtomicU32, Ordering};
 
     /// A bare wake signal with the real `register_waiter` / `notify` code.
     pub struct Handshake(Signal);
@@ -94,11 +88,11 @@ pub mod loom_hooks {
     impl Handshake {
         /// Waiter side: returns the epoch it would sleep on.
         pub fn register_waiter(&self) -> u32 {
-            crate::wait::register_waiter(&self.0)
+            crate::ring::wait::register_waiter(&self.0)
         }
         /// Notifier side, after publishing.
         pub fn notify(&self) {
-            crate::wait::notify(&self.0)
+            crate::ring::wait::notify(&self.0)
         }
         /// Whether a futex wait on `epoch` would return at once (the value moved).
         pub fn epoch_moved(&self, epoch: u32) -> bool {
@@ -107,10 +101,6 @@ pub mod loom_hooks {
     }
 }
 
-#[cfg(not(loom))]
-mod error;
-#[cfg(not(loom))]
-mod header;
 /// What a hostile peer can do to shared memory, for the fuzz targets (not a stable API).
 #[cfg(not(loom))]
 #[doc(hidden)]
@@ -122,20 +112,23 @@ mod segment;
 #[cfg(not(loom))]
 mod status_block;
 
-pub use channel::{ChannelKind, ChannelSpec, Lossless, MessageShape, Overwrite, Role, CHANNELS};
 pub use fixed_str::{FixedStr, FixedStrError, FIXED_STR_BYTES, FIXED_STR_WORDS};
-pub use message::{layout_id, DecodeError, Message, MAX_WORDS};
-pub use overwrite::{heap_overwrite_channel, OverwriteConsumer, OverwriteProducer};
-pub use ring_mem::slot_words;
-pub use spsc::{heap_channel, Consumer, CorruptRing, Producer, RecvError, SendError};
-pub use wait::WaitStrategy;
+pub use ring::mem::slot_words;
+pub use ring::message::{layout_id, DecodeError, Message, MAX_WORDS};
+pub use ring::overwrite::{heap_overwrite_channel, OverwriteConsumer, OverwriteProducer};
+pub use ring::spsc::{heap_channel, Consumer, CorruptRing, Producer, RecvError, SendError};
+pub use ring::wait::WaitStrategy;
 #[cfg(not(loom))]
-pub use wait::{monotonic_ns, sleep_until_ns};
+pub use ring::wait::{monotonic_ns, sleep_until_ns};
 
 #[cfg(not(loom))]
-pub use error::Error;
+pub use segment::channel::{
+    ChannelKind, ChannelSpec, Lossless, MessageShape, Overwrite, Role, CHANNELS,
+};
 #[cfg(not(loom))]
-pub use header::{LAYOUT_VERSION, MAGIC, MAX_SCHEMA_NAMES};
+pub use segment::error::Error;
+#[cfg(not(loom))]
+pub use segment::header::{LAYOUT_VERSION, MAGIC, MAX_SCHEMA_NAMES};
 #[cfg(not(loom))]
 pub use segment::{
     Config, Corruption, Link, Protocol, Segment, SegmentInfo, SegmentName, StaleSegment,

@@ -12,7 +12,7 @@
 
 use std::marker::PhantomData;
 
-use crate::message::Message;
+use crate::ring::message::Message;
 
 /// Channels per segment: the header has a fixed array of channel descriptions (changing it
 /// changes the layout version).

@@ -14,8 +14,8 @@
 //! notifier sees the waiter, bumps `epoch` and wakes it; a bump between the waiter's read of
 //! `epoch` and its `FUTEX_WAIT` makes the wait return at once (the kernel compares the value).
 
-use crate::ring_mem::Signal;
-use crate::sync::{fence, Ordering};
+use crate::ring::mem::Signal;
+use crate::ring::sync::{fence, Ordering};
 
 /// How a side waits when its ring is empty (receiver) or full (sender).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -173,7 +173,7 @@ pub(crate) fn wait_for<T>(
         if let Some(value) = attempt() {
             return Ok(value);
         }
-        crate::sync::spin_hint();
+        crate::ring::sync::spin_hint();
         spun += 1;
         if deadline.is_some() {
             // Bounded wait (the loop's `recv_deadline`): the deadline ends it, so no liveness

@@ -19,16 +19,16 @@
 
 use std::marker::PhantomData;
 
-use crate::message::{Message, MAX_WORDS};
-use crate::ring_mem::{CorruptCount, RingMem};
-use crate::spsc::RecvError;
-use crate::sync::{fence, Ordering};
-use crate::wait::notify;
+use crate::ring::mem::{CorruptCount, RingMem};
+use crate::ring::message::{Message, MAX_WORDS};
+use crate::ring::spsc::RecvError;
+use crate::ring::sync::{fence, Ordering};
+use crate::ring::wait::notify;
 
 #[cfg(not(loom))]
-use crate::spsc::PeerProbe;
+use crate::ring::spsc::PeerProbe;
 #[cfg(not(loom))]
-use crate::wait::{wait_for, WaitEnd, WaitStrategy};
+use crate::ring::wait::{wait_for, WaitEnd, WaitStrategy};
 #[cfg(not(loom))]
 use std::time::{Duration, Instant};
 
@@ -150,7 +150,7 @@ impl<M: Message> OverwriteConsumer<M> {
                 self.corrupt.note(&self.mem);
                 self.head = tail;
                 self.mem.ctrl().head.0.store(tail, Ordering::Release);
-                return Err(crate::spsc::CorruptRing::Indices {
+                return Err(crate::ring::spsc::CorruptRing::Indices {
                     head,
                     tail,
                     capacity,

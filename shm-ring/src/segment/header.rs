@@ -3,9 +3,9 @@
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use crate::channel::{MessageShape, CHANNELS};
+use super::channel::{MessageShape, CHANNELS};
 use crate::fixed_str::{FixedStr, FIXED_STR_WORDS};
-use crate::ring_mem::{slot_words, Padded, RingControl};
+use crate::ring::mem::{slot_words, Padded, RingControl};
 use crate::status_block::{StatusBlock, STATUS_WORDS};
 
 /// Most names the header's schema holds (the names of the first channel's values; the

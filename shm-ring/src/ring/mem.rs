@@ -11,7 +11,7 @@ use std::sync::Arc;
 /// that the segment must be re-created. Plain std atomic: not part of the loom models.
 pub(crate) type CorruptSink = Arc<std::sync::atomic::AtomicU64>;
 
-use crate::sync::{AtomicU32, AtomicU64};
+use crate::ring::sync::{AtomicU32, AtomicU64};
 
 /// One endpoint's count of corruption it found (private to the endpoint); every count is
 /// also added to the segment's process-private total ([`RingMem::note_corrupt`]).

@@ -28,13 +28,13 @@
 use std::fmt;
 use std::marker::PhantomData;
 
-use crate::message::{DecodeError, Message, MAX_WORDS};
-use crate::ring_mem::{CorruptCount, RingMem};
-use crate::sync::Ordering;
-use crate::wait::{notify, notify_if};
+use crate::ring::mem::{CorruptCount, RingMem};
+use crate::ring::message::{DecodeError, Message, MAX_WORDS};
+use crate::ring::sync::Ordering;
+use crate::ring::wait::{notify, notify_if};
 
 #[cfg(not(loom))]
-use crate::wait::{wait_for, WaitEnd, WaitStrategy};
+use crate::ring::wait::{wait_for, WaitEnd, WaitStrategy};
 #[cfg(not(loom))]
 use std::time::{Duration, Instant};
 

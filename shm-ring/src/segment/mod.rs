@@ -1,5 +1,6 @@
 //! Creating, replacing, attaching and validating the shared-memory segment: a named segment of
-//! channels, the concept built on the rings (`spsc`, `overwrite`), the header and the OS layer.
+//! channels, the concept built on the rings (`ring::spsc`, `ring::overwrite`), its header
+//! (`header`), the channel descriptions (`channel`) and the OS layer.
 //! What the channels carry is the [`Protocol`]'s: the layer above names the message types and
 //! builds its endpoints from [`Segment::producer`], [`Segment::consumer`] and their overwrite
 //! twins; this module never names an endpoint type.
@@ -14,6 +15,10 @@
 //! (serialises creators, so a replaced segment can never be unlinked by a second creator) and
 //! byte 0 of the segment; the server holds byte 1. "Peer alive" = the peer's byte is locked.
 
+pub(crate) mod channel;
+pub(crate) mod error;
+pub(crate) mod header;
+
 use std::marker::PhantomData;
 use std::os::fd::OwnedFd;
 use std::path::PathBuf;
@@ -22,15 +27,15 @@ use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use crate::channel::{ChannelKind, ChannelSpec, Lossless, MessageShape, Overwrite, Role, CHANNELS};
-use crate::error::Error;
+use self::channel::{ChannelKind, ChannelSpec, Lossless, MessageShape, Overwrite, Role, CHANNELS};
+use self::error::Error;
+use self::header::{Header, Layout, LAYOUT_VERSION, MAGIC, MAX_SCHEMA_NAMES, SLOT_ALIGN};
 use crate::fixed_str::FixedStr;
-use crate::header::{Header, Layout, LAYOUT_VERSION, MAGIC, MAX_SCHEMA_NAMES, SLOT_ALIGN};
-use crate::message::Message;
 use crate::os::{self, Mapping};
-use crate::overwrite::{OverwriteConsumer, OverwriteProducer};
-use crate::ring_mem::{slot_words, CorruptSink, RingControl, RingMem};
-use crate::spsc::{Consumer, PeerProbe, Producer};
+use crate::ring::mem::{slot_words, CorruptSink, RingControl, RingMem};
+use crate::ring::message::Message;
+use crate::ring::overwrite::{OverwriteConsumer, OverwriteProducer};
+use crate::ring::spsc::{Consumer, PeerProbe, Producer};
 use crate::status_block::STATUS_WORDS;
 
 const LOOP_LOCK_BYTE: u64 = 0;
@@ -538,9 +543,9 @@ impl<P: Protocol> Segment<P> {
         for (i, spec) in P::CHANNELS.iter().enumerate() {
             let ring = shared.ring(i);
             if spec.writer == Role::Server {
-                crate::spsc::clear_space_waiters(&ring);
+                crate::ring::spsc::clear_space_waiters(&ring);
             } else {
-                crate::spsc::clear_data_waiters(&ring);
+                crate::ring::spsc::clear_data_waiters(&ring);
             }
         }
         Ok(Segment {
