@@ -5,9 +5,10 @@
 // force spikes), stepped at 10 kHz under a force command that follows ramp cycles.
 //
 // It exists for developing the page and for the page-only test (tests/page.fake.test.mjs); the
-// real test (tests/system.test.mjs) runs against target/release/infer-server and rt-loop. The
-// series it sends, and their order, are the page's own (src/protocol.ts, loaded through Vite),
-// never a copy of its own.
+// real test (tests/system.test.mjs) runs against target/release/infer-server and rt-loop. Its
+// names (the series and their order, the phases, the features its models use) are the
+// generated vocabulary's (src/vocab.ts, from proto/, loaded through Vite), never copies of its
+// own; tests/fake-schema.test.mjs checks its JSON and frames against the real control plane.
 //
 //   node dev/fake-server.mjs [--port 8080] [--token T] [--bucket 10] [--rate 10000] [--demo]
 //
@@ -20,16 +21,16 @@ import { runnerImport } from "vite";
 import { WebSocketServer } from "ws";
 
 const here = dirname(fileURLToPath(import.meta.url));
-const { module: protocol } = await runnerImport(join(here, "..", "src", "protocol.ts"));
+const { module: vocab } = await runnerImport(join(here, "..", "src", "vocab.ts"));
 /** The telemetry series in the server's order. */
-export const SERIES = protocol.SERIES;
+export const SERIES = vocab.SERIES;
 /** Where each quantity the bench computes goes in a telemetry row; a series it cannot fill is an error. */
 const FIELDS = ["F_ref", "rtob_force", "F_pred", "position_x", "velocity", "acceleration", "F_true", "f_previous", "model_id"];
 const unknown = SERIES.filter((n) => !FIELDS.includes(n));
-if (unknown.length) throw new Error(`fake-server: the protocol has series it does not fill: ${unknown.join(", ")}`);
+if (unknown.length) throw new Error(`fake-server: the vocabulary has series it does not fill: ${unknown.join(", ")}`);
 const COLUMN = FIELDS.map((n) => SERIES.indexOf(n));
-/** rt-loop's phase names (docs/recording-format.md), as the status's `loop.experiment.phase` says them. */
-const [HOLD_ZERO, RAMP_UP, HOLD_MAX, RAMP_DOWN, REPRODUCTION, DONE] = ["hold-zero", "ramp-up", "hold-max", "ramp-down", "reproduction", "done"];
+/** The loop's phases as the status's `loop.experiment.phase` names them (by their column value). */
+const [HOLD_ZERO, RAMP_UP, HOLD_MAX, RAMP_DOWN, , REPRODUCTION, DONE] = vocab.PHASE_NAMES;
 
 /** Deterministic noise (the same seed gives the same run), xorshift32 + Box-Muller. */
 function rng(seed) {
@@ -164,10 +165,12 @@ export class FakeBench {
 }
 
 /** Three "models" whose errors differ visibly (a spring-damper fit has no hysteresis at all). */
+/** The first six features of thesis Table 3.1 (kinematics and the three f_previous ratios). */
+const SIX = vocab.THESIS_FEATURES.slice(0, 6);
 const MODELS = {
-  rf6: { kind: "stateless", features: ["position_x", "velocity", "acceleration", "f_previous_x", "f_previous_v", "f_previous_a"], predict: (_x, _v, F, r) => F * 1.01 + 0.06 * r.n() },
-  lstm6: { kind: "stateful", features: ["position_x", "velocity", "acceleration", "f_previous_x", "f_previous_v", "f_previous_a"], predict: (_x, _v, F, r) => 0.93 * F + 0.15 + 0.08 * r.n() },
-  spring_damper2: { kind: "stateless", features: ["position_x", "velocity"], predict: (x, v) => Math.max(0, 180 * x + 9000 * x * x + 40 * v) },
+  rf6: { kind: "stateless", features: SIX, predict: (_x, _v, F, r) => F * 1.01 + 0.06 * r.n() },
+  lstm6: { kind: "stateful", features: SIX, predict: (_x, _v, F, r) => 0.93 * F + 0.15 + 0.08 * r.n() },
+  spring_damper2: { kind: "stateless", features: SIX.slice(0, 2), predict: (x, v) => Math.max(0, 180 * x + 9000 * x * x + 40 * v) },
 };
 
 const MIME = { ".html": "text/html; charset=utf-8", ".js": "text/javascript", ".css": "text/css", ".svg": "image/svg+xml", ".png": "image/png", ".json": "application/json" };

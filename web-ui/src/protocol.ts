@@ -1,13 +1,15 @@
 // Decoding of what infer-server sends (docs/web-protocol.md): binary telemetry frames of
 // min/max buckets and the status object (the gRPC Status message as JSON).
+import { SERIES } from "./vocab";
 
 /**
- * The series of a telemetry frame, in the order the server writes them. `f_previous` is F(t-1),
- * the previous force the loop gives a model; `model_id` the id of the model whose answer the
- * loop used for each step (its min and max over a bucket differ where the model changed inside
- * it; 0: no model's answer).
+ * The series of a telemetry frame, in the order the server writes them: the vocabulary's
+ * (generated into vocab.ts from proto/'s `haptics_proto::series`), never a copy. `f_previous` is
+ * F(t-1), the previous force the loop gives a model; `model_id` the id of the model whose answer
+ * the loop used for each step (its min and max over a bucket differ where the model changed
+ * inside it; 0: no model's answer).
  */
-export const SERIES = ["F_ref", "rtob_force", "F_pred", "position_x", "velocity", "acceleration", "F_true", "f_previous", "model_id"] as const;
+export { SERIES };
 export type SeriesName = (typeof SERIES)[number];
 export const N_SERIES = SERIES.length;
 /**

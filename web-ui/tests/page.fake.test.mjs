@@ -9,7 +9,7 @@ import { mkdir, readFile } from "node:fs/promises";
 import { createRequire } from "node:module";
 import { dirname, join } from "node:path";
 import { fileURLToPath } from "node:url";
-import { startFakeServer } from "../dev/fake-server.mjs";
+import { SERIES, startFakeServer } from "../dev/fake-server.mjs";
 import { enclosedArea, finite, hook, measureFrames, openBrowser, sleep, waitFor } from "./harness.mjs";
 
 const here = dirname(fileURLToPath(import.meta.url));
@@ -47,10 +47,11 @@ describe("page against the fake server", () => {
     const spanA = a.t.at(-1) - a.t[0];
     const spanB = bb.t.at(-1) - bb.t[0];
     assert.ok(spanB > spanA + 0.8 || spanB > 9.9, `plotted span grows: ${spanA} -> ${spanB}`);
-    // Every series the protocol carries reaches its plot (F_pred: the fake serves a model).
-    for (const name of ["F_ref", "rtob_force", "F_pred", "position_x", "velocity", "acceleration", "F_true"]) {
+    // Every series the protocol carries (the generated vocabulary's) reaches the page (F_pred:
+    // the fake serves a model).
+    for (const name of SERIES) {
       const p = await hook.points(page, name);
-      assert.ok(finite(p.max).length > 10, `${name} has data on its plot`);
+      assert.ok(finite(p.max).length > 10, `${name} reaches the page`);
     }
     // Depth is shown in mm: the fake's sponge rests at a few tenths of a mm to a few mm, never
     // in metres (a unit slip would give values below 0.1).
@@ -260,7 +261,8 @@ describe("page against the fake server", () => {
     await dl.saveAs(file);
     await page.click("#pause");
     const lines = (await readFile(file, "utf8")).trim().split("\n");
-    assert.equal(lines[0], "t_s,F_ref_min,F_ref_max,rtob_force_min,rtob_force_max,F_pred_min,F_pred_max,position_x_min,position_x_max,velocity_min,velocity_max,acceleration_min,acceleration_max,F_true_min,F_true_max,f_previous_min,f_previous_max,model_id_min,model_id_max");
+    assert.equal(lines[0], ["t_s", ...SERIES.flatMap((n) => [`${n}_min`, `${n}_max`])].join(","));
+    assert.ok(lines[0].includes(",model_id_min,model_id_max"), "the model of each row is exported");
     const ts = lines.slice(1).map((l) => Number(l.split(",")[0]));
     // 1 ms buckets over the shown range (the page may hold less than 10 s at this point).
     const held = ts.at(-1) - ts[0];
