@@ -3,9 +3,14 @@
 import { mkdtemp, rm } from "node:fs/promises";
 import { existsSync, readdirSync, readFileSync } from "node:fs";
 import { tmpdir } from "node:os";
-import { join } from "node:path";
+import { dirname, join } from "node:path";
+import { fileURLToPath } from "node:url";
 import { createServer } from "node:net";
 import { chromium } from "playwright-core";
+import { runnerImport } from "vite";
+
+/** The generated vocabulary (src/vocab.ts, from proto/): series, phase and feature names. */
+export const { module: vocab } = await runnerImport(join(dirname(fileURLToPath(import.meta.url)), "..", "src", "vocab.ts"));
 
 export const CHROMIUM = process.env.CHROMIUM_PATH ?? "/usr/bin/chromium";
 const ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update", "--no-first-run", "--disable-sync", "--disable-dev-shm-usage"];
