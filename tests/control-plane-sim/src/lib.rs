@@ -459,7 +459,7 @@ impl Backend for SimBackend {
             kind: request.kind.as_str().into(),
             running: true,
             cycle: 1,
-            phase: "ramp-up".into(),
+            phase: haptics_proto::phase::Phase::RampUp.name().into(),
         };
         s.last_experiment = Some(request.clone());
         Ok(())
