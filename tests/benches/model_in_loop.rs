@@ -240,7 +240,8 @@ fn loop_pass(
     cfg.max_duration_s = Some(secs);
     let before = client.counters.snapshot();
     let model = ShmModel::new(client, AnswerWait::Deadline(deadline), Duration::ZERO);
-    let out = rt_loop::run::run_with(&cfg, Some(Box::new(model)), None, Some(io));
+    let never = rt_loop::stop::Shutdown::new().expect("eventfd");
+    let out = rt_loop::run::run_with(&cfg, Some(Box::new(model)), &never, None, Some(io));
     let s = out.result.expect("run");
     let c = out
         .model
