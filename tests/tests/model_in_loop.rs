@@ -18,18 +18,7 @@ use std::process::Command;
 use std::time::Duration;
 
 /// The loop's schema: the nine of docs/recording-format.md and `f_previous` = F(t-1).
-const SCHEMA: [&str; 10] = [
-    "position_x",
-    "velocity",
-    "acceleration",
-    "f_previous_x",
-    "f_previous_v",
-    "f_previous_a",
-    "cycle_no",
-    "deformation",
-    "area_fx",
-    "f_previous",
-];
+const SCHEMA: [&str; 10] = haptics_proto::SCHEMA_NAMES;
 
 /// A spring-damper-like linear model over all ten schema features (weights on the ratio
 /// features zero: F/x, F/v and F/a explode near zero depth, velocity and acceleration; all ten
