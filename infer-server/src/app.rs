@@ -20,8 +20,8 @@ use std::time::{Duration, Instant};
 use control_plane::{ControlError, ModelSource, TelemetryHub};
 use shm_ring::os::shutdown::Shutdown;
 
-use crate::cli::{EXIT_REFUSED, EXIT_RUNTIME, EXIT_USAGE};
 use crate::control_backend::ControlBackend;
+use crate::exit::{EXIT_REFUSED, EXIT_RUNTIME, EXIT_USAGE};
 use crate::inference_control::InferenceControl;
 use crate::inference_thread::InferenceConfig;
 use crate::model::SessionConfig;
@@ -65,7 +65,7 @@ pub enum AppError {
 }
 
 impl AppError {
-    /// The process's exit code for this error (see [`crate::cli`]).
+    /// The process's exit code for this error ([`crate::exit`]).
     pub fn exit_code(&self) -> u8 {
         match self {
             AppError::Runtime(_) => EXIT_RUNTIME,

@@ -15,12 +15,6 @@ use crate::inference_thread::InferenceConfig;
 use crate::model::SessionConfig;
 use crate::profile::{self, Machine, Profile};
 
-/// Exit codes: 0 success, 1 the model (or input) was refused, 2 usage error (clap),
-/// 3 ONNX Runtime missing or unloadable.
-pub const EXIT_REFUSED: u8 = 1;
-pub const EXIT_USAGE: u8 = 2;
-pub const EXIT_RUNTIME: u8 = 3;
-
 #[derive(Parser)]
 #[command(
     name = "infer-server",

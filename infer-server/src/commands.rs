@@ -1,14 +1,14 @@
 //! The one-shot subcommands: `validate` (a model against the contract and a feature schema),
 //! `predict` (a model over a CSV table of features) and `runtime` (which ONNX Runtime would be
-//! loaded). Each prints its result and returns the process's exit code (see [`crate::cli`]).
+//! loaded). Each prints its result and returns the process's exit code ([`crate::exit`]).
 
 use std::io::{BufRead, Write};
 use std::path::Path;
 use std::process::ExitCode;
 
-use crate::cli::{EXIT_REFUSED, EXIT_RUNTIME};
 use crate::contract::FeatureSchema;
 use crate::engine::StepEngine;
+use crate::exit::{EXIT_REFUSED, EXIT_RUNTIME};
 use crate::model::{ModelError, SessionConfig};
 use crate::runtime::{Runtime, RuntimeError};
 

@@ -4,6 +4,7 @@
 //!   ([`app::run`]): the threads, the control plane, housekeeping and the order of shutdown.
 //! - [`cli`]: the command line (clap) and the serve flags turned into an [`app::AppConfig`].
 //! - [`commands`]: the one-shot subcommands `validate`, `predict`, `runtime`.
+//! - [`exit`]: the process's exit codes.
 //! - [`runtime`]: finds and loads ONNX Runtime (the PyPI wheel's library, `load-dynamic`).
 //! - [`contract`]: the model contract (metadata keys, input/output names, the nine features).
 //! - [`model`]: loading and validating a model file against the contract and a feature schema.
@@ -34,6 +35,7 @@ pub mod contract;
 pub mod contract_check;
 pub mod control_backend;
 pub mod engine;
+pub mod exit;
 pub mod handoff;
 pub mod inference_control;
 pub mod inference_thread;

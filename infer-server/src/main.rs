@@ -6,7 +6,8 @@
 use std::process::ExitCode;
 
 use clap::Parser;
-use infer_server::cli::{Cli, Command, EXIT_REFUSED};
+use infer_server::cli::{Cli, Command};
+use infer_server::exit::EXIT_REFUSED;
 use infer_server::{app, commands};
 use shm_ring::os::shutdown;
 
