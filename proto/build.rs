@@ -15,7 +15,10 @@ mod grpc {
         let manifest = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
         let out = PathBuf::from(std::env::var("OUT_DIR").unwrap());
         let file = manifest.join("haptics/v1/haptics.proto");
-        println!("cargo:rerun-if-changed={}", manifest.join("haptics").display());
+        println!(
+            "cargo:rerun-if-changed={}",
+            manifest.join("haptics").display()
+        );
         let fds = protox::compile([&file], [&manifest]).unwrap_or_else(|e| panic!("proto: {e}"));
         std::fs::write(
             out.join("haptics_descriptor.bin"),
