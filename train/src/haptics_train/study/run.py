@@ -204,54 +204,54 @@ def _reproduce_all(
     cfg = work / f"{tag}hand.toml"
     write_config(cfg, seed, hand, clock)
     base = ["--config", str(cfg), "--clock", clock, "--seed", str(seed), *(extra or [])]
-    ref = run_loop(
-        tools,
-        "sponge",
-        "reference",
-        [*base, "--experiment", "shadow"],
-        work / f"{tag}reference.parquet",
-    )
+    pid = os.getpid()
+
+    def loop(
+        name: str,
+        kind: str,
+        experiment: str,
+        file: str,
+        flags: tuple[str, ...] = (),
+        model: Path | None = None,
+    ) -> Run:
+        """One rt-loop run of this hand programme (recorded as work/TAG FILE.parquet); with
+        `model`, served by an infer-server of its own."""
+        return run_loop(
+            tools,
+            name,
+            kind,
+            [*base, "--experiment", experiment, *flags],
+            work / f"{tag}{file}.parquet",
+            server_model=None if model is None else model.resolve(),
+            instance="" if model is None else f"study-{pid}-{name}",
+        )
+
+    ref = loop("sponge", "reference", "shadow", "reference")
     if not ref.ok:
         raise StudyError(f"the reference (shadow) run failed: {ref.note or ref.stop}")
     say(f"{tag}reference: simulated sponge, {ref.steps} steps in {ref.wall_s:.1f} s")
     t_ref, f_ref = ref.series["time"], ref.series["F_true"]
     rows: list[Row] = []
-    o = run_loop(
-        tools,
-        ORACLE,
-        "reproduction",
-        [*base, "--experiment", "reproduction", "--model", "oracle"],
-        work / f"{tag}repro_oracle.parquet",
-    )
-    ro = score_run(t_ref, f_ref, o)
-    rows.append(Row(o.name, "rt-loop oracle", ro, None, o, None, False))
+
+    def rt_loop_row(
+        name: str, file: str, how: str, flags: tuple[str, ...] = ()
+    ) -> dict[str, float] | None:
+        """The reproduction by rt-loop's own model (no server), scored and kept."""
+        r = loop(name, "reproduction", "reproduction", f"repro_{file}", flags)
+        score = score_run(t_ref, f_ref, r)
+        rows.append(Row(r.name, how, score, None, r, None, False))
+        return score
+
+    ro = rt_loop_row(ORACLE, "oracle", "rt-loop oracle", ("--model", "oracle"))
     say(f"{tag}oracle: felt-force RMSE {fmt(ro['rmse'] if ro else None)} N (the floor)")
-    pid = os.getpid()
     for f in files:
         name = f.stem
-        inst = f"study-{pid}-{name}"
-        r = run_loop(
-            tools,
-            name,
-            "reproduction",
-            [*base, "--experiment", "reproduction"],
-            work / f"{tag}repro_{name}.parquet",
-            server_model=f.resolve(),
-            instance=inst,
-        )
+        r = loop(name, "reproduction", "reproduction", f"repro_{name}", model=f)
         repro = score_run(t_ref, f_ref, r)
         sh = None
         sh_m = None
         if shadow_predictions and r.series:
-            sh = run_loop(
-                tools,
-                name,
-                "shadow",
-                [*base, "--experiment", "shadow"],
-                work / f"{tag}shadow_{name}.parquet",
-                server_model=f.resolve(),
-                instance=inst,
-            )
+            sh = loop(name, "shadow", "shadow", f"shadow_{name}", model=f)
             if sh.series and sh.served > 0:
                 sh_m = regression_metrics(sh.series["F_true"], sh.series["F_pred"])
         learned = name not in SPRING_DAMPERS
@@ -261,15 +261,7 @@ def _reproduce_all(
             f"{r.served} served / {r.fallbacks} fallbacks, stop {r.stop or '-'}, "
             f"{r.wall_s:.1f} s {r.note}"
         )
-    b = run_loop(
-        tools,
-        BUILTIN,
-        "reproduction",
-        [*base, "--experiment", "reproduction"],
-        work / f"{tag}repro_builtin.parquet",
-    )
-    rb = score_run(t_ref, f_ref, b)
-    rows.append(Row(b.name, "rt-loop builtin", rb, None, b, None, False))
+    rb = rt_loop_row(BUILTIN, "builtin", "rt-loop builtin")
     say(f"{tag}builtin spring-damper: felt-force RMSE {fmt(rb['rmse'] if rb else None)} N")
     return ref, rows
 
