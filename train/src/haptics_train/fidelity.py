@@ -76,23 +76,23 @@ def recommendation(results: dict, validation: list[str], felt: dict[str, float] 
     }
 
 
-def load_recommendation(models_dir: Path) -> dict | None:
-    p = models_dir / RECOMMENDATION_FILE
+def read_object(path: Path) -> dict:
+    """The JSON object at `path`; {} when it is missing, unreadable or not an object."""
     try:
-        doc = json.loads(p.read_text())
+        doc = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError):
-        return None
-    return doc if isinstance(doc, dict) and isinstance(doc.get("recommended"), str) else None
+        return {}
+    return doc if isinstance(doc, dict) else {}
+
+
+def load_recommendation(models_dir: Path) -> dict | None:
+    doc = read_object(models_dir / RECOMMENDATION_FILE)
+    return doc if isinstance(doc.get("recommended"), str) else None
 
 
 def merge(path: Path, keys: dict) -> dict:
     """Merges `keys` into the JSON object at `path` (created when missing); returns it."""
-    try:
-        doc = json.loads(path.read_text())
-        if not isinstance(doc, dict):
-            doc = {}
-    except (OSError, json.JSONDecodeError):
-        doc = {}
+    doc = read_object(path)
     doc.update({k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                 for k, v in keys.items()})  # fmt: skip
     path.parent.mkdir(parents=True, exist_ok=True)

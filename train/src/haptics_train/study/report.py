@@ -7,6 +7,7 @@ import json
 import math
 from pathlib import Path
 
+from ..fidelity import merge, read_object
 from .processes import Run
 from .protocol import (
     DEFAULT_MATERIAL,
@@ -60,26 +61,22 @@ def write_fidelity(path: Path, rows: list[Row], fast_rows: list[Row], setting: s
     the oracle's and sd_poly2's felt force, and the felt force (normal and fast hand) of the
     recommended model when the pipeline has named one (`recommended`) and it was in the study,
     else of the best learned model (`felt_model` says which)."""
-    try:
-        doc = json.loads(path.read_text())
-        if not isinstance(doc, dict):
-            doc = {}
-    except (OSError, json.JSONDecodeError):
-        doc = {}
-    rec = doc.get("recommended")
+    rec = read_object(path).get("recommended")
     model = named_row(rows, rec) if isinstance(rec, str) else None
     if model is None or not rankable(model):
         model = best_row(rows, True)
     fast = named_row(fast_rows, model.name) if model is not None else None
-    doc["oracle_felt_rmse_n"] = nan_to_none(felt_rmse(named_row(rows, ORACLE)))
-    doc["sd_poly2_felt_rmse_n"] = nan_to_none(felt_rmse(sd2_row(rows)))
-    doc["felt_rmse_n"] = nan_to_none(felt_rmse(model))
-    doc["felt_fast_rmse_n"] = nan_to_none(felt_rmse(fast))
-    doc["felt_model"] = model.name if model is not None else None
-    doc["felt_friction_compensation"] = setting
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(doc, indent=1) + "\n")
-    return doc
+    return merge(
+        path,
+        {
+            "oracle_felt_rmse_n": nan_to_none(felt_rmse(named_row(rows, ORACLE))),
+            "sd_poly2_felt_rmse_n": nan_to_none(felt_rmse(sd2_row(rows))),
+            "felt_rmse_n": nan_to_none(felt_rmse(model)),
+            "felt_fast_rmse_n": nan_to_none(felt_rmse(fast)),
+            "felt_model": model.name if model is not None else None,
+            "felt_friction_compensation": setting,
+        },
+    )
 
 
 def metric_cells(m: dict[str, float] | None) -> list[str]:
