@@ -12,8 +12,10 @@ from haptics_train.data import (
     to_sequences,
     training_arrays,
 )
+from haptics_train.features import KINEMATICS
 from haptics_train.models import NotFittedError, TrainConfig, fit_recordings, make_model
 from haptics_train.models.networks import AUX
+from haptics_train.vocab import THESIS_FEATURES
 
 
 def _xy(n: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -67,8 +69,7 @@ def test_sequences_layout_for_stateful_models() -> None:
 
 def test_feedback_noise_needs_the_aux_columns() -> None:
     x, y = _xy(200)
-    six = ("position_x", "velocity", "acceleration", "f_previous_x", "f_previous_v",
-           "f_previous_a")  # fmt: skip
+    six = THESIS_FEATURES[:6]  # Table 3.1's first six, in the vocabulary's order
     m = make_model("dnn_fb", "six", hyper={"epochs": 1})
     assert m.aux_columns == AUX
     x6 = np.column_stack([x, np.zeros((len(y), 4))])
@@ -82,7 +83,7 @@ def test_feedback_noise_needs_the_aux_columns() -> None:
 def test_training_arrays_is_the_recordings_conversion(synth) -> None:
     cfg = TrainConfig(decimate=5, progress=False)
     recs = synth.train
-    feats = ("position_x", "velocity", "acceleration")
+    feats = KINEMATICS
     x, y, params = training_arrays(recs, feats, "rows", (), cfg.target, cfg.decimate)
     assert params == {}
     k = [row_stride(r, 5) for r in recs]

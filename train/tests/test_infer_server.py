@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from haptics_train.export import onnx_predict, provenance, save_onnx, to_contract_onnx
-from haptics_train.features import NINE
 from haptics_train.models import TrainConfig, fit_recordings, make_model
+from haptics_train.vocab import FEATURE_NAMES
 
 CFG = TrainConfig(decimate=10, progress=False)
 
@@ -51,7 +51,7 @@ def test_model_needing_a_feature_the_loop_lacks_is_refused(exported, infer_serve
     _, _, path = exported["dnn_xva_f"]
     r = _run(infer_server, "validate", str(path))
     assert r.returncode == 1, (r.stdout, r.stderr)
-    r = _run(infer_server, "validate", str(path), "--schema", ",".join([*NINE, "f_previous"]))
+    r = _run(infer_server, "validate", str(path), "--schema", ",".join(FEATURE_NAMES))
     assert r.returncode == 0, (r.stdout, r.stderr)
 
 

@@ -24,7 +24,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from .features import F_PREVIOUS, NINE, TARGET_DEFAULT
+from .features import F_PREVIOUS, NINE, RATIO_DIVISORS, TARGET_DEFAULT
 
 #: Columns a recording must have for training (the rest of the format is optional here).
 REQUIRED_COLUMNS: tuple[str, ...] = ("time", TARGET_DEFAULT, *NINE)
@@ -108,8 +108,7 @@ def add_previous_force(columns: dict[str, np.ndarray], target: str = TARGET_DEFA
     """
     f = columns[target]
     prev = np.full(len(f), np.nan)
-    for ratio, div in (("f_previous_x", "position_x"), ("f_previous_v", "velocity"),
-                       ("f_previous_a", "acceleration")):  # fmt: skip
+    for ratio, div in RATIO_DIVISORS.items():
         if ratio in columns and div in columns:
             ok = np.isnan(prev) & (columns[div] != 0)
             prev[ok] = columns[ratio][ok] * columns[div][ok]

@@ -12,40 +12,36 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .vocab import THESIS_FEATURES
+from .vocab import FEATURE_NAMES, THESIS_FEATURES
 
 #: The nine features of thesis Table 3.1, in its order (docs/recording-format.md): the
 #: vocabulary's (vocab.py, generated from proto/), never a copy.
 NINE: tuple[str, ...] = THESIS_FEATURES
 
+#: Table 3.1's three groups of three, by position in the vocabulary's order: the kinematics
+#: (position, velocity, acceleration), the previous force divided by each of them, and the
+#: cycle segmentation (cycle_no, deformation, area_fx).
+KINEMATICS: tuple[str, ...] = NINE[0:3]
+RATIOS: tuple[str, ...] = NINE[3:6]
+CYCLE_FEATURES: tuple[str, ...] = NINE[6:9]
+
 #: Ratio features: name -> the column it divides the previous force by. On a zero divisor the
 #: ratio keeps its previous value (thesis code), which the closed loop reproduces.
-RATIO_DIVISORS: dict[str, str] = {
-    "f_previous_x": "position_x",
-    "f_previous_v": "velocity",
-    "f_previous_a": "acceleration",
-}
+RATIO_DIVISORS: dict[str, str] = dict(zip(RATIOS, KINEMATICS, strict=True))
 
-#: Better-conditioned alternative to the ratios: the previous force itself, in N. Derived by
-#: train/ from the recording (`rtob_force` one control step earlier); it is not a column
-#: rt-loop records, so a model using it needs a loop that publishes it.
-F_PREVIOUS = "f_previous"
+#: Better-conditioned alternative to the ratios: the previous force itself, in N, the
+#: vocabulary's one feature after the nine. Derived by train/ from the recording (`rtob_force`
+#: one control step earlier); it is not a column rt-loop records, so a model using it needs a
+#: loop that publishes it.
+(F_PREVIOUS,) = FEATURE_NAMES[len(NINE) :]
 
 #: Features built from the previous force (the ratios and f_previous).
 PREVIOUS_FORCE_FEATURES: frozenset[str] = frozenset({*RATIO_DIVISORS, F_PREVIOUS})
 
 #: Every feature rt-loop derives from the committed force: the previous-force features and
-#: the cycle segmentation (cycle_no, deformation, area_fx). In reproduction the committed force
-#: is the model's prediction, so closed-loop evaluation rebuilds all of them.
-FEEDBACK_FEATURES: tuple[str, ...] = (
-    "f_previous_x",
-    "f_previous_v",
-    "f_previous_a",
-    "cycle_no",
-    "deformation",
-    "area_fx",
-    F_PREVIOUS,
-)
+#: the cycle segmentation. In reproduction the committed force is the model's prediction, so
+#: closed-loop evaluation rebuilds all of them.
+FEEDBACK_FEATURES: tuple[str, ...] = (*RATIOS, *CYCLE_FEATURES, F_PREVIOUS)
 
 TARGET_DEFAULT = "rtob_force"
 
@@ -65,22 +61,22 @@ FEATURE_SETS: dict[str, FeatureSet] = {
     fs.name: fs
     for fs in (
         FeatureSet("six", NINE[:6], "the six selected features (thesis Tables 6.10, 6.15)"),
-        FeatureSet("x", ("position_x",), "position only (Table 6.10 ablation)"),
-        FeatureSet("x_v", ("position_x", "velocity"), "position and velocity (Table 6.10)"),
+        FeatureSet("x", KINEMATICS[:1], "position only (Table 6.10 ablation)"),
+        FeatureSet("x_v", KINEMATICS[:2], "position and velocity (Table 6.10)"),
         FeatureSet("nine", NINE, "all nine features of Table 3.1"),
         FeatureSet(
             "xva",
-            ("position_x", "velocity", "acceleration"),
+            KINEMATICS,
             "kinematics only: no force feedback (closed loop = one-step)",
         ),
         FeatureSet(
             "xva_f",
-            ("position_x", "velocity", "acceleration", F_PREVIOUS),
+            (*KINEMATICS, F_PREVIOUS),
             "x, v, a and the previous force itself (well-conditioned alternative to the ratios)",
         ),
         FeatureSet(
             "memory",
-            ("position_x", "velocity", "acceleration", "cycle_no", "deformation", "area_fx"),
+            (*KINEMATICS, *CYCLE_FEATURES),
             "no previous force: kinematics plus the per-cycle memory features",
         ),
     )

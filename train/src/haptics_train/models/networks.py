@@ -21,7 +21,7 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from ..data import SequenceInfo
-from ..features import F_PREVIOUS, PREVIOUS_FORCE_FEATURES, RATIO_DIVISORS
+from ..features import F_PREVIOUS, KINEMATICS, PREVIOUS_FORCE_FEATURES, RATIO_DIVISORS
 from .base import ForceModel, check_rows, check_sequences
 from .torch_export import export_stateful, export_stateless
 
@@ -31,7 +31,7 @@ ASINH_CLIP = 1e15
 
 #: The `aux` columns the networks take beside their features (feedback-noise training):
 #: the previous force and the three divisors of the ratio features.
-AUX = ("f_previous", "position_x", "velocity", "acceleration")
+AUX = (F_PREVIOUS, *KINEMATICS)
 
 
 def _aux_for(model: ForceModel, aux: object, noisy: bool) -> None:
@@ -53,7 +53,7 @@ def perturb_previous_force(
         if f == F_PREVIOUS:
             x[..., j] = fp
         elif f in RATIO_DIVISORS:
-            d = aux[..., 1 + ("position_x", "velocity", "acceleration").index(RATIO_DIVISORS[f])]
+            d = aux[..., 1 + KINEMATICS.index(RATIO_DIVISORS[f])]
             safe = torch.where(d != 0, d, torch.ones_like(d))
             x[..., j] = torch.where(d != 0, fp / safe, x[..., j])
     return x

@@ -11,6 +11,7 @@ import numpy as np
 import onnx
 import torch
 
+from ..features import KINEMATICS
 from .base import ForceModel, check_rows
 from .torch_export import export_stateless
 
@@ -49,7 +50,7 @@ class SpringDamper(ForceModel):
         self, order: int = 2, feature_set: str = "x_v", *, seed: int = 0, progress: bool = False
     ) -> None:
         super().__init__(
-            ("position_x", "velocity"), feature_set, {"order": order}, seed=seed, progress=progress
+            KINEMATICS[:2], feature_set, {"order": order}, seed=seed, progress=progress
         )
         self.order = order
 
