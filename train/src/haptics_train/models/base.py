@@ -24,6 +24,7 @@ prediction, steps the exported ONNX graph (`closed_loop.simulate`).
 
 from __future__ import annotations
 
+import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
@@ -32,7 +33,7 @@ from typing import Self
 import numpy as np
 import onnx
 
-from ..data import Recording, training_arrays
+from ..data import Recording, SequenceInfo, training_arrays
 from ..features import TARGET_DEFAULT
 
 
@@ -180,6 +181,17 @@ def check_sequences(
     if n_info is not None and n_info != len(xs):
         raise ValueError(f"info must hold one SequenceInfo per sequence ({len(xs)}), got {n_info}")
     return xs, ys
+
+
+def step_dt(algo: str, info: Sequence[SequenceInfo]) -> float:
+    """The step of a stateful model fitted on these sequences: their median row interval, s;
+    a warning where their rates differ by more than 1 % (the model steps at one rate)."""
+    dts = np.array([1.0 / i.sample_rate_hz for i in info])
+    dt = float(np.median(dts))
+    if np.any(np.abs(dts / dt - 1) > 0.01):
+        warnings.warn(f"{algo}: training recordings at different rates ({1 / dts} Hz); "
+                      f"the model steps at {1 / dt:g} Hz", stacklevel=3)  # fmt: skip
+    return dt
 
 
 def fit_recordings(model: ForceModel, recs: Sequence[Recording], cfg: TrainConfig) -> ForceModel:

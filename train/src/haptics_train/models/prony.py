@@ -25,8 +25,6 @@ least squares are fitted on). Fitted attributes: `k_` (spring), `w_` (Prony weig
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import onnx
 import torch
@@ -34,7 +32,8 @@ from scipy.optimize import nnls
 from scipy.signal import lfilter
 
 from ..data import SequenceInfo
-from .base import ForceModel, check_sequences
+from ..features import KINEMATICS
+from .base import ForceModel, check_sequences, step_dt
 from .torch_export import export_stateful
 
 PRONY_DEFAULT = {"poly": 3, "tau_min_steps": 5, "tau_min_s": 0.02, "tau_max_s": 30.0, "n_tau": 6}
@@ -80,7 +79,7 @@ class PronyModel(ForceModel):
     def __init__(
         self, hyper: dict | None = None, *, seed: int = 0, progress: bool = False
     ) -> None:
-        super().__init__(("position_x", "velocity"), "x_v", hyper, seed=seed, progress=progress)
+        super().__init__(KINEMATICS[:2], "x_v", hyper, seed=seed, progress=progress)
 
     @property
     def name(self) -> str:
@@ -91,11 +90,7 @@ class PronyModel(ForceModel):
     ) -> PronyModel:
         seqs, targets = check_sequences(X, y, len(self.features), len(info))
         h = self.hyper
-        dts = np.array([1.0 / i.sample_rate_hz for i in info])
-        dt = float(np.median(dts))
-        if np.any(np.abs(dts / dt - 1) > 0.01):
-            warnings.warn(f"prony: training recordings at different rates ({1 / dts} Hz); "
-                          f"the model steps at {1 / dt:g} Hz", stacklevel=2)  # fmt: skip
+        dt = step_dt("prony", info)
         span = max(i.duration_s for i in info)
         lo = max(float(h["tau_min_steps"]) * dt, float(h["tau_min_s"]))
         hi = max(min(float(h["tau_max_s"]), span), 2 * lo)

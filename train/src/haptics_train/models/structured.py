@@ -38,7 +38,6 @@ rows in time order. Fitted attributes: `dt_`, `set_max_m_`, `a_` (equilibrium), 
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 import onnx
@@ -47,7 +46,8 @@ from scipy.optimize import nnls
 from scipy.signal import lfilter
 
 from ..data import SequenceInfo
-from .base import ForceModel, check_sequences
+from ..features import KINEMATICS
+from .base import ForceModel, check_sequences, step_dt
 from .torch_export import export_stateful
 
 STRUCTURED_DEFAULT: dict = {
@@ -228,7 +228,7 @@ class StructuredModel(ForceModel):
     defaults = STRUCTURED_DEFAULT
 
     def __init__(self, hyper: dict | None = None, *, seed: int = 0, progress: bool = False) -> None:
-        super().__init__(("position_x", "velocity"), "x_v", hyper, seed=seed, progress=progress)
+        super().__init__(KINEMATICS[:2], "x_v", hyper, seed=seed, progress=progress)
 
     @property
     def name(self) -> str:
@@ -243,11 +243,7 @@ class StructuredModel(ForceModel):
     ) -> StructuredModel:
         seqs, targets = check_sequences(X, y, len(self.features), len(info))
         h = self.hyper
-        dts = np.array([1.0 / i.sample_rate_hz for i in info])
-        self.dt_ = float(np.median(dts))
-        if np.any(np.abs(dts / self.dt_ - 1) > 0.01):
-            warnings.warn(f"structured: training recordings at different rates ({1 / dts} Hz); "
-                          f"the model steps at {1 / self.dt_:g} Hz", stacklevel=2)  # fmt: skip
+        self.dt_ = step_dt("structured", info)
         # Fitted on every stride-th row, the states stepped at that rate (the Dahl states are
         # rate-independent, the branches exact for the increments they are driven by).
         rows = []
