@@ -127,6 +127,17 @@ def _afm(p: Path) -> Path:
     return p
 
 
+def _refused_then_repaired(
+    name: str, what: str, make: Callable[[Path], Path], refused: str
+) -> tuple[Case, Case]:
+    """A damaged file twice: refused as it is (`refused`: a substring of the refusal), then
+    imported with --repair."""
+    return (
+        Case(name, what, make, STD, refused=refused),
+        Case(f"{name} --repair", "the same, asked to repair", make, {**STD, "repair": True}),
+    )
+
+
 CASES: list[Case] = [
     Case("elastomer_50hz.csv", "50 Hz, one cycle, `time [s]`, `displacement [mm]`, `force [N]`",
          _headers_mm_n, STD),
@@ -137,21 +148,12 @@ CASES: list[Case] = [
          _header_mn, STD),
     Case("header_mN.csv + --force-unit N", "an option contradicting the header",
          _header_mn, {**STD, "force_unit": "N"}, refused="says its unit is mN"),
-    Case("nan_holes.csv", "empty force cells at rows 101-103, `NaN` at row 201",
-         _nan_holes, STD,
-         refused="row 101: force is missing"),
-    Case("nan_holes.csv --repair", "the same, asked to repair",
-         _nan_holes, {**STD, "repair": True}),
-    Case("backwards.csv", "time steps back at row 301",
-         _backwards, STD,
-         refused="row 301: time does not increase"),
-    Case("backwards.csv --repair", "the same, asked to repair",
-         _backwards, {**STD, "repair": True}),
-    Case("gap.csv", "1 s of samples missing after row 150",
-         _gap, STD,
-         refused="row 151: a gap of"),
-    Case("gap.csv --repair", "the same, asked to repair",
-         _gap, {**STD, "repair": True}),
+    *_refused_then_repaired("nan_holes.csv", "empty force cells at rows 101-103, `NaN` at row 201",
+                            _nan_holes, "row 101: force is missing"),
+    *_refused_then_repaired("backwards.csv", "time steps back at row 301",
+                            _backwards, "row 301: time does not increase"),
+    *_refused_then_repaired("gap.csv", "1 s of samples missing after row 150",
+                            _gap, "row 151: a gap of"),
     Case("tension.csv", "tension: negative displacement and force",
          _tension, STD),
     Case("ms_um_1khz.csv", "1 kHz, `t (ms)`, `depth (µm)`, `load [N]`",
