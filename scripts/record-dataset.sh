@@ -13,15 +13,11 @@
 #        SEED (default 1; the test recording uses SEED + 1).
 # Existing files are kept (delete one to record it again).
 set -euo pipefail
-cd "$(dirname "$0")/.."
 who=record-dataset help_lines=2,15
 # shellcheck source=scripts/record-lib.sh
-source scripts/record-lib.sh
-record_options "$@"
-out=${rest[0]:-data/dataset}
+source "$(dirname "$0")/record-lib.sh"
+record_setup data/dataset "$@"
 seed=${SEED:-1}
-mkdir -p "$out"
-record_build
 
 record() { # name ramp_rate seed
   record_run "$1" "$3" --experiment abstraction --ramp-rate "$2" --cycles 14 --f-max-start 1 \

@@ -2,9 +2,9 @@
 # the one way a recording is made, so the two cannot drift apart.
 #
 # Before sourcing, the script sets `who` (its name in messages) and `help_lines` (the lines of
-# its header comment that --help prints); it calls `record_options "$@"`, then uses:
+# its header comment that --help prints); it calls `record_setup DEFAULT_OUT "$@"`, then uses:
 #   material, bench_args    the simulated object and the bench file (--material, --bench)
-#   rest                    the remaining arguments (the output folder)
+#   out                     the output folder (the first remaining argument, else DEFAULT_OUT)
 #   record_run NAME SEED ARGS...   records $out/NAME.parquet with `rt-loop run ARGS` on the
 #                                  lockstep clock at 10 kHz, unless the file exists
 # and the environment: DECIMATE (default 1: every step), HAPTICS_RT_LOOP (an rt-loop binary
@@ -26,6 +26,19 @@ record_options() {
   [ -f "$material" ] || { echo "$who: no material file $material" >&2; exit 2; }
   rest=("$@")
   decimate=${DECIMATE:-1}
+}
+
+# The start of every recording script: from the repository root (where relative paths are
+# read, whatever folder the script was run from), its options, its output folder `out` (made)
+# and the rt-loop binary `bin`.
+record_setup() { # default_out script-args...
+  local default_out=$1
+  shift
+  cd "$(dirname "${BASH_SOURCE[0]}")/.."
+  record_options "$@"
+  out=${rest[0]:-$default_out}
+  mkdir -p "$out"
+  record_build
 }
 
 # Builds rt-loop (the project's one build command) and sets `bin`; with HAPTICS_RT_LOOP set,

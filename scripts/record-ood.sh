@@ -15,14 +15,10 @@
 # Usage: scripts/record-ood.sh [--material FILE] [--bench FILE] [OUTDIR=data/ood]
 # Env:   DECIMATE (default 1). Existing files are kept (delete one to record it again).
 set -euo pipefail
-cd "$(dirname "$0")/.."
 who=record-ood help_lines=2,18
 # shellcheck source=scripts/record-lib.sh
-source scripts/record-lib.sh
-record_options "$@"
-out=${rest[0]:-data/ood}
-mkdir -p "$out"
-record_build
+source "$(dirname "$0")/record-lib.sh"
+record_setup data/ood "$@"
 start=$SECONDS
 
 abstraction=(--experiment abstraction)
