@@ -13,7 +13,7 @@
 #        SEED (default 1; the test recording uses SEED + 1).
 # Existing files are kept (delete one to record it again).
 set -euo pipefail
-who=record-dataset help_lines=2,15
+who=record-dataset help_lines=2,14
 # shellcheck source=scripts/record-lib.sh
 source "$(dirname "$0")/record-lib.sh"
 record_setup data/dataset "$@"
