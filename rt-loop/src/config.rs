@@ -6,7 +6,7 @@ use crate::clock::RealtimeConfig;
 use crate::experiment::{RampConfig, ReproductionConfig};
 use crate::features::FeatureParams;
 use crate::hand::HandConfig;
-use crate::invalid::InvalidSetting;
+use crate::invalid::{require_within, InvalidSetting};
 use crate::params::LoopParams;
 use crate::record::Format;
 use serde::{Deserialize, Serialize};
@@ -120,9 +120,7 @@ impl RunConfig {
     }
 
     pub fn validate(&self) -> Result<(), InvalidSetting> {
-        if !(self.rate_hz.is_finite() && self.rate_hz >= 10.0 && self.rate_hz <= 100_000.0) {
-            return Err(format!("rate must be within 10..100000 Hz (got {})", self.rate_hz).into());
-        }
+        require_within("rate", self.rate_hz, 10.0..=100_000.0, "10..100000 Hz")?;
         if self.decimate == 0 {
             return Err("decimate must be >= 1".into());
         }

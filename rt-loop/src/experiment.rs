@@ -4,7 +4,7 @@
 
 use crate::features::Features;
 use crate::filters::{Estimate, PseudoDerivative};
-use crate::invalid::{InvalidSeries, InvalidSetting};
+use crate::invalid::{require_non_negative, InvalidSeries, InvalidSetting};
 use crate::model::{ForceModel, SpringDamper};
 use crate::params::LoopParams;
 use serde::{Deserialize, Serialize};
@@ -90,18 +90,14 @@ impl RampConfig {
         if !(self.minor_depth.is_finite() && self.minor_depth > 0.0 && self.minor_depth < 1.0) {
             return Err(format!("minor_depth must be in (0, 1) (got {})", self.minor_depth).into());
         }
-        for (n, v) in [
+        require_non_negative(&[
             ("f_max_start", self.f_max_start),
             ("f_max_step", self.f_max_step),
             ("f_max_limit", self.f_max_limit),
             ("hold_zero_s", self.hold_zero_s),
             ("hold_max_s", self.hold_max_s),
             ("final_hold_s", self.final_hold_s),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("{n} must be >= 0 (got {v})").into());
-            }
-        }
+        ])?;
         if self.f_max_limit > 15.0 {
             return Err("f_max_limit above 15 N exceeds the motor's continuous force".into());
         }

@@ -13,7 +13,7 @@
 //!
 //! REAL-TIME PATH: [`Friction::force`] is a few flops, no allocation, no lock.
 
-use crate::invalid::InvalidSetting;
+use crate::invalid::{require_non_negative, require_positive, InvalidSetting};
 use crate::lstsq::{FitError, NormalEquations3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -53,23 +53,13 @@ impl Friction {
     }
 
     pub fn validate(&self) -> Result<(), InvalidSetting> {
-        for (n, v) in [
+        require_non_negative(&[
             ("friction.coulomb_n", self.coulomb_n),
             ("friction.static_n", self.static_n),
             ("friction.viscous", self.viscous),
             ("friction.smooth_mps", self.smooth_mps),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("{n} must be >= 0 (got {v})").into());
-            }
-        }
-        if !(self.stribeck_mps.is_finite() && self.stribeck_mps > 0.0) {
-            return Err(format!(
-                "friction.stribeck_mps must be > 0 (got {})",
-                self.stribeck_mps
-            )
-            .into());
-        }
+        ])?;
+        require_positive(&[("friction.stribeck_mps", self.stribeck_mps)])?;
         if self.coulomb_n.max(self.static_n) > 5.0 {
             return Err(
                 "friction above 5 N is not a bench's friction: check the bench file".into(),

@@ -2,7 +2,7 @@
 //! damping toward a moving set-point) following a press-hold-release trajectory. The hand
 //! only pushes (it rests against the shaft, it does not grip it).
 
-use crate::invalid::InvalidSetting;
+use crate::invalid::{require_non_negative, require_positive, InvalidSetting};
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -43,26 +43,18 @@ impl Default for HandConfig {
 
 impl HandConfig {
     pub fn validate(&self) -> Result<(), InvalidSetting> {
-        for (n, v) in [
+        require_positive(&[
             ("hand.stiffness", self.stiffness),
             ("hand.depth_m", self.depth_m),
             ("hand.press_s", self.press_s),
             ("hand.release_s", self.release_s),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{n} must be > 0 (got {v})").into());
-            }
-        }
-        for (n, v) in [
+        ])?;
+        require_non_negative(&[
             ("hand.damping", self.damping),
             ("hand.hold_s", self.hold_s),
             ("hand.rest_s", self.rest_s),
             ("hand.depth_step_m", self.depth_step_m),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("{n} must be >= 0 (got {v})").into());
-            }
-        }
+        ])?;
         if self.repeats == 0 {
             return Err("hand.repeats must be >= 1".into());
         }

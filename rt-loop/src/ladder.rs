@@ -26,7 +26,7 @@
 //! fixed-size arrays and plain f64 arithmetic; the model hook it calls has the same contract.
 
 use crate::features::Features;
-use crate::invalid::InvalidSetting;
+use crate::invalid::{require_within, InvalidSetting};
 use crate::model::{Answer, ForceModel, Miss, SpringDamper};
 use serde::{Deserialize, Serialize};
 
@@ -60,35 +60,21 @@ pub const MAX_SLEW_N_PER_STEP: f64 = 0.05;
 
 impl LadderConfig {
     pub fn validate(&self) -> Result<(), InvalidSetting> {
-        let ok = |v: f64, lo: f64, hi: f64| v.is_finite() && v >= lo && v <= hi;
-        if !ok(self.hold_max_s, 0.0, 0.1) {
+        require_within("ladder.hold_max_s", self.hold_max_s, 0.0..=0.1, "0..0.1 s")?;
+        require_within("ladder.crossfade_s", self.crossfade_s, 0.0..=1.0, "0..1 s")?;
+        let slew = self.slew_n_per_step;
+        if !(slew.is_finite() && slew > 0.0 && slew <= MAX_SLEW_N_PER_STEP) {
             return Err(format!(
-                "ladder.hold_max_s must be within 0..0.1 s (got {})",
-                self.hold_max_s
+                "ladder.slew_n_per_step must be within (0, {MAX_SLEW_N_PER_STEP}] N (got {slew})"
             )
             .into());
         }
-        if !ok(self.crossfade_s, 0.0, 1.0) {
-            return Err(format!(
-                "ladder.crossfade_s must be within 0..1 s (got {})",
-                self.crossfade_s
-            )
-            .into());
-        }
-        if !(ok(self.slew_n_per_step, 0.0, MAX_SLEW_N_PER_STEP) && self.slew_n_per_step > 0.0) {
-            return Err(format!(
-                "ladder.slew_n_per_step must be within (0, {MAX_SLEW_N_PER_STEP}] N (got {})",
-                self.slew_n_per_step
-            )
-            .into());
-        }
-        if !ok(self.stiffness_max_n_per_m, 0.0, 1e6) {
-            return Err(format!(
-                "ladder.stiffness_max_n_per_m must be within 0..1e6 N/m (got {})",
-                self.stiffness_max_n_per_m
-            )
-            .into());
-        }
+        require_within(
+            "ladder.stiffness_max_n_per_m",
+            self.stiffness_max_n_per_m,
+            0.0..=1e6,
+            "0..1e6 N/m",
+        )?;
         Ok(())
     }
 }

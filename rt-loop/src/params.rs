@@ -1,7 +1,7 @@
 //! The loop's parameters (SPEC section 2, thesis Tables 5.1-5.6 and its C code).
 //! Every value defaults to the thesis's and can be overridden from the config file.
 
-use crate::invalid::InvalidSetting;
+use crate::invalid::{first_refused, InvalidSetting};
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -88,21 +88,18 @@ impl LoopParams {
             ("meters_per_count", self.meters_per_count),
             ("position_limit", self.position_limit),
         ];
-        for (name, v) in positive {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("parameter {name} must be a positive number, got {v}").into());
-            }
+        if let Some((name, v)) = first_refused(&positive, |v| v > 0.0) {
+            return Err(format!("parameter {name} must be a positive number, got {v}").into());
         }
-        for (name, v) in [
+        let non_negative = [
             ("k_p", self.k_p),
             ("friction_model", self.friction_model),
             ("pid_p", self.pid_p),
             ("pid_d", self.pid_d),
             ("pid_i", self.pid_i),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("parameter {name} must be >= 0, got {v}").into());
-            }
+        ];
+        if let Some((name, v)) = first_refused(&non_negative, |v| v >= 0.0) {
+            return Err(format!("parameter {name} must be >= 0, got {v}").into());
         }
         self.friction.validate()?;
         if self.current_limit > self.dac_full_scale {

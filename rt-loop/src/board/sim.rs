@@ -9,7 +9,7 @@
 use super::{Board, BoardStop, Snapshot};
 use crate::dac;
 use crate::hand::HandConfig;
-use crate::invalid::InvalidSetting;
+use crate::invalid::{require_non_negative, require_positive, InvalidSetting};
 use crate::material::Material;
 use crate::rng::Rng;
 use crate::sponge::Sponge;
@@ -69,7 +69,7 @@ impl Default for SimConfig {
 
 impl SimConfig {
     pub fn validate(&self) -> Result<(), InvalidSetting> {
-        for (n, v) in [
+        require_positive(&[
             ("sim.mass_kg", self.mass_kg),
             ("sim.force_constant", self.force_constant),
             ("sim.stribeck_mps", self.stribeck_mps),
@@ -77,22 +77,14 @@ impl SimConfig {
             ("sim.substep_us", self.substep_us),
             ("sim.meters_per_count", self.meters_per_count),
             ("sim.dac_full_scale", self.dac_full_scale),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{n} must be > 0 (got {v})").into());
-            }
-        }
-        for (n, v) in [
+        ])?;
+        require_non_negative(&[
             ("sim.coulomb_n", self.coulomb_n),
             ("sim.static_n", self.static_n),
             ("sim.viscous", self.viscous),
             ("sim.period_jitter_us", self.period_jitter_us),
             ("sim.current_noise_a", self.current_noise_a),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("{n} must be >= 0 (got {v})").into());
-            }
-        }
+        ])?;
         Ok(())
     }
 }
