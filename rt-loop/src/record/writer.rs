@@ -2,10 +2,8 @@
 //! integers) and CSV (shortest round-trip float text, so reading back gives identical values).
 
 use super::row::{Row, COLUMNS};
-use arrow_array::{
-    ArrayRef, BooleanArray, Float64Array, Int32Array, RecordBatch, UInt16Array, UInt32Array,
-    UInt64Array, UInt8Array,
-};
+use arrow_array::types::{Float64Type, Int32Type, UInt16Type, UInt32Type, UInt64Type, UInt8Type};
+use arrow_array::{ArrayRef, ArrowPrimitiveType, BooleanArray, PrimitiveArray, RecordBatch};
 use arrow_schema::{DataType, Field, Schema};
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, Encoding, ZstdLevel};
@@ -86,39 +84,38 @@ impl Write for CountingWriter {
     }
 }
 
+/// One column of `rows`, `f` picking each row's value (every numeric column is built here).
+fn col<T: ArrowPrimitiveType>(rows: &[Row], f: impl Fn(&Row) -> T::Native) -> ArrayRef {
+    Arc::new(PrimitiveArray::<T>::from_iter_values(rows.iter().map(f)))
+}
+
 fn f64_col(rows: &[Row], f: impl Fn(&Row) -> f64) -> ArrayRef {
-    Arc::new(Float64Array::from_iter_values(rows.iter().map(f)))
+    col::<Float64Type>(rows, f)
 }
 
 fn batch(rows: &[Row]) -> Result<RecordBatch, arrow_schema::ArrowError> {
     let cols: Vec<ArrayRef> = vec![
-        Arc::new(UInt64Array::from_iter_values(rows.iter().map(|r| r.step))),
-        Arc::new(UInt32Array::from_iter_values(
-            rows.iter().map(|r| r.timestamp),
-        )),
+        col::<UInt64Type>(rows, |r| r.step),
+        col::<UInt32Type>(rows, |r| r.timestamp),
         f64_col(rows, |r| r.time),
         f64_col(rows, |r| r.dt),
         f64_col(rows, |r| r.f_ref),
         f64_col(rows, |r| r.rtob_force),
         f64_col(rows, |r| r.dob_force),
-        Arc::new(Int32Array::from_iter_values(rows.iter().map(|r| r.counts))),
+        col::<Int32Type>(rows, |r| r.counts),
         f64_col(rows, |r| r.position_x),
         f64_col(rows, |r| r.velocity),
         f64_col(rows, |r| r.acceleration),
         f64_col(rows, |r| r.i_a_ref),
         f64_col(rows, |r| r.i_motor),
-        Arc::new(UInt16Array::from_iter_values(
-            rows.iter().map(|r| r.analog_out_motor),
-        )),
-        Arc::new(UInt8Array::from_iter_values(rows.iter().map(|r| r.phase))),
+        col::<UInt16Type>(rows, |r| r.analog_out_motor),
+        col::<UInt8Type>(rows, |r| r.phase),
         f64_col(rows, |r| r.f_true),
         f64_col(rows, |r| r.f_pred),
         Arc::new(BooleanArray::from_iter(
             rows.iter().map(|r| Some(r.fallback)),
         )),
-        Arc::new(UInt32Array::from_iter_values(
-            rows.iter().map(|r| r.cycle_no),
-        )),
+        col::<UInt32Type>(rows, |r| r.cycle_no),
         f64_col(rows, |r| r.f_previous_x),
         f64_col(rows, |r| r.f_previous_v),
         f64_col(rows, |r| r.f_previous_a),
