@@ -267,18 +267,12 @@ fn renew(link: &Link, handoff: &Handoff, answer_wait: WaitStrategy) -> Result<Li
         link: side.link,
     };
     // Un-taken fresh endpoints of an earlier re-creation are replaced (and dropped here).
-    let stale_client = handoff
-        .client
-        .lock()
-        .map_err(|_| RenewError::Poisoned)?
-        .fresh
-        .replace(client);
-    let stale_io = handoff
-        .io
-        .lock()
-        .map_err(|_| RenewError::Poisoned)?
-        .fresh
-        .replace(io);
+    fn leave<T>(slot: &Mutex<Slot<T>>, fresh: T) -> Result<Option<T>, RenewError> {
+        let mut s = slot.lock().map_err(|_| RenewError::Poisoned)?;
+        Ok(s.fresh.replace(fresh))
+    }
+    let stale_client = leave(&handoff.client, client)?;
+    let stale_io = leave(&handoff.io, io)?;
     handoff.generation.fetch_add(1, Ordering::Release);
     drop((stale_client, stale_io));
     Ok(new_link)
