@@ -89,6 +89,18 @@ impl Material {
         Ok((m, text))
     }
 
+    /// The repository's `materials/sponge.toml`, which the tests of the parts that render a
+    /// material drive.
+    #[cfg(test)]
+    pub(crate) fn repository_sponge() -> Material {
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../materials/sponge.toml"
+        ))
+        .unwrap();
+        Material::parse(&text).unwrap()
+    }
+
     pub fn parse(text: &str) -> anyhow::Result<Material> {
         let m: Material = toml::from_str(text)?;
         m.validate().map_err(|e| anyhow::anyhow!(e))?;

@@ -79,12 +79,7 @@ mod tests {
     use super::*;
 
     fn material() -> Material {
-        let text = std::fs::read_to_string(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../materials/sponge.toml"
-        ))
-        .unwrap();
-        Material::parse(&text).unwrap()
+        Material::repository_sponge()
     }
 
     /// Driven along a press, the oracle gives the force of a sponge driven the same way at the

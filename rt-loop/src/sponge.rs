@@ -187,12 +187,7 @@ mod tests {
     use super::*;
 
     fn sponge() -> Sponge {
-        let text = std::fs::read_to_string(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../materials/sponge.toml"
-        ))
-        .unwrap();
-        Sponge::new(&Material::parse(&text).unwrap())
+        Sponge::new(&Material::repository_sponge())
     }
 
     #[test]
