@@ -185,11 +185,14 @@ function viewRange(): [number, number] | null {
 }
 
 let lastCols: Columns | null = null;
+/** The time range [t0, t1] of the last drawn frame (the test hook compares it with the view). */
+let lastDrawn: [number, number] | null = null;
 
 function render(): void {
   const r = viewRange();
   if (!r) {
     lastCols = readColumns(store, 0, -1, 1, DISPLAY_SCALE);
+    lastDrawn = null;
     for (const p of timePlots) p.update(lastCols, 0, 1);
     xy.draw([]);
     xyPoints = { x: [], y: [], pred: [] };
@@ -200,6 +203,7 @@ function render(): void {
   const width = Math.max(...timePlots.map((p) => p.u.bbox.width / (window.devicePixelRatio || 1)), 300);
   const cols = readColumns(store, t0, t1, Math.round(width), DISPLAY_SCALE);
   lastCols = cols;
+  lastDrawn = [t0, t1];
   for (const p of timePlots) p.update(cols, t0, t1);
   for (const name of ["F_pred", "F_true"] as const) {
     const s = S[name];
@@ -787,7 +791,7 @@ Object.defineProperty(window, "__haptics", {
     },
     status: () => JSON.parse(JSON.stringify(status)),
     /** Shown time range [t0, t1] and whether it is frozen (paused or zoomed). */
-    view: () => ({ range: viewRange(), frozen: frozen !== null, windowS }),
+    view: () => ({ range: viewRange(), frozen: frozen !== null, windowS, drawn: lastDrawn }),
     /** Which series each time plot shows (per-series toggles). */
     shown: () => Object.fromEntries(timePlots.flatMap((p) => p.def.signals.map((sig, k) => [SERIES[sig.series], p.isVisible(k)]))),
     /** The model strip: which model drew which stretch of the shown range (t0, t1 in s). */

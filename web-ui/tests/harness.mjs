@@ -99,6 +99,22 @@ export const hook = {
   counts: (page) => page.evaluate(() => window.__haptics.counts()),
 };
 
+/**
+ * Waits until the plots have drawn the frozen range. Pausing freezes the range shown at the
+ * click, but the plots draw on their own clock (at most 30 times a second, later on a loaded
+ * machine): data that arrived between the last live frame and the click moves the right edge, so
+ * what the plots show is only the frozen view once that frame is drawn.
+ */
+export async function frozenDrawn(page) {
+  await waitFor(
+    async () => {
+      const v = await page.evaluate(() => window.__haptics.view());
+      return v.frozen && v.drawn && v.drawn[0] === v.range[0] && v.drawn[1] === v.range[1];
+    },
+    { timeoutMs: 3000, what: "the frozen range drawn" },
+  );
+}
+
 export function percentiles(xs, qs = [0.5, 0.9, 0.99]) {
   const s = [...xs].sort((a, b) => a - b);
   return Object.fromEntries(qs.map((q) => [`p${Math.round(q * 1000) / 10}`, s.length ? s[Math.min(s.length - 1, Math.floor(q * s.length))] : NaN]));

@@ -10,7 +10,7 @@ import { createRequire } from "node:module";
 import { dirname, join } from "node:path";
 import { fileURLToPath } from "node:url";
 import { SERIES, startFakeServer } from "../dev/fake-server.mjs";
-import { enclosedArea, finite, hook, measureFrames, openBrowser, sleep, waitFor } from "./harness.mjs";
+import { enclosedArea, finite, frozenDrawn, hook, measureFrames, openBrowser, sleep, waitFor } from "./harness.mjs";
 
 const here = dirname(fileURLToPath(import.meta.url));
 const outDir = join(here, "..", "test-output");
@@ -164,17 +164,7 @@ describe("page against the fake server", () => {
     await page.click("#pause");
     assert.equal(await hook.paused(page), true);
     assert.equal(await page.getAttribute("#pause", "aria-pressed"), "true");
-    // Pausing freezes the range shown at the click and draws it once, at the next frame (the
-    // page draws at most 30 times a second, later on a loaded machine): wait for that draw.
-    await waitFor(
-      async () => {
-        const p1 = await hook.points(page, "rtob_force");
-        await sleep(150);
-        const p2 = await hook.points(page, "rtob_force");
-        return JSON.stringify(p1.t) === JSON.stringify(p2.t);
-      },
-      { timeoutMs: 3000, what: "the frozen range drawn" },
-    );
+    await frozenDrawn(page);
     const a = await hook.points(page, "rtob_force");
     const ca = await hook.counts(page);
     await sleep(1000);
@@ -234,6 +224,7 @@ describe("page against the fake server", () => {
   test("the cursor readout shows the values under the cursor on every time plot", async () => {
     // Paused, so the plots do not scroll between the two readouts.
     await page.click("#pause");
+    await frozenDrawn(page);
     const box = await page.locator("#plot-force .u-over").boundingBox();
     await page.mouse.move(box.x + box.width * 0.7, box.y + box.height / 2);
     await waitFor(async () => /^t [\d.]+ s · F_ref [-\d.]+(…[-\d.]+)? N · F_res/.test(await page.textContent("#readout-force")), { what: "force readout" });

@@ -23,7 +23,7 @@ import { mkdir, mkdtemp, rm } from "node:fs/promises";
 import { cpus, loadavg, tmpdir } from "node:os";
 import { dirname, join, resolve } from "node:path";
 import { fileURLToPath } from "node:url";
-import { enclosedArea, finite, freePort, hook, measureFrames, missing, openBrowser, sleep, vocab, waitFor } from "./harness.mjs";
+import { enclosedArea, finite, freePort, frozenDrawn, hook, measureFrames, missing, openBrowser, sleep, vocab, waitFor } from "./harness.mjs";
 
 // How the processes are started: the one place to change when their command lines change.
 // Every flag is passed: a flag the program does not know fails the run (it is not left out).
@@ -257,6 +257,7 @@ describe("page against the real rt-loop and infer-server", () => {
   it("pause freezes the plots while data keeps arriving", async () => {
     const page = ctx.page;
     await page.click("#pause");
+    await frozenDrawn(page);
     const a = await hook.points(page, "rtob_force");
     const ca = await hook.counts(page);
     await sleep(1000);
