@@ -366,6 +366,20 @@ fn os_err<'a>(
     }
 }
 
+/// Opens a segment that must already exist (attach, inspect): a missing name is
+/// [`Error::NotFound`], any other failure an [`Error::Os`] naming `shm_open`.
+fn open_existing(name: &SegmentName) -> Result<OwnedFd, Error> {
+    os::shm_open(name.as_str(), false).map_err(|e| {
+        if e.raw_os_error() == Some(libc::ENOENT) {
+            Error::NotFound {
+                name: name.to_string(),
+            }
+        } else {
+            os_err("shm_open", name)(e)
+        }
+    })
+}
+
 impl<P: Protocol> Segment<P> {
     /// Creates the segment (the loop's side). Replaces a segment left by a dead loop; refuses
     /// with [`Error::InstanceInUse`] if a live loop owns the name.
@@ -453,15 +467,7 @@ impl<P: Protocol> Segment<P> {
 
     /// Attaches to a live loop's segment (the server's side), validating the header.
     pub fn attach(name: &SegmentName) -> Result<Segment<P>, Error> {
-        let fd = match os::shm_open(name.as_str(), false) {
-            Ok(fd) => fd,
-            Err(e) if e.raw_os_error() == Some(libc::ENOENT) => {
-                return Err(Error::NotFound {
-                    name: name.to_string(),
-                })
-            }
-            Err(e) => return Err(os_err("shm_open", name)(e)),
-        };
+        let fd = open_existing(name)?;
         let stat = os::fstat(&fd).map_err(os_err("fstat", name))?;
         if stat.uid != os::euid() {
             return Err(Error::ForeignOwner {
@@ -559,15 +565,7 @@ impl<P: Protocol> Segment<P> {
     /// nothing (no attachment counted, no request skipped), works while a server is attached.
     /// For tools and diagnostics.
     pub fn inspect(name: &SegmentName) -> Result<SegmentInfo, Error> {
-        let fd = match os::shm_open(name.as_str(), false) {
-            Ok(fd) => fd,
-            Err(e) if e.raw_os_error() == Some(libc::ENOENT) => {
-                return Err(Error::NotFound {
-                    name: name.to_string(),
-                })
-            }
-            Err(e) => return Err(os_err("shm_open", name)(e)),
-        };
+        let fd = open_existing(name)?;
         let stat = os::fstat(&fd).map_err(os_err("fstat", name))?;
         if stat.size < std::mem::size_of::<Header>() as u64 {
             return Err(Error::Initializing {
