@@ -121,6 +121,16 @@ fn print_json(v: &serde_json::Value) {
     println!("{v}");
 }
 
+/// Reports `done` to `what` (a model unloaded, an experiment started): `{"<done>": "<what>"}`
+/// with `--json`, else the line `<done> <what>`.
+fn print_done(json: bool, done: &str, what: &str) {
+    if json {
+        print_json(&serde_json::json!({ done: what }));
+    } else {
+        println!("{done} {what}");
+    }
+}
+
 async fn run(cli: Cli) -> Result<(), CliError> {
     // An empty HAPTICS_ADDR or HAPTICS_TOKEN counts as unset.
     let addr = match cli.addr.trim() {
@@ -174,11 +184,7 @@ async fn run(cli: Cli) -> Result<(), CliError> {
                 .unload_model(pb::UnloadModelRequest { name: name.clone() })
                 .await
                 .map_err(fail)?;
-            if cli.json {
-                print_json(&serde_json::json!({ "unloaded": name }));
-            } else {
-                println!("unloaded {name}");
-            }
+            print_done(cli.json, "unloaded", &name);
         }
         Command::Active => {
             match c
@@ -258,11 +264,7 @@ async fn run(cli: Cli) -> Result<(), CliError> {
                     })
                     .await
                     .map_err(fail)?;
-                if cli.json {
-                    print_json(&serde_json::json!({ "started": kind }));
-                } else {
-                    println!("started {kind}");
-                }
+                print_done(cli.json, "started", &kind);
             }
             ExperimentAction::Stop => {
                 c.looper
