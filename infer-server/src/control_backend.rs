@@ -13,7 +13,8 @@ use control_plane::{
     Activation, Backend, ControlError, ExperimentRequest, ExperimentStatus, Latency, LoopStatus,
     ModelInfo, ModelSource, ServerStatus, StatusSnapshot, TelemetryBatch, TelemetryHub,
 };
-use haptics_proto::{Command, CommandKind, LoopStatusLink, COMMAND_VALUES};
+use haptics_proto::experiment_args::ExperimentArgs;
+use haptics_proto::{Command, LoopStatusLink};
 use shm_ring::{FixedStr, SendError};
 
 use crate::latency::LatencySnapshot;
@@ -46,31 +47,25 @@ pub struct ControlBackend {
     next_command_id: AtomicU64,
 }
 
-/// Encodes an experiment request as a mailbox command: `name` = the kind
-/// (`abstraction`, `reproduction`, `shadow`, `position-replay`), `values` = `[ramp_rate N/s,
-/// cycles, f_max_start N, f_max_step N]`, NaN where the loop's default applies.
+/// An experiment request as a mailbox command: the experiment's kind (`abstraction`,
+/// `reproduction`, `shadow`, `position-replay`) and the options it sets; `None` leaves the
+/// loop's default.
 pub fn start_command(id: u64, request: &ExperimentRequest) -> Command {
-    let mut values = [f64::NAN; COMMAND_VALUES];
-    values[0] = request.ramp_rate.unwrap_or(f64::NAN);
-    values[1] = request.cycles.map_or(f64::NAN, f64::from);
-    values[2] = request.f_max_start.unwrap_or(f64::NAN);
-    values[3] = request.f_max_step.unwrap_or(f64::NAN);
-    Command {
+    Command::Start {
         id,
-        kind: CommandKind::StartExperiment,
-        name: FixedStr::new(request.kind.as_str()).expect("experiment kinds are short"),
-        values,
+        experiment: FixedStr::new(request.kind.as_str()).expect("experiment kinds are short"),
+        args: ExperimentArgs {
+            ramp_rate: request.ramp_rate,
+            cycles: request.cycles,
+            f_max_start: request.f_max_start,
+            f_max_step: request.f_max_step,
+        },
     }
 }
 
-/// The stop command: empty name, NaN values.
+/// The stop command.
 pub fn stop_command(id: u64) -> Command {
-    Command {
-        id,
-        kind: CommandKind::StopExperiment,
-        name: FixedStr::new("").expect("empty"),
-        values: [f64::NAN; COMMAND_VALUES],
-    }
+    Command::Stop { id }
 }
 
 fn latency_of(s: &LatencySnapshot) -> Latency {

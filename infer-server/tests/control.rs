@@ -17,7 +17,10 @@ use std::time::{Duration, Instant};
 use control_plane::pb;
 use control_plane::pb::loop_service_client::LoopServiceClient;
 use control_plane::pb::model_service_client::ModelServiceClient;
-use haptics_proto::{CommandKind, FeatureMsg, LoopSide, Segment, TelemetryRow, MAX_FEATURES};
+use haptics_proto::experiment_args::ExperimentArgs;
+use haptics_proto::{
+    Command as LoopCommand, FeatureMsg, LoopSide, Segment, TelemetryRow, MAX_FEATURES,
+};
 use shm_ring::{Config, SegmentName, WaitStrategy};
 use tonic::transport::Channel;
 use tonic::Code;
@@ -714,12 +717,22 @@ async fn status_experiments_and_telemetry_from_the_segment() {
     .await
     .unwrap();
     let cmd = lp.commands_rx.try_recv().unwrap().expect("a command");
-    assert_eq!(cmd.kind, CommandKind::StartExperiment);
-    assert_eq!(cmd.name.as_str(), "abstraction");
-    assert_eq!(cmd.values[0], 1.8);
-    assert_eq!(cmd.values[1], 3.0);
-    assert!(cmd.values[2].is_nan());
-    assert_eq!(cmd.values[3], 0.5);
+    let LoopCommand::Start {
+        experiment, args, ..
+    } = cmd
+    else {
+        panic!("a start, not {cmd:?}");
+    };
+    assert_eq!(experiment.as_str(), "abstraction");
+    assert_eq!(
+        args,
+        ExperimentArgs {
+            ramp_rate: Some(1.8),
+            cycles: Some(3),
+            f_max_start: None,
+            f_max_step: Some(0.5),
+        }
+    );
     let s = status(&mut c).await;
     let x = s.experiment.unwrap();
     assert!(x.running);
@@ -738,8 +751,7 @@ async fn status_experiments_and_telemetry_from_the_segment() {
         .await
         .unwrap();
     let cmd = lp.commands_rx.try_recv().unwrap().expect("a command");
-    assert_eq!(cmd.kind, CommandKind::StopExperiment);
-    assert!(cmd.id > 0);
+    assert!(matches!(cmd, LoopCommand::Stop { id } if id > 0), "{cmd:?}");
     assert!(lp.commands_rx.try_recv().unwrap().is_none());
 
     // Telemetry written into the ring comes out of the gRPC stream, decimated by 10 with

@@ -42,6 +42,12 @@ impl ExperimentArgs {
     /// ramp rate > 0, cycles a whole number in 1..=1000, a first peak > 0, a step >= 0, all
     /// finite; anything else is refused with [`BAD_VALUES`].
     pub fn from_values(values: &[f64; 4]) -> Result<ExperimentArgs, &'static str> {
+        Self::checked(values).map_err(|_| BAD_VALUES)
+    }
+
+    /// [`Self::from_values`], the refusal naming the first bad value: its index into
+    /// [`VALUE_NAMES`] (the command decoder reports it).
+    pub fn checked(values: &[f64; 4]) -> Result<ExperimentArgs, usize> {
         let mut out = [None; 4];
         for (i, v) in values.iter().enumerate() {
             if v.is_nan() {
@@ -55,7 +61,7 @@ impl ExperimentArgs {
                     _ => *v >= 0.0,
                 };
             if !ok {
-                return Err(BAD_VALUES);
+                return Err(i);
             }
             out[i] = Some(*v);
         }
@@ -67,6 +73,15 @@ impl ExperimentArgs {
         })
     }
 }
+
+/// What each of the four values must be, in [`ExperimentArgs::to_values`] order (the names a
+/// refused command's decode error gives).
+pub const VALUE_NAMES: [&str; 4] = [
+    "Command::Start.args.ramp_rate (finite, > 0)",
+    "Command::Start.args.cycles (whole number 1..=1000)",
+    "Command::Start.args.f_max_start (finite, > 0)",
+    "Command::Start.args.f_max_step (finite, >= 0)",
+];
 
 #[cfg(test)]
 mod tests {

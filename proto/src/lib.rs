@@ -27,7 +27,7 @@ pub mod status;
 pub mod telemetry;
 pub mod vocab_gen;
 
-pub use command::{Command, CommandKind, COMMAND_VALUES};
+pub use command::Command;
 pub use features::{MAX_FEATURES, SCHEMA_NAMES, THESIS_FEATURES};
 pub use layout::{Haptics, LoopSide, Segment, ServerSide};
 pub use messages::{FeatureMsg, ForceMsg};

@@ -16,10 +16,12 @@ use crate::sink::{RunFigures, SinkTotals, StepAction, StepSink};
 use anyhow::{anyhow, bail, Result};
 use haptics_proto::experiment_args::ExperimentArgs;
 use haptics_proto::{
-    Command, CommandKind, LoopClock, LoopStatus, LoopStatusLink, Quantiles, Segment, StatusText,
-    TelemetryRow, RECORDER_BYTES,
+    Command, LoopClock, LoopStatus, LoopStatusLink, Quantiles, Segment, StatusText, TelemetryRow,
+    RECORDER_BYTES,
 };
-use shm_ring::{Config, Consumer, Link, OverwriteProducer, SegmentName, WaitStrategy};
+use shm_ring::{
+    Config, Consumer, DecodeError, Link, OverwriteProducer, RecvError, SegmentName, WaitStrategy,
+};
 use std::fmt::Write as _;
 use std::time::{Duration, Instant};
 
@@ -105,38 +107,39 @@ pub enum LoopCommand {
 
 pub fn parse_command(c: &Command) -> LoopCommand {
     use crate::config::ExperimentKind as E;
-    match c.kind {
-        CommandKind::StopExperiment => LoopCommand::Stop { id: c.id },
-        CommandKind::SetParameter => LoopCommand::Refused {
-            id: c.id,
+    match *c {
+        Command::Stop { id } => LoopCommand::Stop { id },
+        Command::SetParameter { id, .. } => LoopCommand::Refused {
+            id,
             reason: "set-parameter is not supported by rt-loop",
         },
-        CommandKind::StartExperiment => {
-            let experiment = match c.name.as_str() {
+        // The values were checked when the command was decoded (haptics_proto::command).
+        Command::Start {
+            id,
+            experiment,
+            args,
+        } => {
+            let experiment = match experiment.as_str() {
                 "abstraction" => E::Abstraction,
                 "reproduction" => E::Reproduction,
                 "shadow" => E::Shadow,
                 "position-replay" => {
                     return LoopCommand::Refused {
-                        id: c.id,
+                        id,
                         reason: "position-replay needs a trajectory file: use rt-loop run",
                     }
                 }
                 _ => {
                     return LoopCommand::Refused {
-                        id: c.id,
+                        id,
                         reason: "unknown experiment name",
                     }
                 }
             };
-            let params = match ExperimentArgs::from_values(&c.values) {
-                Ok(p) => p,
-                Err(reason) => return LoopCommand::Refused { id: c.id, reason },
-            };
             LoopCommand::Start(StartRequest {
-                id: c.id,
+                id,
                 experiment,
-                params,
+                params: args,
             })
         }
     }
@@ -388,6 +391,14 @@ impl LoopIo {
         match self.commands_rx.try_recv() {
             Ok(Some(c)) => Some(parse_command(&c)),
             Ok(None) => None,
+            // A command the decoder refused (its id unread: the error names the field, e.g. a
+            // start value out of range) is skipped, not acted on.
+            Err(RecvError::Decode(DecodeError::InvalidField { field, .. })) => {
+                Some(LoopCommand::Refused {
+                    id: 0,
+                    reason: field,
+                })
+            }
             // A corrupt mailbox entry is skipped, not acted on.
             Err(_) => Some(LoopCommand::Refused {
                 id: 0,

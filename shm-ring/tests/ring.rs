@@ -4,7 +4,7 @@
 
 use std::time::Duration;
 
-use haptics_proto::{Command, CommandKind, FeatureMsg, ForceMsg, TelemetryRow, MAX_FEATURES};
+use haptics_proto::{Command, FeatureMsg, ForceMsg, TelemetryRow, MAX_FEATURES};
 use shm_ring::{
     heap_channel, heap_overwrite_channel, DecodeError, FixedStr, Message, RecvError, SendError,
     WaitStrategy,
@@ -35,11 +35,10 @@ fn every_message_type_survives_encoding() {
         area_fx: -0.25,
         ..Default::default()
     });
-    roundtrip(Command {
+    roundtrip(Command::SetParameter {
         id: 9,
-        kind: CommandKind::SetParameter,
         name: FixedStr::new("f_max_newtons").unwrap(),
-        values: [1.0, -2.0, 3.5, f64::MAX],
+        value: f64::MAX,
     });
 }
 
@@ -60,13 +59,7 @@ fn nan_travels_bit_exact() {
 #[test]
 fn invalid_words_are_refused_not_misread() {
     let mut words = vec![0u64; Command::WORDS];
-    Command {
-        id: 1,
-        kind: CommandKind::StopExperiment,
-        name: FixedStr::default(),
-        values: [0.0; 4],
-    }
-    .encode(&mut words);
+    Command::Stop { id: 1 }.encode(&mut words);
     words[1] = 99;
     assert_eq!(
         Command::decode(&words),
@@ -80,11 +73,10 @@ fn invalid_words_are_refused_not_misread() {
     words[3] = MAX_FEATURES as u64 + 1;
     assert!(FeatureMsg::decode(&words).is_err());
     let mut words = vec![0u64; Command::WORDS];
-    Command {
+    Command::Start {
         id: 1,
-        kind: CommandKind::StartExperiment,
-        name: FixedStr::new("ab").unwrap(),
-        values: [0.0; 4],
+        experiment: FixedStr::new("ab").unwrap(),
+        args: Default::default(),
     }
     .encode(&mut words);
     words[2] |= 0xff << 56; // garbage after the NUL padding

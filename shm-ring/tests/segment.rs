@@ -4,7 +4,8 @@
 use std::os::unix::fs::{FileExt, PermissionsExt};
 use std::time::Duration;
 
-use haptics_proto::{Command, CommandKind, LoopStatusLink, Segment, TelemetryRow, THESIS_FEATURES};
+use haptics_proto::experiment_args::ExperimentArgs;
+use haptics_proto::{Command, LoopStatusLink, Segment, TelemetryRow, THESIS_FEATURES};
 use shm_ring::{Config, Error, FixedStr, Message, RecvError, Role, SegmentName};
 use shm_ring_testing::pattern;
 
@@ -209,11 +210,15 @@ fn all_four_channels_end_to_end() {
     assert_eq!(rows, 5000, "8192 telemetry slots hold all 5000 rows");
     assert_eq!(sv.telemetry_rx.dropped(), 0);
 
-    let cmd = Command {
+    let cmd = Command::Start {
         id: 3,
-        kind: CommandKind::StartExperiment,
-        name: FixedStr::new("ramp").unwrap(),
-        values: [10.0, 2.0, 0.0, 0.0],
+        experiment: FixedStr::new("ramp").unwrap(),
+        args: ExperimentArgs {
+            ramp_rate: Some(10.0),
+            cycles: Some(2),
+            f_max_start: None,
+            f_max_step: Some(0.0),
+        },
     };
     sv.commands_tx.try_send(cmd).unwrap();
     assert_eq!(lp.commands_rx.try_recv().unwrap(), Some(cmd));

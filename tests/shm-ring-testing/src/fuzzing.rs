@@ -10,7 +10,7 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use haptics_proto::features::{MAX_FEATURES, THESIS_FEATURES};
-use haptics_proto::{Command, CommandKind, FeatureMsg, ForceMsg, Haptics, TelemetryRow};
+use haptics_proto::{Command, FeatureMsg, ForceMsg, Haptics, TelemetryRow};
 use shm_ring::hostile::{HostileHeader, HostileRing, RING_CONTROL_ALIGN, RING_CONTROL_SIZE};
 use shm_ring::{
     slot_words, FixedStr, Message, Protocol, RecvError, WaitStrategy, MAX_SCHEMA_NAMES, MAX_WORDS,
@@ -263,11 +263,10 @@ fn forces(n: u64) -> ForceMsg {
 }
 
 fn commands(n: u64) -> Command {
-    Command {
+    Command::SetParameter {
         id: n,
-        kind: CommandKind::StopExperiment,
-        name: FixedStr::new("stop").expect("valid"),
-        values: [n as f64; 4],
+        name: FixedStr::new("param").expect("valid"),
+        value: n as f64,
     }
 }
 
