@@ -482,10 +482,9 @@ impl<P: Protocol> Segment<P> {
             });
         }
         let loop_alive = || os::byte_is_locked(&fd, LOOP_LOCK_BYTE).unwrap_or(false);
-        let header_size = std::mem::size_of::<Header>() as u64;
-        if stat.size < header_size {
-            // Either mid-creation (loop byte locked) or a creator that died right away.
-            return Err(if loop_alive() {
+        // No header yet: the creator is at work (its loop byte locked) or died before writing it.
+        let unfinished = || {
+            if loop_alive() {
                 Error::Initializing {
                     name: name.to_string(),
                 }
@@ -494,23 +493,19 @@ impl<P: Protocol> Segment<P> {
                     name: name.to_string(),
                     pid: 0,
                 }
-            });
+            }
+        };
+        let header_size = std::mem::size_of::<Header>() as u64;
+        if stat.size < header_size {
+            // Either mid-creation (loop byte locked) or a creator that died right away.
+            return Err(unfinished());
         }
         let mapping = Mapping::map(&fd, stat.size as usize).map_err(os_err("mmap", name))?;
         // SAFETY: the mapping holds at least a header (checked above); atomics only.
         let header = unsafe { mapping.base().cast::<Header>().as_ref() };
         let magic = header.magic.load(Ordering::Acquire);
         if magic == 0 {
-            return Err(if loop_alive() {
-                Error::Initializing {
-                    name: name.to_string(),
-                }
-            } else {
-                Error::CreatorDead {
-                    name: name.to_string(),
-                    pid: 0,
-                }
-            });
+            return Err(unfinished());
         }
         let (layout, schema) = validate(header, name, stat.size, &P::CHANNELS)?;
         let creator_pid = header.creator_pid.load(Ordering::Relaxed) as u32;
