@@ -11,7 +11,8 @@ use std::sync::Arc;
 /// that the segment must be re-created. Plain std atomic: not part of the loom models.
 pub(crate) type CorruptSink = Arc<std::sync::atomic::AtomicU64>;
 
-use crate::ring::sync::{AtomicU32, AtomicU64};
+use crate::ring::sync::{AtomicU32, AtomicU64, Ordering};
+use crate::ring::wait::notify;
 
 /// One endpoint's count of corruption it found (private to the endpoint); every count is
 /// also added to the segment's process-private total ([`RingMem::note_corrupt`]).
@@ -201,6 +202,23 @@ impl RingMem {
         unsafe {
             std::slice::from_raw_parts(self.slots.as_ptr().add(index * self.stride), self.stride)
         }
+    }
+
+    /// Stores a message's payload `words` into `slot` after its sequence word. Relaxed: the
+    /// producer's release store that follows (sequence word, then tail) publishes them.
+    #[inline]
+    pub(crate) fn store_payload(slot: &[AtomicU64], words: &[u64]) {
+        for (cell, word) in slot[1..=words.len()].iter().zip(words) {
+            cell.store(*word, Ordering::Relaxed);
+        }
+    }
+
+    /// Publishes the producer's `tail` (release: the slots written before it are visible to
+    /// a consumer that loads the tail with acquire) and wakes a parked consumer.
+    #[inline]
+    pub(crate) fn publish_tail(&self, tail: u64) {
+        self.ctrl().tail.0.store(tail, Ordering::Release);
+        notify(&self.ctrl().data.0);
     }
 
     #[inline]

@@ -23,7 +23,6 @@ use crate::ring::mem::{CorruptCount, RingMem};
 use crate::ring::message::{Message, MAX_WORDS};
 use crate::ring::spsc::RecvError;
 use crate::ring::sync::{fence, Ordering};
-use crate::ring::wait::notify;
 
 #[cfg(not(loom))]
 use crate::ring::spsc::PeerProbe;
@@ -100,13 +99,10 @@ impl<M: Message> OverwriteProducer<M> {
         let slot = self.mem.slot(pos);
         slot[0].store(seq_writing(pos), Ordering::Relaxed);
         fence(Ordering::Release);
-        for (cell, word) in slot[1..=M::WORDS].iter().zip(&words[..M::WORDS]) {
-            cell.store(*word, Ordering::Relaxed);
-        }
+        RingMem::store_payload(slot, &words[..M::WORDS]);
         slot[0].store(seq_written(pos), Ordering::Release);
         self.tail = pos.wrapping_add(1);
-        self.mem.ctrl().tail.0.store(self.tail, Ordering::Release);
-        notify(&self.mem.ctrl().data.0);
+        self.mem.publish_tail(self.tail);
     }
 
     /// Messages published so far.

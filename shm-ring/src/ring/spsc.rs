@@ -263,15 +263,12 @@ impl<M: Message> Producer<M> {
         let mut words = [0u64; MAX_WORDS];
         msg.encode(&mut words[..M::WORDS]);
         let slot = self.mem.slot(self.tail);
-        for (cell, word) in slot[1..=M::WORDS].iter().zip(&words[..M::WORDS]) {
-            cell.store(*word, Ordering::Relaxed);
-        }
+        RingMem::store_payload(slot, &words[..M::WORDS]);
         // Wrapping: a position near 2^64 can only come from a corrupt segment, and a wrong
         // position is caught by the consumer's checks; it must not panic here.
         slot[0].store(self.tail.wrapping_add(1), Ordering::Release);
         self.tail = self.tail.wrapping_add(1);
-        self.mem.ctrl().tail.0.store(self.tail, Ordering::Release);
-        notify(&self.mem.ctrl().data.0);
+        self.mem.publish_tail(self.tail);
     }
 
     /// Messages pushed so far (the shared tail position).
