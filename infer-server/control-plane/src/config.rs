@@ -20,7 +20,7 @@ pub struct Config {
     /// once; one more is refused with RESOURCE_EXHAUSTED / 413 without being read.
     pub max_uploads_in_flight_bytes: usize,
     /// Names (besides the loopback names and the bound addresses) that HTTP requests may carry
-    /// in `Host`; any other name is refused with 403 (DNS rebinding; see `http::host`).
+    /// in `Host`; any other name is refused with 403 (DNS rebinding; see `host_policy`).
     pub allowed_hosts: Vec<String>,
     /// Smallest bucket of the WebSocket frames, in loop steps (10 = 1 ms at 10 kHz).
     pub ws_bucket_steps: u32,

@@ -9,7 +9,7 @@ use crate::backend::{
 };
 use crate::config::Config;
 use crate::error::ControlError;
-use crate::http::host::HostPolicy;
+use crate::host_policy::HostPolicy;
 use crate::shutdown::Shutdown;
 use crate::stats::Stats;
 use crate::uploads::UploadBudget;

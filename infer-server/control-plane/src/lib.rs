@@ -17,6 +17,7 @@ mod core;
 pub mod error;
 pub mod grpc;
 pub mod grpc_auth;
+pub mod host_policy;
 pub mod http;
 pub mod server;
 pub mod shutdown;
