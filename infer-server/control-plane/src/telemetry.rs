@@ -232,13 +232,19 @@ mod tests {
             .collect()
     }
 
+    /// What `d` emits for `buckets` pushed in order (its pending bucket not flushed).
+    fn pushed<'a>(d: &mut Decimator, buckets: impl IntoIterator<Item = &'a Bucket>) -> Vec<Bucket> {
+        let mut out = Vec::new();
+        for b in buckets {
+            d.push(b, &mut out);
+        }
+        out
+    }
+
     #[test]
     fn decimation_keeps_min_max_and_counts() {
         let mut d = Decimator::new(10);
-        let mut out = Vec::new();
-        for b in steps(100, 35, Some(117)) {
-            d.push(&b, &mut out);
-        }
+        let mut out = pushed(&mut d, &steps(100, 35, Some(117)));
         assert_eq!(out.len(), 3);
         d.flush(&mut out);
         assert_eq!(out.len(), 4);
@@ -266,10 +272,7 @@ mod tests {
     #[test]
     fn a_bucket_never_spans_a_gap_or_restart() {
         let mut d = Decimator::new(10);
-        let mut out = Vec::new();
-        for b in steps(0, 5, None).iter().chain(&steps(0, 12, None)) {
-            d.push(b, &mut out);
-        }
+        let out = pushed(&mut d, steps(0, 5, None).iter().chain(&steps(0, 12, None)));
         assert_eq!(out.len(), 2);
         assert_eq!((out[0].first_step, out[0].steps), (0, 5));
         assert_eq!((out[1].first_step, out[1].steps), (0, 10));
@@ -277,11 +280,7 @@ mod tests {
 
     #[test]
     fn frame_round_trip_and_layout() {
-        let mut d = Decimator::new(4);
-        let mut buckets = Vec::new();
-        for b in steps(0, 8, Some(5)) {
-            d.push(&b, &mut buckets);
-        }
+        let buckets = pushed(&mut Decimator::new(4), &steps(0, 8, Some(5)));
         let mut bytes = Vec::new();
         encode_frame(&buckets, &mut bytes);
         assert_eq!(bytes.len(), 16 + 2 * 8 + 2 * N_SERIES * 8);
