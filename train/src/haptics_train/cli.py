@@ -105,6 +105,14 @@ def _train_opts(p: argparse.ArgumentParser) -> None:
         "default %(default)s)",
     )
     p.add_argument(
+        "--dagger-rounds",
+        type=int,
+        default=0,
+        help="dnn_fb: rounds of DAgger (roll out in free run on the training recordings, add "
+        "the visited states labelled with the recorded force, refit); the round with the "
+        "lowest validation free-run RMSE is kept (default 0: none)",
+    )
+    p.add_argument(
         "--threads",
         type=int,
         default=1,
@@ -134,6 +142,8 @@ def _hyper(a: argparse.Namespace) -> dict[str, dict]:
     elif a.feedback_noise_frac is not None:
         h["dnn_fb"] = {"feedback_noise_frac": a.feedback_noise_frac}
         h["lstm_fb"] = dict(h["dnn_fb"])
+    if a.dagger_rounds:
+        h["dnn_fb"] = {**h.get("dnn_fb", {}), "dagger_rounds": a.dagger_rounds}
     return {k: v for k, v in h.items() if v}
 
 

@@ -22,6 +22,7 @@ import numpy as np
 import onnx
 
 from .contract import ContractError
+from .dagger import fit_dagger
 from .data import Dataset
 from .evaluate import BASELINES, evaluate, pooled_metrics, score_baselines
 from .export import parity, provenance, save_onnx, to_contract_onnx
@@ -129,6 +130,13 @@ def train_models(
                     "candidates": scored,
                     "chosen": m.hyper["feedback_noise_frac"],
                 }
+            rounds = int(m.hyper.get("dagger_rounds") or 0)
+            if rounds:
+                if not dataset.validation:
+                    raise ValueError("DAgger chooses its round on a validation recording; "
+                                     "the dataset has none")  # fmt: skip
+                m = fit_dagger(m, dataset.train, cfg, rounds,
+                               lambda c: validation_free_run_rmse(c, cfg, dataset))  # fmt: skip
         except (ValueError, RuntimeError, FloatingPointError) as e:
             # one model failing (e.g. a diverging network) must not lose the others
             print(f"[train] {spec} FAILED: {e}", flush=True)
