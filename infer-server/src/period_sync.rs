@@ -347,6 +347,13 @@ mod tests {
         }
     }
 
+    /// A sync that has watched 500 steps of a steady 10 kHz loop, each sent 1 us late.
+    fn after_steady_10khz() -> PeriodSync {
+        let mut s = PeriodSync::new();
+        feed(&mut s, 0..500, 100_000, |_| 1_000);
+        s
+    }
+
     fn jitter(n: u64) -> u64 {
         // 2..22 us (a hash of n), a few late ones of 60 us.
         let h = n.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 40;
@@ -380,8 +387,7 @@ mod tests {
 
     #[test]
     fn follows_a_loop_whose_period_drifts_from_the_learnt_one() {
-        let mut s = PeriodSync::new();
-        feed(&mut s, 0..500, 100_000, |_| 1_000);
+        let mut s = after_steady_10khz();
         assert!(s.is_locked());
         // From step 500 on the loop's period is 100.02 us (its clock runs slow, say).
         feed(&mut s, 500..30_000, 100_000, |n| 1_000 + (n - 500) * 20);
@@ -405,8 +411,7 @@ mod tests {
 
     #[test]
     fn unlocks_when_the_loop_idles_and_relearns_a_new_loop() {
-        let mut s = PeriodSync::new();
-        feed(&mut s, 0..500, 100_000, |_| 1_000);
+        let mut s = after_steady_10khz();
         assert!(s.is_locked());
         for _ in 0..MISS_LIMIT {
             s.missed();
@@ -426,8 +431,7 @@ mod tests {
 
     #[test]
     fn a_send_later_than_the_give_up_keeps_the_lock_and_the_grid() {
-        let mut s = PeriodSync::new();
-        feed(&mut s, 0..500, 100_000, |_| 1_000);
+        let mut s = after_steady_10khz();
         let grid = s.grid;
         // Step 500 comes 70 us late: the planned spin gives up at due + 50 us first.
         let Plan::Sleep { give_up_ns, .. } = s.plan(grid as u64) else {
@@ -478,8 +482,7 @@ mod tests {
 
     #[test]
     fn a_send_late_by_most_of_a_period_is_not_taken_for_the_next_slot() {
-        let mut s = PeriodSync::new();
-        feed(&mut s, 0..500, 100_000, |_| 1_000);
+        let mut s = after_steady_10khz();
         // Step 500 is sent 85 us late, step 501 on time: neither is a reason to let go.
         feed(&mut s, 500..501, 100_000, |_| 85_000);
         feed(&mut s, 501..1000, 100_000, |_| 1_000);
@@ -489,8 +492,7 @@ mod tests {
 
     #[test]
     fn a_gap_of_many_periods_relearns() {
-        let mut s = PeriodSync::new();
-        feed(&mut s, 0..500, 100_000, |_| 1_000);
+        let mut s = after_steady_10khz();
         assert!(s.is_locked());
         // The same loop, 100 ms later (a pause between runs).
         feed(&mut s, 1500..1501, 100_000, |_| 1_000);
@@ -499,8 +501,7 @@ mod tests {
 
     #[test]
     fn the_margin_follows_late_wake_ups_within_bounds() {
-        let mut s = PeriodSync::new();
-        feed(&mut s, 0..500, 100_000, |_| 1_000);
+        let mut s = after_steady_10khz();
         for _ in 0..20_000 {
             s.woke(0, 30_000);
         }
