@@ -1,6 +1,8 @@
 //! With feature `grpc`: compiles `haptics/v1/haptics.proto` with protox (no system `protoc`)
-//! into tonic/prost code (`haptics_proto::grpc`), and keeps its encoded descriptor set for
-//! server reflection (so grpcurl works without the .proto file). Without it: nothing.
+//! into tonic/prost messages and clients (`haptics_proto::grpc`), and keeps its encoded
+//! descriptor set for server reflection (so grpcurl works without the .proto file); with
+//! `grpc-server` the servers too (only the control plane serves, so a client such as hapticctl
+//! does not compile them). Without `grpc`: nothing.
 
 fn main() {
     #[cfg(feature = "grpc")]
@@ -27,7 +29,7 @@ mod grpc {
         .unwrap();
         tonic_prost_build::configure()
             .build_client(true)
-            .build_server(true)
+            .build_server(cfg!(feature = "grpc-server"))
             .compile_fds(fds)
             .unwrap_or_else(|e| panic!("tonic codegen: {e}"));
     }

@@ -1,6 +1,7 @@
-//! The generated `haptics.v1` gRPC messages, clients and servers (tonic + prost, from
-//! `proto/haptics/v1/haptics.proto` by `build.rs`). control-plane serves them, hapticctl
-//! calls them; hapticctl links only this, not the control plane.
+//! The generated `haptics.v1` gRPC messages and clients, and with feature `grpc-server` the
+//! servers (tonic + prost, from `proto/haptics/v1/haptics.proto` by `build.rs`). control-plane
+//! serves them (`grpc-server`), hapticctl calls them (`grpc`: no server code, no axum, no
+//! hyper server); hapticctl links only this, not the control plane.
 
 #![allow(clippy::all, clippy::pedantic, missing_docs)]
 
