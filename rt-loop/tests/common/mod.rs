@@ -41,11 +41,37 @@ pub fn run_rows(cfg: &RunConfig) -> (Vec<Row>, rt_loop::rig::Stop) {
     }
 }
 
-pub fn tmpdir(name: &str) -> PathBuf {
+/// A test's own folder under the system's temp dir, removed when the test passes and kept when
+/// it fails (a panicking thread), so a failure leaves its recordings to look at while a passing
+/// run leaves nothing behind (each run's recordings are tens of MB).
+pub struct TestDir(PathBuf);
+
+impl std::ops::Deref for TestDir {
+    type Target = PathBuf;
+    fn deref(&self) -> &PathBuf {
+        &self.0
+    }
+}
+
+impl AsRef<std::path::Path> for TestDir {
+    fn as_ref(&self) -> &std::path::Path {
+        &self.0
+    }
+}
+
+impl Drop for TestDir {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+}
+
+pub fn tmpdir(name: &str) -> TestDir {
     let d = std::env::temp_dir().join(format!("rt-loop-test-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
-    d
+    TestDir(d)
 }
 
 /// Bitwise equality of rows (NaN == NaN when the bits match).
