@@ -72,19 +72,12 @@ fn offline_features_equal_online_values() {
             assert!(rt_loop::record::sidecar_path(&path).exists());
             assert!(read_metadata(&path).unwrap().unwrap().contains("\"seed\""));
         }
-        let names = [
-            "position_x",
-            "dt",
-            "rtob_force",
-            "velocity",
-            "acceleration",
-            "f_previous_x",
-            "f_previous_v",
-            "f_previous_a",
-            "cycle_no",
-            "deformation",
-            "area_fx",
-        ];
+        // The offline pass's inputs, then the recorded features after position_x (the thesis
+        // nine come from the vocabulary, not a copy).
+        let names: Vec<&str> = ["position_x", "dt", "rtob_force"]
+            .into_iter()
+            .chain(haptics_proto::THESIS_FEATURES[1..].iter().copied())
+            .collect();
         let c = read_columns(&path, &names).unwrap();
         let off = rt_loop::features::compute_offline(
             &c[0],
