@@ -6,7 +6,6 @@ mod common;
 use std::time::Duration;
 
 use haptics_proto::{FeatureMsg, LoopSide, Segment, MAX_FEATURES};
-use infer_server::handoff;
 use infer_server::inference_thread::{force_flags, InferenceConfig, InferenceThread};
 use infer_server::{FeatureSchema, SessionConfig, StepEngine};
 use shm_ring::{Config, SegmentName, WaitStrategy};
@@ -70,24 +69,7 @@ fn serves_every_step_in_order_swaps_models_and_resets_state() {
         feature_names: schema_names.iter().map(|s| s.to_string()).collect(),
         ..haptics_proto::layout::config()
     };
-    let mut lp = Segment::create(&name, &config)
-        .unwrap()
-        .loop_side()
-        .unwrap();
-    lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
-
-    let (mut activator, taker) = handoff::channel();
-    let thread = InferenceThread::spawn(
-        InferenceConfig {
-            segment: name.clone(),
-            wait: WaitStrategy::Park, // never busy-spin in tests (two cores)
-            cpu: None,
-            rt_priority: None,
-            exit_when_loop_gone: true,
-        },
-        taker,
-    )
-    .unwrap();
+    let (mut lp, mut activator, thread) = common::parked_inference_thread(&name, &config);
     wait_attached(&thread);
 
     // Before any model: every step is still answered, with NaN and NO_MODEL.
@@ -239,23 +221,8 @@ fn a_model_for_another_schema_is_not_fed_wrong_columns() {
     let rt = common::runtime();
     let name = segment_name("mismatch");
     // Segment schema: standard nine. Model validated against a different schema.
-    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
-        .unwrap()
-        .loop_side()
-        .unwrap();
-    lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
-    let (mut activator, taker) = handoff::channel();
-    let thread = InferenceThread::spawn(
-        InferenceConfig {
-            segment: name,
-            wait: WaitStrategy::Park,
-            cpu: None,
-            rt_priority: None,
-            exit_when_loop_gone: true,
-        },
-        taker,
-    )
-    .unwrap();
+    let (mut lp, mut activator, thread) =
+        common::parked_inference_thread(&name, &haptics_proto::layout::config());
     let other = FeatureSchema::parse("position_x,velocity").unwrap();
     let g = activator.offer(
         StepEngine::load(

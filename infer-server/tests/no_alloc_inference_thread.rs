@@ -8,11 +8,9 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
-use haptics_proto::{FeatureMsg, Segment};
-use infer_server::handoff;
-use infer_server::inference_thread::{InferenceConfig, InferenceThread};
+use haptics_proto::FeatureMsg;
 use infer_server::{FeatureSchema, SessionConfig, StepEngine};
-use shm_ring::{SegmentName, WaitStrategy};
+use shm_ring::SegmentName;
 
 struct Counting;
 static ARMED: AtomicBool = AtomicBool::new(false);
@@ -44,23 +42,8 @@ fn the_inference_thread_allocates_nothing_per_step() {
     };
     let rt = common::runtime();
     let name = SegmentName::new(&format!("/infer-server-noalloc-{}", std::process::id())).unwrap();
-    let mut lp = Segment::create(&name, &haptics_proto::layout::config())
-        .unwrap()
-        .loop_side()
-        .unwrap();
-    lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
-    let (mut activator, taker) = handoff::channel();
-    let thread = InferenceThread::spawn(
-        InferenceConfig {
-            segment: name,
-            wait: WaitStrategy::Park,
-            cpu: None,
-            rt_priority: None,
-            exit_when_loop_gone: true,
-        },
-        taker,
-    )
-    .unwrap();
+    let (mut lp, mut activator, thread) =
+        common::parked_inference_thread(&name, &haptics_proto::layout::config());
     let engine = StepEngine::load(
         rt,
         &dir.join("lstm.onnx"),

@@ -152,3 +152,36 @@ pub fn lockstep(
     assert_eq!(a.seq, seq, "answers in order, tagged with their step");
     a
 }
+
+/// A fresh segment named `name` (created here, as the loop would), its loop side parking on
+/// answers, and the inference thread attached to it with its model hand-off: the set-up every
+/// in-process inference-thread test starts from. Parking waits only (never busy-spin in tests:
+/// two cores); the thread exits when the loop side is dropped.
+pub fn parked_inference_thread(
+    name: &shm_ring::SegmentName,
+    config: &shm_ring::Config,
+) -> (
+    haptics_proto::LoopSide,
+    infer_server::handoff::Activator,
+    infer_server::inference_thread::InferenceThread,
+) {
+    use shm_ring::WaitStrategy;
+    let mut lp = haptics_proto::Segment::create(name, config)
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
+    let (activator, taker) = infer_server::handoff::channel();
+    let thread = infer_server::inference_thread::InferenceThread::spawn(
+        infer_server::inference_thread::InferenceConfig {
+            segment: name.clone(),
+            wait: WaitStrategy::Park,
+            cpu: None,
+            rt_priority: None,
+            exit_when_loop_gone: true,
+        },
+        taker,
+    )
+    .unwrap();
+    (lp, activator, thread)
+}
