@@ -88,7 +88,7 @@ step study "$ht" study --models-dir "$work/off/models" \
   --rt-loop "$rt_loop" --infer-server "$infer_server" --fidelity "$fidelity" "$@"
 # after the study: the suite's keys are the (felt-force ranked) recommended model's
 step score_ood "$ht" ood --suite "$work/ood" --models-dir "$work/off/models" --names "$names" \
-  --fidelity "$fidelity"
+  --fidelity "$fidelity" --readme "$out/README.md"
 cp "$work/off/models/ood.json" "$out/ood.json"
 cp "$work/off/models/recommendation.json" "$out/recommendation.json"
 {

@@ -6,7 +6,7 @@ import json
 import numpy as np
 
 from haptics_train.fidelity import FIDELITY_KEYS, merge, rank, recommendation
-from haptics_train.ood import diverged
+from haptics_train.ood import diverged, write_readme_section
 
 
 def entry(val: float, test: float, one_step: float = 0.001) -> dict:
@@ -56,6 +56,33 @@ def test_divergence():
     assert not diverged(y, y + 1.0)
     assert diverged(y, np.array([0.0, np.nan, 1.0]))
     assert diverged(y, np.array([0.0, 40.0, 1.0]))
+
+
+def test_ood_table_is_computed_and_replaces_its_earlier_self(tmp_path):
+    def e(rmse: float, div: bool = False) -> dict:
+        return {"rmse": rmse, "diverged": div}
+
+    doc = {
+        "a": {"recordings": {"r1": e(0.3), "r2": e(0.9)}, "worst_rmse_n": 0.9,
+              "worst_recording": "r2", "diverged": 0},
+        "b": {"recordings": {"r1": e(7.0, True), "r2": e(0.2)}, "worst_rmse_n": 7.0,
+              "worst_recording": "r1", "diverged": 1},
+    }  # fmt: skip
+    readme = tmp_path / "README.md"
+    readme.write_text("# Study\n\n## Results\n\ntext\n\n## Timings\n\n12 s\n")
+    write_readme_section(readme, doc, "a")
+    first = readme.read_text()
+    assert first.index("## Results") < first.index("## Out-of-distribution") < first.index(
+        "## Timings")
+    assert "| r1 | 0.300 | 7.000 (diverged) |" in first
+    assert "| **worst** | 0.900 | 7.000 |" in first
+    assert "- `a` (the recommended model): worst 0.900 N on `r2`, 0 of 2" in first
+    assert "- `b`: worst 7.000 N on `r1`, 1 of 2 recordings diverged." in first
+    doc["a"]["worst_rmse_n"] = 0.5
+    write_readme_section(readme, doc, "a")
+    second = readme.read_text()
+    assert second.count("## Out-of-distribution") == 1 and "worst 0.500 N" in second
+    assert second.endswith("## Timings\n\n12 s\n")
 
 
 def test_study_reranks_with_the_felt_force(tmp_path):

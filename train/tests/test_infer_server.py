@@ -24,6 +24,8 @@ def exported(synth, tmp_path_factory):
         ("dnn", "nine", {"epochs": 1}),
         ("lstm", "six", {"iterations": 5, "streams": 8, "chunk": 20}),
         ("dnn", "xva_f", {"epochs": 1}),
+        ("lstm_slow", "x_v", {"iterations": 5, "streams": 4, "state_step_s": 0.001,
+                              "horizon_s": 0.02, "hidden": 8, "head": 8}),
     ]:
         m = make_model(algo, fs, hyper=hyper)
         fit_recordings(m, synth.train, CFG)
@@ -57,7 +59,7 @@ def test_model_needing_a_feature_the_loop_lacks_is_refused(exported, infer_serve
 
 def test_infer_server_predicts_what_onnxruntime_predicts(exported, synth, infer_server, tmp_path):
     rec = synth.test[0]
-    for name in ("rf_six", "lstm_six", "sd_poly2"):
+    for name in ("rf_six", "lstm_six", "sd_poly2", "lstm_slow_x_v"):
         m, om, path = exported[name]
         n = 300
         csv = tmp_path / f"{name}.csv"

@@ -190,7 +190,7 @@ def cmd_evaluate(a: argparse.Namespace) -> None:
 
 def cmd_ood(a: argparse.Namespace) -> None:
     from .fidelity import load_recommendation
-    from .ood import OOD_FILE, score_suite, write_fidelity
+    from .ood import OOD_FILE, score_suite, write_fidelity, write_readme_section
     from .pipeline import load_models
 
     folder = Path(a.models_dir)
@@ -204,6 +204,9 @@ def cmd_ood(a: argparse.Namespace) -> None:
     models = load_models(folder, names)
     doc = score_suite(models, Path(a.suite), folder / OOD_FILE)
     print(f"[ood] -> {folder / OOD_FILE}")
+    if a.readme:
+        write_readme_section(Path(a.readme), doc, rec["recommended"] if rec else None)
+        print(f"[ood] table -> {a.readme}")
     if a.fidelity and rec is not None and rec["recommended"] in doc:
         write_fidelity(doc, rec["recommended"], Path(a.fidelity))
         print(f"[ood] {rec['recommended']}: worst free-run RMSE "
@@ -352,6 +355,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--names", help="comma-separated model names (default: the recommended)")
     s.add_argument("--fidelity", help="write the recommended model's suite keys "
                    "(ood_free_run_rmse_n, ood_diverged) into this JSON file")  # fmt: skip
+    s.add_argument("--readme", help="put the suite's table into this study README (in place "
+                   "of an earlier one, else before its Timings section)")  # fmt: skip
     s.set_defaults(fn=cmd_ood)
 
     s = sub.add_parser("export", help="ONNX files with contract metadata + parity check")

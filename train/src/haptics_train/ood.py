@@ -86,3 +86,55 @@ def fidelity_keys(doc: dict, recommended: str) -> dict:
 
 def write_fidelity(doc: dict, recommended: str, path: Path) -> dict:
     return merge(path, fidelity_keys(doc, recommended))
+
+
+OOD_HEADING = "## Out-of-distribution suite"
+
+
+def _cell(v: float) -> str:
+    return f"{v:.3f}" if math.isfinite(v) else "inf"
+
+
+def readme_section(doc: dict, recommended: str | None = None) -> list[str]:
+    """The suite's table (free-run RMSE, N, model by recording) and its sentences, every one
+    computed from `doc` (`score_suite`'s)."""
+    names = list(doc)
+    recs = sorted({r for e in doc.values() for r in e["recordings"]})
+    L = [f"{OOD_HEADING}\n",
+         "Free-run RMSE (N) of each model on each recording of the suite "
+         "(`scripts/record-ood.sh`, scored by `haptics-train ood`); the hand presses are "
+         "scored against the felt force F_true, the others against the training target. "
+         "A run is counted diverged when it is not finite or leaves three times the "
+         "recording's force range.\n",
+         "| recording | " + " | ".join(f"`{n}`" for n in names) + " |",
+         "|---|" + "---|" * len(names)]  # fmt: skip
+    for r in recs:
+        cells = []
+        for n in names:
+            e = doc[n]["recordings"].get(r)
+            cells.append("-" if e is None else _cell(e["rmse"]) + (" (diverged)" if e["diverged"]
+                                                                     else ""))  # fmt: skip
+        L.append(f"| {r} | " + " | ".join(cells) + " |")
+    L.append("| **worst** | " + " | ".join(_cell(doc[n]["worst_rmse_n"]) for n in names) + " |\n")
+    for n in names:
+        e = doc[n]
+        tag = " (the recommended model)" if n == recommended else ""
+        L.append(f"- `{n}`{tag}: worst {_cell(e['worst_rmse_n'])} N on "
+                 f"`{e['worst_recording']}`, {e['diverged']} of {len(e['recordings'])} "
+                 "recordings diverged.")  # fmt: skip
+    return [*L, ""]
+
+
+def write_readme_section(readme: Path, doc: dict, recommended: str | None = None) -> None:
+    """Puts the suite's section into a study README: in place of an earlier one, else before
+    its `## Timings` (else at the end)."""
+    text = readme.read_text() if readme.exists() else ""
+    lines = text.split("\n")
+    sec = readme_section(doc, recommended)
+    heads = [i for i, line in enumerate(lines) if line.startswith("## ")]
+    start = next((i for i in heads if lines[i].startswith(OOD_HEADING)), None)
+    if start is not None:
+        end = next((i for i in heads if i > start), len(lines))
+    else:
+        start = end = next((i for i in heads if lines[i].startswith("## Timings")), len(lines))
+    readme.write_text("\n".join([*lines[:start], *sec, *lines[end:]]))

@@ -8,11 +8,12 @@ from .base import ForceModel, NotFittedError, TrainConfig, fit_recordings
 from .networks import DNN_THESIS, LSTM_THESIS, DenseModel, LSTMModel
 from .prony import PronyModel
 from .sklearn_models import RF_THESIS, SVR_THESIS, ForestModel, LinearModel, SVRModel
+from .slow_lstm import SlowLSTMModel
 from .spring_damper import SpringDamper
 from .structured import StructuredModel
 
 ALGOS = ("sd_const", "sd_poly1", "sd_poly2", "lr", "svr", "rf", "dnn", "lstm", "dnn_fb", "lstm_fb",
-         "prony", "structured")
+         "prony", "structured", "lstm_slow")
 
 #: `dnn_fb` / `lstm_fb`: the same networks trained with feedback noise on the previous force
 #: (see networks.perturb_previous_force), for a closed loop that does not drift. Its scale is a
@@ -49,6 +50,10 @@ def make_model(
     if algo == "structured":
         return StructuredModel(h)  # always on x, v (kinematics only)
     fs = feature_set(fset)
+    if algo == "lstm_slow":
+        if fs.uses_feedback:
+            raise ValueError(f"lstm_slow takes kinematics only; {fset!r} feeds the force back")
+        return SlowLSTMModel(fs.features, fs.name, h)
     if algo == "lr":
         return LinearModel(fs.features, fs.name)
     if algo == "svr":
@@ -69,6 +74,8 @@ def make_model(
 
 
 def parse_spec(spec: str, preset: str = "default") -> ForceModel:
-    """`rf:six`, `lstm:xva_f`, `sd_poly2` (spring-dampers always use x and v)."""
+    """`rf:six`, `lstm:xva_f`, `sd_poly2` (spring-dampers always use x and v), `lstm_slow`
+    (x and v unless a kinematics-only set is named)."""
     algo, _, fset = spec.partition(":")
-    return make_model(algo.strip(), (fset or "six").strip(), preset)
+    default = "x_v" if algo.strip() == "lstm_slow" else "six"  # kinematics only
+    return make_model(algo.strip(), (fset or default).strip(), preset)

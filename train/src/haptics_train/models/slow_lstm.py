@@ -1,0 +1,257 @@
+"""`lstm_slow`: an LSTM whose state steps at the object's pace (100 Hz by default), trained
+over horizons of seconds, served once per control step by the unchanged stateful contract.
+
+Why: the foam's memory (relaxation, the permanent set) lasts seconds to minutes, but an LSTM
+stepped at the 10 kHz loop rate and trained on 5 ms windows (`lstm`) never sees a horizon that
+long; the back-propagation through 30 000 loop steps that a 3 s window would take is out of
+reach on a CPU. Here the recurrent state advances once per *block* of control steps (the
+block's mean kinematics), so 3 s are 300 state steps, while the force is still produced at
+every control step from the last complete block's state and the current kinematics:
+
+    z_t     = scaled features of control step t (x, v by default; kinematics only, so the
+              model cannot feed its own error back and drift)
+    F(t)    = head([h_k, z_t])                    h_k: the state after the last complete block
+    block k+1 complete (N control steps):  h_{k+1}, c_{k+1} = LSTM(mean z over the block; h_k, c_k)
+
+The served graph does the block bookkeeping itself, so infer-server and rt-loop step it like
+any stateful model (docs/model-contract.md): `h_in`/`h_out` carry [h (H), the block's running
+sum of z (f), the block's step count (1)]; `c_in`/`c_out` carry [c (H), zeros]. The state
+size is H + f + 1 for both. A scaled feature that is not finite or beyond 1e6 counts as 0,
+so one bad sample cannot poison the state.
+
+Training: truncated back-propagation through time at the block rate. `streams` cursors walk the
+recordings `horizon_s` at a time, carrying the (detached) state from window to window; a cursor
+that reaches the end restarts at a random place, and its first `burn_in_s` are not scored (its
+zero state is not the object's state there) unless it restarts at a recording's start, where the
+object is at rest like the served model's zero state. The head is scored on `rows_per_block`
+rows spread over each block. The target is what the bench recorded (the RFOB estimate): with
+friction compensation off it contains the bench's friction, which this model (unlike
+`structured`) does not separate; with compensation on it is the object alone.
+
+Sequences layout (`models.base`): `fit(X, y, info)`. Fitted attributes: `net_` (scalers, LSTM,
+head), `block_rows_` (rows per block in the training recordings), `block_steps_` (control
+steps per block when served), `train_info_`.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import onnx
+import torch
+from torch import nn
+from tqdm.auto import tqdm
+
+from ..data import SequenceInfo
+from .base import ForceModel, check_sequences, step_dt
+from .networks import InputScaler, TargetScaler
+from .torch_export import export_stateful
+
+SLOW_LSTM_DEFAULT: dict = {
+    "hidden": 48,
+    "head": 32,
+    # the state's step: the object's fastest time constant is tens of ms (structured's
+    # branches start at 20 ms), so 10 ms blocks keep it while a 3 s window is 300 steps
+    "state_step_s": 0.01,
+    "horizon_s": 3.0,
+    "burn_in_s": 5.0,
+    "rows_per_block": 8,
+    "streams": 32,
+    "iterations": 500,
+    "lr": 3e-3,
+}
+
+#: a scaled feature beyond this (or not finite) counts as 0 (training and served alike)
+_Z_LIMIT = 1e6
+
+
+def _clean(z: torch.Tensor) -> torch.Tensor:
+    return torch.where(torch.abs(z) < _Z_LIMIT, z, torch.zeros_like(z))
+
+
+class SlowLSTMNet(nn.Module):
+    def __init__(self, inp: InputScaler, hidden: int, head: int, out: TargetScaler) -> None:
+        super().__init__()
+        nf = len(inp.mu)
+        self.inp = inp
+        self.lstm = nn.LSTM(nf, hidden, batch_first=True)
+        self.head = nn.Sequential(nn.Linear(hidden + nf, head), nn.Tanh(), nn.Linear(head, 1))
+        self.out = out
+
+    def scaled(self, x: torch.Tensor) -> torch.Tensor:
+        return _clean(self.inp(x))
+
+
+class _SlowStep(nn.Module):
+    """One control step of the served graph (see the module docstring)."""
+
+    def __init__(self, net: SlowLSTMNet, block_steps: int) -> None:
+        super().__init__()
+        self.net = net
+        self.hid = net.lstm.hidden_size
+        self.nf = net.lstm.input_size
+        self.block = float(block_steps)
+
+    def forward(
+        self, features: torch.Tensor, h_in: torch.Tensor, c_in: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        hid, nf = self.hid, self.nf
+        h, acc, cnt = h_in[:, :, :hid], h_in[:, :, hid : hid + nf], h_in[:, :, hid + nf :]
+        c = c_in[:, :, :hid]
+        z = self.net.scaled(features)  # [1, f]
+        # the force first, from the last complete block's state (what training scores)
+        force = self.net.out(self.net.head(torch.cat([h[0], z], dim=1)))  # [1, 1]
+        acc = acc + z.unsqueeze(0)
+        cnt = cnt + 1.0
+        full = cnt > self.block - 0.5  # [1, 1, 1]
+        _, (h2, c2) = self.net.lstm(acc / cnt, (h, c))  # the block's mean, one state step
+        h = torch.where(full, h2, h)
+        c = torch.where(full, c2, c)
+        acc = torch.where(full, torch.zeros_like(acc), acc)
+        cnt = torch.where(full, torch.zeros_like(cnt), cnt)
+        return force, torch.cat([h, acc, cnt], dim=2), torch.cat([c, c_in[:, :, hid:]], dim=2)
+
+
+def _blocks(x: np.ndarray, rows: int) -> np.ndarray:
+    """[n, f] -> [n // rows, rows, f] (the partial last block dropped)."""
+    nb = len(x) // rows
+    return x[: nb * rows].reshape(nb, rows, *x.shape[1:])
+
+
+class SlowLSTMModel(ForceModel):
+    algo = "lstm_slow"
+    kind = "stateful"
+    layout = "sequences"
+    defaults = SLOW_LSTM_DEFAULT
+
+    @property
+    def state_size(self) -> int:
+        return int(self.hyper["hidden"]) + len(self.features) + 1
+
+    def fit(
+        self, X: list[np.ndarray], y: list[np.ndarray], info: list[SequenceInfo]
+    ) -> SlowLSTMModel:
+        seqs, targets = check_sequences(X, y, len(self.features), len(info))
+        h = self.hyper
+        torch.manual_seed(self.seed)
+        rng = np.random.default_rng(self.seed)
+        dt = step_dt(self.name, info)
+        row_step = int(np.median([i.row_step for i in info]))
+        rows = max(1, round(float(h["state_step_s"]) / dt))
+        self.block_rows_ = rows
+        self.block_steps_ = rows * row_step
+        block_s = rows * dt
+        xs = np.concatenate([x[:: max(1, i.stride)] for x, i in zip(seqs, info, strict=True)])
+        ys = np.concatenate([v[:: max(1, i.stride)] for v, i in zip(targets, info, strict=True)])
+        ok = np.isfinite(xs).all(axis=1) & np.isfinite(ys)
+        net = SlowLSTMNet(
+            InputScaler(self.features, xs[ok]), int(h["hidden"]), int(h["head"]),
+            TargetScaler(float(ys[ok].mean()), float(ys[ok].std()) or 1.0),
+        )  # fmt: skip
+        per = max(1, min(int(h["rows_per_block"]), rows))
+        pick = np.unique(np.linspace(0, rows - 1, per).round().astype(int))
+        # per recording: block means Z [nb, f], the head's rows R [nb, r, f], targets Y [nb, r]
+        data = []
+        with torch.no_grad():
+            for xk, yk in zip(seqs, targets, strict=True):
+                z = net.scaled(torch.tensor(xk, dtype=torch.float32)).numpy()
+                zb = _blocks(z, rows)
+                yb = _blocks(net.out.encode(yk).astype(np.float32), rows)[:, pick]
+                data.append((torch.tensor(zb.mean(axis=1)), torch.tensor(zb[:, pick]),
+                             torch.tensor(yb)))  # fmt: skip
+        lengths = np.array([len(d[0]) for d in data])
+        chunk = max(2, round(float(h["horizon_s"]) / block_s))
+        burn = round(float(h["burn_in_s"]) / block_s)
+        if lengths.min() <= 2 * chunk:
+            raise ValueError(f"{self.name}: recordings shorter than two windows "
+                             f"({2 * chunk * block_s:.1f} s)")  # fmt: skip
+        hid, n_streams = int(h["hidden"]), int(h["streams"])
+
+        def restart() -> list[int]:
+            k = int(rng.choice(len(data), p=lengths / lengths.sum()))
+            # a quarter of the restarts begin at a recording's start, where the object is at
+            # rest like the served model's zero state
+            p = 0 if rng.random() < 0.25 else int(rng.integers(0, lengths[k] - 2 * chunk))
+            return [k, p, 0 if p == 0 else p + burn]
+
+        cursors = [restart() for _ in range(n_streams)]
+        hs = torch.zeros(1, n_streams, hid)
+        cs = torch.zeros(1, n_streams, hid)
+        iters = int(h["iterations"])
+        opt = torch.optim.Adam(net.parameters(), lr=float(h["lr"]))
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, iters)
+        t0 = time.perf_counter()
+        losses: list[float] = []
+        bar = tqdm(range(iters), desc=f"{self.name} TBPTT", disable=not self.progress)
+        for _ in bar:
+            zb = torch.stack([data[k][0][p : p + chunk] for k, p, _ in cursors])
+            rb = torch.stack([data[k][1][p : p + chunk] for k, p, _ in cursors])
+            yb = torch.stack([data[k][2][p : p + chunk] for k, p, _ in cursors])
+            idx = torch.arange(chunk)
+            scored = torch.stack([idx + p >= w for _, p, w in cursors])  # [S, C]
+            mask = scored.unsqueeze(2) & torch.isfinite(yb)
+            opt.zero_grad()
+            out, (hn, cn) = net.lstm(zb, (hs, cs))
+            hprev = torch.cat([hs.transpose(0, 1), out[:, :-1]], dim=1)  # h_{k-1} for block k
+            hr = hprev.unsqueeze(2).expand(-1, -1, rb.shape[2], -1)
+            pred = net.head(torch.cat([hr, rb], dim=3))[..., 0]
+            if mask.any():
+                loss = ((pred - torch.nan_to_num(yb)) ** 2)[mask].mean()
+                loss.backward()
+                nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+                opt.step()
+                losses.append(loss.item())
+                sched.step()  # (a window all burn-in trains nothing and takes no step)
+            hs, cs = hn.detach(), cn.detach()
+            for i, (k, p, w) in enumerate(cursors):
+                if p + 2 * chunk > lengths[k]:
+                    cursors[i] = restart()
+                    hs[:, i] = 0.0
+                    cs[:, i] = 0.0
+                else:
+                    cursors[i] = [k, p + chunk, w]
+            if len(losses) % 50 == 0 and losses:
+                bar.set_postfix(loss=f"{np.mean(losses[-50:]):.4g}")
+        net.eval()
+        self.net_ = net
+        self.n_features_in_ = len(self.features)
+        self.train_info_ = {
+            "state_step_s": block_s,
+            "block_rows": rows,
+            "block_control_steps": self.block_steps_,
+            "horizon_s_effective": chunk * block_s,
+            "burn_in_s": burn * block_s,
+            "blocks_seen": iters * n_streams * chunk,
+            "fit_seconds": round(time.perf_counter() - t0, 2),
+            "final_train_loss_scaled": float(np.mean(losses[-50:])) if losses else None,
+        }
+        return self
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        """One sequence from zero state, blocks aligned with its first row: what the served
+        graph gives when stepped through the same rows."""
+        self._check_fitted()
+        x = self._check_X(X)
+        net, rows = self.net_, self.block_rows_
+        out = np.empty(len(x))
+        with torch.no_grad():
+            z = net.scaled(torch.tensor(x, dtype=torch.float32))
+            nb = len(x) // rows
+            zb = z[: nb * rows].reshape(nb, rows, -1).mean(dim=1)
+            hid = net.lstm.hidden_size
+            hk = torch.zeros(1, hid)
+            if nb:
+                hs, _ = net.lstm(zb.unsqueeze(0))
+                hk = torch.cat([hk, hs[0]], dim=0)  # hk[k]: the state rows of block k use
+            which = torch.clamp(torch.arange(len(x)) // rows, max=len(hk) - 1)
+            for i in range(0, len(x), 200_000):
+                sl = slice(i, i + 200_000)
+                y = net.head(torch.cat([hk[which[sl]], z[sl]], dim=1))
+                out[sl] = net.out(y)[:, 0].numpy()
+        return out
+
+    def to_onnx(self) -> onnx.ModelProto:
+        self._check_fitted()
+        step = _SlowStep(self.net_, self.block_steps_).eval()
+        return export_stateful(step, len(self.features), self.state_size)
