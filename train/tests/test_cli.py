@@ -115,8 +115,17 @@ def test_manifest_validation_selection_and_baselines(tmp_path, capsys):
     rows = [e["rows"] for e in res["dnn_fb_six"]["test"]]
     mse = sum(p["mse"] * n for p, n in zip(per, rows, strict=True)) / sum(rows)
     assert pool["mse"] == pytest.approx(mse, rel=1e-9)
+    # the synthetic recordings know the object's own force: the rendered force is scored
+    # against it too, per recording and pooled
+    true = [e["rendered_vs_true"] for e in res["dnn_fb_six"]["test"]]
+    mse_true = sum(p["mse"] * n for p, n in zip(true, rows, strict=True)) / sum(rows)
+    assert res["dnn_fb_six"]["test_pooled"]["rendered_vs_true"]["mse"] == pytest.approx(mse_true)
+    sd = res["sd_poly2"]["test"][0]
+    assert sd["rendered_vs_true"]["rmse"] != sd["closed_loop"]["rmse"]  # another reference
     rec = json.loads((models / "recommendation.json").read_text())
     assert rec["validation"] == ["v"] and rec["recommended"] == rec["ranking"][0]["model"]
+    best = res[rec["recommended"]]["test_pooled"]["rendered_vs_true"]["rmse"]
+    assert rec["free_run_true_rmse_n"] == best
     v = {r["model"]: r["validation_free_run_rmse_n"] for r in rec["ranking"]}
     assert v[rec["recommended"]] == min(v.values())
     assert v["dnn_fb_six"] == res["dnn_fb_six"]["validation_pooled"]["closed_loop"]["rmse"]

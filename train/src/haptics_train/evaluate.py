@@ -17,6 +17,9 @@ from .features import F_PREVIOUS, FEEDBACK_FEATURES, TARGET_DEFAULT
 from .metrics import force_metrics, pooled
 from .models.base import ForceModel, TrainConfig, fit_recordings
 
+#: the simulated bench's true contact force (a recording column; no real bench has it)
+TRUE_FORCE = "F_true"
+
 
 def needs_feedback(model: ForceModel) -> bool:
     return any(f in FEEDBACK_FEATURES for f in model.features)
@@ -36,7 +39,9 @@ def evaluate(
     - closed-loop: the exported ONNX model stepped through the recording as the server runs
       it, every force-dependent feature (ratios, f_previous, cycle features) rebuilt from its
       own predictions. A model without any such feature gets the same inputs either way, so
-      its closed-loop result is its one-step result (`closed_loop_same_as_one_step`).
+      its closed-loop result is its one-step result (`closed_loop_same_as_one_step`);
+    - rendered vs true (simulated recordings only): the force the graph renders against the
+      object's own force `F_true`.
     """
     y = rec.target(cfg.target)
     x = rec.column("position_x")
@@ -67,6 +72,17 @@ def evaluate(
             res["closed_loop"] = dict(res["one_step"])
             res["closed_loop_same_as_one_step"] = True
             preds["closed_loop"] = one
+        if TRUE_FORCE in rec.columns:
+            # On the simulated bench the object's own force is known: what the graph renders
+            # (`structured` leaves the bench's friction out of it) against it. The recorded
+            # target (the RFOB estimate) carries the bench's friction and, while the probe
+            # sticks, whatever force the controller leaves, which no model of the object can
+            # or should follow.
+            served = getattr(model, "predict_served", None)
+            if served is not None:
+                preds["rendered"] = served(rec.matrix(model.features))
+            rendered = preds.get("rendered", preds["closed_loop"])
+            res["rendered_vs_true"] = force_metrics(rec.column(TRUE_FORCE), rendered, x, contact)
     return res, preds
 
 
@@ -81,6 +97,15 @@ def pooled_metrics(
                 (r.target(target), p[kind], r.column("position_x"), contact_thresholds(r)[1])
                 for r, p in zip(recs, preds, strict=True)
             ])  # fmt: skip
+    if recs and all("closed_loop" in p for p in preds) and all(
+        TRUE_FORCE in r.columns for r in recs
+    ):
+        # the rendered force against the simulated object's own (see `evaluate`)
+        out["rendered_vs_true"] = pooled([
+            (r.column(TRUE_FORCE), p.get("rendered", p["closed_loop"]), r.column("position_x"),
+             contact_thresholds(r)[1])
+            for r, p in zip(recs, preds, strict=True)
+        ])  # fmt: skip
     return out
 
 

@@ -30,10 +30,11 @@ def _finite(v: object) -> float | None:
     return float(v) if isinstance(v, int | float) and math.isfinite(v) else None
 
 
-def pooled_rmse(entry: dict, split: str) -> float | None:
-    """A results.json entry's pooled free-run RMSE on `split` (None: not scored)."""
+def pooled_rmse(entry: dict, split: str, kind: str = "closed_loop") -> float | None:
+    """A results.json entry's pooled free-run RMSE on `split` (None: not scored); `kind`
+    "rendered_vs_true": the rendered force against the simulated object's own."""
     pool = entry.get(f"{split}_pooled") or {}
-    v = (pool.get("closed_loop") or {}).get("rmse")
+    v = (pool.get(kind) or {}).get("rmse")
     return float(v) if isinstance(v, int | float) else None
 
 
@@ -72,6 +73,8 @@ def recommendation(results: dict, validation: list[str], felt: dict[str, float] 
         "felt force, the larger of the two",
         "validation": validation,
         "free_run_rmse_n": pooled_rmse(results[best], "test"),
+        # the rendered force against the simulated object's own (None off the simulator)
+        "free_run_true_rmse_n": pooled_rmse(results[best], "test", "rendered_vs_true"),
         "ranking": ranking,
     }
 

@@ -256,7 +256,8 @@ def evaluate_models(
                   f"{_fmt(doc['free_run_rmse_n'])} N) -> {rec_path}", flush=True)  # fmt: skip
             if fidelity is not None:
                 merge(fidelity, {"recommended": doc["recommended"],
-                                 "free_run_rmse_n": doc["free_run_rmse_n"]})  # fmt: skip
+                                 "free_run_rmse_n": doc["free_run_rmse_n"],
+                                 "free_run_true_rmse_n": doc["free_run_true_rmse_n"]})  # fmt: skip
         else:
             rec_path.unlink(missing_ok=True)
         print(comparison_table(results, base, [m.name for m, _ in models]), flush=True)

@@ -58,7 +58,9 @@ SLOW_LSTM_DEFAULT: dict = {
     "burn_in_s": 5.0,
     "rows_per_block": 8,
     "streams": 32,
-    "iterations": 500,
+    # chosen on the sponge's validation recording: 1500 -> 0.588 N, 3000 -> 0.555 N (about
+    # two minutes on the 2-core machine)
+    "iterations": 3000,
     "lr": 3e-3,
 }
 

@@ -176,8 +176,8 @@ def run_study(
     if felt_doc is not None:
         say(f"recommended (validation free run and felt force): {felt_doc['recommended']}")
         if fidelity is not None:
-            merge(fidelity, {"recommended": felt_doc["recommended"],
-                             "free_run_rmse_n": felt_doc["free_run_rmse_n"]})  # fmt: skip
+            keys = ("recommended", "free_run_rmse_n", "free_run_true_rmse_n")
+            merge(fidelity, {k: felt_doc.get(k) for k in keys})
     if fidelity is not None:
         write_fidelity(fidelity, rows, fast_rows, primary)
         say(f"fidelity keys -> {fidelity}")
