@@ -11,10 +11,10 @@
 #   --material  default materials/sponge.toml: its report goes to docs/study and its figures
 #               into docs/fidelity.json; another material's report goes to docs/study/<name>
 #               (unless --out says otherwise) and its figures into <out>/fidelity.json.
-# Env:  MODELS  haptics-train specs to train (default "sd_poly2,rf:memory,structured": the
-#               spring-damper baseline, the learned model the earlier study found best to feel,
-#               the structured model; the full comparison takes about half an hour per setting
-#               on the shared 2-core machine).
+# Env:  MODELS  haptics-train specs to train (default "sd_poly2,rf:memory,structured,lstm_slow":
+#               the spring-damper baseline, the learned model the earlier study found best to
+#               feel, the structured model, the LSTM stepped at 100 Hz over seconds; the full
+#               comparison takes about half an hour per setting on the shared 2-core machine).
 #       DECIMATE  for the recordings (default 1).
 #       HAPTICS_RT_LOOP, HAPTICS_INFER_SERVER  binaries to use instead of building them (frozen
 #               copies while others rebuild the tree).
@@ -33,7 +33,7 @@ while [ $# -gt 0 ]; do
 done
 [ -f "$material" ] || { echo "fidelity-study: no material file $material" >&2; exit 2; }
 name=$(basename "$material" .toml)
-models=${MODELS:-sd_poly2,rf:memory,structured}
+models=${MODELS:-sd_poly2,rf:memory,structured,lstm_slow}
 names=${models//:/_} # rf:memory -> rf_memory: the trained models' names
 if [ -z "$out" ]; then
   if [ "$name" = sponge ]; then out=docs/study; else out=docs/study/$name; fi
