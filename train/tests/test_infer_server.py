@@ -59,7 +59,7 @@ def test_model_needing_a_feature_the_loop_lacks_is_refused(exported, infer_serve
 
 def test_infer_server_predicts_what_onnxruntime_predicts(exported, synth, infer_server, tmp_path):
     rec = synth.test[0]
-    for name in ("rf_six", "lstm_six", "sd_poly2", "lstm_slow_x_v"):
+    for name in ("rf_six", "lstm_six", "sd_poly2", "lstm_slow"):
         m, om, path = exported[name]
         n = 300
         csv = tmp_path / f"{name}.csv"

@@ -27,6 +27,8 @@ def fitted(synth):
 
 def test_lstm_slow_is_kinematics_only_and_x_v_by_default():
     assert parse_spec("lstm_slow").features == ("position_x", "velocity")
+    assert parse_spec("lstm_slow").name == "lstm_slow"  # the spec is the name, as the scripts use
+    assert parse_spec("lstm_slow:xva").name == "lstm_slow_xva"
     with pytest.raises(ValueError, match="kinematics only"):
         make_model("lstm_slow", "six")  # the previous force would come back through the state
 

@@ -128,6 +128,11 @@ class SlowLSTMModel(ForceModel):
     defaults = SLOW_LSTM_DEFAULT
 
     @property
+    def name(self) -> str:
+        # `lstm_slow` names the default (x, v) like `structured`: the spec is the file name
+        return "lstm_slow" if self.feature_set == "x_v" else f"lstm_slow_{self.feature_set}"
+
+    @property
     def state_size(self) -> int:
         return int(self.hyper["hidden"]) + len(self.features) + 1
 
