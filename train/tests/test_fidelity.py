@@ -79,9 +79,14 @@ def test_ood_table_is_computed_and_replaces_its_earlier_self(tmp_path):
     assert "- `a` (the recommended model): worst 0.900 N on `r2`, 0 of 2" in first
     assert "- `b`: worst 7.000 N on `r1`, 1 of 2 recordings diverged." in first
     doc["a"]["worst_rmse_n"] = 0.5
+    # simulated recordings: the rendered force against the object's own after a slash
+    doc["a"]["recordings"]["r1"]["rendered_vs_true_rmse"] = 0.1
+    doc["a"]["worst_true_rmse_n"] = 0.1
     write_readme_section(readme, doc, "a")
     second = readme.read_text()
     assert second.count("## Out-of-distribution") == 1 and "worst 0.500 N" in second
+    assert "| r1 | 0.300 / 0.100 | 7.000 (diverged) |" in second
+    assert "diverged; against the object's own force, worst 0.100 N." in second
     assert second.endswith("## Timings\n\n12 s\n")
 
 

@@ -59,7 +59,7 @@ def score_suite(
         for rec in recs:
             col = target_column(rec.name, cfg)
             rcfg = TrainConfig(**{**cfg.to_dict(), "target": col, "progress": False})
-            _, preds = evaluate(model, draft, rec, rcfg)
+            res, preds = evaluate(model, draft, rec, rcfg)
             # against the object's own force, what the graph renders (`structured` renders
             # the object without the bench's friction); against the RFOB, the free run
             pred = preds.get("rendered", preds["closed_loop"]) if col == "F_true" else (
@@ -67,6 +67,8 @@ def score_suite(
             y = rec.column(col)
             m = force_metrics(y, pred, rec.column("position_x"), contact_thresholds(rec)[1])
             rows[rec.name] = {"target": col, "rows": len(y), "diverged": diverged(y, pred), **m}
+            if "rendered_vs_true" in res:  # simulated: the rendered force vs the object's own
+                rows[rec.name]["rendered_vs_true_rmse"] = res["rendered_vs_true"]["rmse"]
             print(f"[ood] {model.name} {rec.name}: free-run RMSE {m['rmse']:.4g} N"
                   f"{' DIVERGED' if rows[rec.name]['diverged'] else ''}", flush=True)  # fmt: skip
         rmses = [r["rmse"] for r in rows.values()]
@@ -75,6 +77,8 @@ def score_suite(
             "recordings": rows,
             "worst_rmse_n": worst,
             "worst_recording": next(k for k, r in rows.items() if r["rmse"] == worst),
+            "worst_true_rmse_n": max((r["rendered_vs_true_rmse"] for r in rows.values()
+                                      if "rendered_vs_true_rmse" in r), default=None),
             "diverged": sum(r["diverged"] for r in rows.values()),
         }
     if out is not None:
@@ -87,7 +91,8 @@ def fidelity_keys(doc: dict, recommended: str) -> dict:
     """docs/fidelity.json's suite keys for the recommended model."""
     e = doc[recommended]
     return {"ood_free_run_rmse_n": e["worst_rmse_n"], "ood_diverged": e["diverged"],
-            "ood_worst_recording": e["worst_recording"]}  # fmt: skip
+            "ood_worst_recording": e["worst_recording"],
+            "ood_true_free_run_rmse_n": e.get("worst_true_rmse_n")}  # fmt: skip
 
 
 def write_fidelity(doc: dict, recommended: str, path: Path) -> dict:
@@ -106,28 +111,40 @@ def readme_section(doc: dict, recommended: str | None = None) -> list[str]:
     computed from `doc` (`score_suite`'s)."""
     names = list(doc)
     recs = sorted({r for e in doc.values() for r in e["recordings"]})
+    true = any(e.get("worst_true_rmse_n") is not None for e in doc.values())
     L = [f"{OOD_HEADING}\n",
          "Free-run RMSE (N) of each model on each recording of the suite "
          "(`scripts/record-ood.sh`, scored by `haptics-train ood`); the hand presses are "
          "scored against the felt force F_true, the others against the training target. "
          "A run is counted diverged when it is not finite or leaves three times the "
-         "recording's force range.\n",
+         "recording's force range."
+         + (" After the slash: the rendered force against the simulated object's own force "
+            "F_true on every recording." if true else "") + "\n",
          "| recording | " + " | ".join(f"`{n}`" for n in names) + " |",
          "|---|" + "---|" * len(names)]  # fmt: skip
+
+    def both(v: float, t: float | None) -> str:
+        return _cell(v) + ("" if t is None else f" / {_cell(t)}")
+
     for r in recs:
         cells = []
         for n in names:
             e = doc[n]["recordings"].get(r)
-            cells.append("-" if e is None else _cell(e["rmse"]) + (" (diverged)" if e["diverged"]
-                                                                     else ""))  # fmt: skip
+            cells.append("-" if e is None else both(e["rmse"], e.get("rendered_vs_true_rmse"))
+                         + (" (diverged)" if e["diverged"] else ""))  # fmt: skip
         L.append(f"| {r} | " + " | ".join(cells) + " |")
-    L.append("| **worst** | " + " | ".join(_cell(doc[n]["worst_rmse_n"]) for n in names) + " |\n")
+    L.append("| **worst** | " + " | ".join(both(doc[n]["worst_rmse_n"],
+                                                doc[n].get("worst_true_rmse_n"))
+                                           for n in names) + " |\n")  # fmt: skip
     for n in names:
         e = doc[n]
         tag = " (the recommended model)" if n == recommended else ""
+        t = e.get("worst_true_rmse_n")
         L.append(f"- `{n}`{tag}: worst {_cell(e['worst_rmse_n'])} N on "
                  f"`{e['worst_recording']}`, {e['diverged']} of {len(e['recordings'])} "
-                 "recordings diverged.")  # fmt: skip
+                 "recordings diverged"
+                 + ("." if t is None else f"; against the object's own force, worst "
+                    f"{_cell(t)} N."))  # fmt: skip
     return [*L, ""]
 
 
