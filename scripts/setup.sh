@@ -45,6 +45,21 @@ PY
   fi
 fi
 
+# The Python client (`haptics`, client/; docs/python.md) with the example notebook's packages.
+# Its gRPC code is generated from proto/haptics/v1/haptics.proto when it is installed: installed
+# again when its pyproject/setup.py or the .proto is newer than the last install, or when the
+# generated code is missing (a fresh clone of a kept .venv).
+if [ -f client/pyproject.toml ] && [ -x .venv/bin/python ]; then
+  stamp=.venv/.client-installed
+  if [ ! -f "$stamp" ] || [ ! -f client/src/haptics/v1/haptics_pb2.py ] \
+    || [ -n "$(find client/pyproject.toml client/setup.py proto/haptics/v1/haptics.proto -newer "$stamp" -print -quit)" ] \
+    || ! grep -qs "$(sha256sum proto/haptics/v1/haptics.proto | cut -d' ' -f1)" client/src/haptics/v1/__init__.py; then
+    echo "setup: installing the Python client (client/, generating its gRPC code) into .venv"
+    .venv/bin/python -m pip install -q -e 'client[notebook,dev]'
+    touch "$stamp"
+  fi
+fi
+
 # Again when the venv was (re)installed since: the pinned wheel may have changed version.
 if [ ! -f .ort/libonnxruntime.so ] || [ .venv/.train-installed -nt .ort/libonnxruntime.so ]; then
   lib=""

@@ -119,6 +119,14 @@ if [ -f train/pyproject.toml ]; then
     'cd train && "$0/.venv/bin/ruff" check . && "$0/.venv/bin/python" -m pytest -q -rs' "$root"
 fi
 
+if [ -f client/pyproject.toml ]; then
+  # The Python client against real rt-loop + infer-server processes, rt-loop's MCAP read by the
+  # official reader, the example notebook executed (nbclient), the Grafana dashboard's metrics.
+  step "ruff + pytest (client/: the haptics Python client, MCAP, docs/notebook.ipynb, ops/grafana)"
+  run_counted client count_pytest bash -c \
+    'cd client && "$0/.venv/bin/ruff" check --config pyproject.toml . ../ops/grafana && "$0/.venv/bin/python" -m pytest -q -rs' "$root"
+fi
+
 if [ -f web-ui/package.json ] && [ -d web-ui/tests ]; then
   step "browser tests (headless Chromium)"
   run_counted browser count_node bash -c 'cd web-ui && npm test'
