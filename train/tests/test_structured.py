@@ -16,12 +16,13 @@ from haptics_train.models import TrainConfig, make_model
 RATE = 1000.0
 FRICTION_N = 0.5
 SMALL = {
-    "yield_m": [0.002, 0.005],
-    "densification_m": [0.04],
+    "yield_frac": [0.1, 0.2],
+    "densification_frac": [1.6],
+    "densification_exponents": [2.0],
     "taus_s": [0.1, 1.0],
-    "hysteresis_lengths_m": [1e-3],
+    "hysteresis_frac": [0.04],
     "friction_lengths_m": [2e-5],
-    "set_max_m": [0.0],
+    "set_frac": [0.0],
 }
 
 
@@ -86,3 +87,36 @@ def test_structured_onnx_renders_the_object_in_parity(fitted):
     st = OnnxStepper(om)
     got = np.array([st.step(r) for r in X.astype(np.float32)])
     np.testing.assert_allclose(got, m.predict_served(X), atol=2e-3)
+
+
+def test_structured_takes_no_constant_from_a_material_it_measures_and_chooses_them():
+    """Issue 23: the set law and the basis lengths come from the data. On a foam with a
+    compression set of a shape the grids' start does not have (linear in the depth, slow
+    recovery) the search finds a set and fits better than without one; scaled to a 3x
+    deeper object, every length of the basis scales with the measured depth."""
+    from haptics_train.models.structured import SET_KEYS, permanent_set
+
+    law = {
+        "set_reference_m": 0.02,
+        "set_exponent": 1.0,
+        "set_tau_grow_s": 0.3,
+        "set_loaded_fraction": 0.5,
+        "set_tau_recover_s": 100.0,
+        "set_keep_fraction": 0.8,
+    }
+    x, v = presses([0.008, 0.016, 0.012, 0.02, 0.01], 2.0)
+    s = permanent_set(x, 1 / RATE, 0.002, law)
+    obj, y = foam(x - s, v)
+    with_set = make_model("structured", hyper={**SMALL, "set_frac": [0.0, 0.05, 0.1, 0.2]})
+    with_set.fit([np.column_stack([x, v])], [y], info=[info(len(x))])
+    without = make_model("structured", hyper=SMALL)
+    without.fit([np.column_stack([x, v])], [y], info=[info(len(x))])
+    assert with_set.set_max_m_ > 0.0, with_set.train_info_
+    assert set(with_set.set_law_) == set(SET_KEYS)
+    assert with_set.train_info_["fit_rmse"] < 0.8 * without.train_info_["fit_rmse"], (
+        with_set.train_info_, without.train_info_)
+    assert with_set.depth_scale_m_ == pytest.approx(x[y > 0.05].max(), rel=1e-3)
+    deep = make_model("structured", hyper=SMALL)
+    deep.fit([np.column_stack([3 * x, 3 * v])], [y], info=[info(len(x))])
+    for key in ("yield_m", "densification_m", "hysteresis_lengths_m"):
+        np.testing.assert_allclose(deep.basis_[key], 3 * np.asarray(without.basis_[key]))

@@ -57,6 +57,9 @@ DEFAULT_SPECS: tuple[str, ...] = (
     # structured stateful: equilibrium, Maxwell branches, hysteresis, permanent set; the
     # bench's friction fitted beside it and not rendered
     "structured",
+    # assumes no law: fading memory in time + play operators on the path, an MLP on them
+    # (issue 23); the bench's friction fitted beside it and not rendered
+    "lawfree",
 )
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from ..features import feature_set
 from .base import ForceModel, NotFittedError, TrainConfig, fit_recordings
+from .lawfree import LawFreeModel
 from .networks import DNN_THESIS, LSTM_THESIS, DenseModel, LSTMModel
 from .prony import PronyModel
 from .sklearn_models import RF_THESIS, SVR_THESIS, ForestModel, LinearModel, SVRModel
@@ -13,7 +14,7 @@ from .spring_damper import SpringDamper
 from .structured import StructuredModel
 
 ALGOS = ("sd_const", "sd_poly1", "sd_poly2", "lr", "svr", "rf", "dnn", "lstm", "dnn_fb", "lstm_fb",
-         "prony", "structured", "lstm_slow")
+         "prony", "structured", "lstm_slow", "lawfree")
 
 #: `dnn_fb` / `lstm_fb`: the same networks trained with feedback noise on the previous force
 #: (see networks.perturb_previous_force), for a closed loop that does not drift. Its scale is a
@@ -49,6 +50,8 @@ def make_model(
         return PronyModel(h)  # always on x, v (kinematics only)
     if algo == "structured":
         return StructuredModel(h)  # always on x, v (kinematics only)
+    if algo == "lawfree":
+        return LawFreeModel(h)  # always on x, v (kinematics only)
     fs = feature_set(fset)
     if algo == "lstm_slow":
         if fs.uses_feedback:

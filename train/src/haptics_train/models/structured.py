@@ -4,20 +4,46 @@ beside it but not rendered.
 
 Why: the learned models fed back their own force drift or inject energy in the loop, and a
 nonlinear spring with a Prony series (`prony`) lacks the hysteresis and the permanent set the
-object has. This model has each element of a viscoelastic foam, every one fitted:
+object has. This model has each element of a viscoelastic foam:
 
     e(t)   = x(t) - set(t)                              compression past the permanent set
-    F_eq   = sum_j a_j phi_j(e)                         equilibrium: tanh plateaus + densification
+    F_eq   = sum_j a_j phi_j(e)                         equilibrium: tanh plateaus + poles
     q_i(t) = d_i q_i(t - dt) + dF_eq(t)                 Maxwell branch i, d_i = exp(-dt / tau_i)
     u_m(t) = Dahl state of the compression path (length L_m, in [-1, 1], 0 out of contact)
     object = max(0, F_eq + sum_i g_i q_i + sum_m h_m F_eq u_m)   (0 out of contact)
     bench  = sum_l c_l z_l + b v                        Dahl friction on x (length L_l), viscous
 
-a_j, g_i, h_m, c_l >= 0 by non-negative least squares: the equilibrium curve only stiffens with
-depth, every Maxwell branch and hysteresis element only dissipates (a Dahl element's loop runs
-clockwise), so the model cannot drift or inject energy. The permanent set follows the foam's
-compression-set law (grows toward max_m (largest depth / reference)^2 while loaded, recovers
-toward a kept fraction), its magnitude max_m chosen among candidates by the training fit.
+What is fitted and what is a grid (issue 23: no number is read off a material file):
+
+- Fitted on the training rows by non-negative least squares: a_j, g_i, h_m, c_l >= 0 (the
+  equilibrium curve only stiffens with depth, every Maxwell branch and hysteresis element only
+  dissipates, so the model cannot drift or inject energy), b.
+- Measured on the training data: the depth scale D (`depth_scale_m_`), the largest
+  compression in the training rows. Every length of the basis is a multiple of D, so the same
+  grids fit a 5 mm gel and a 40 mm foam.
+- Generic grids, spanning soft materials in the literature, whose columns the least squares
+  weight (every one is kept; a weight of 0 drops it):
+  - plateaus tanh(e / (y D)), y in `yield_frac` 0.02..0.8 (log): from a knee at 2 % of the
+    deepest press (stiff-then-soft cellular foams, Gibson & Ashby 1997, ch. 5) to an almost
+    linear spring over the whole range (gels, tissue);
+  - poles (1 - e/(p D))^-n - 1, p in `densification_frac` 1.1..4 and n in
+    `densification_exponents` 1..3: densification just past the deepest press (foams pressed
+    near their densification strain, 0.5-0.9 of the thickness) to a gently stiffening curve
+    (rubber-like and neo-Hookean indentation); continued linearly past 95 % of p D;
+  - relaxation times `taus_s` 0.01..100 s, half a decade apart: the relaxation spectra of
+    polymer foams, hydrogels and soft tissue reported in indentation and stress-relaxation
+    tests (Hu et al. 2010; Fung 1993 ch. 7) lie within 1e-2..1e3 s, and a recording of a few
+    minutes cannot identify a longer one;
+  - hysteresis Dahl lengths `hysteresis_frac` (0.01..0.3 D), the bench's friction lengths
+    `friction_lengths_m` (20-500 um: a few encoder counts to a fraction of a mm; the bench's,
+    not the object's).
+- Chosen by the training fit (the NNLS residual), one coordinate at a time over generic grids:
+  the compression-set law, target = s_max (largest depth / D)^k (s_max = `set_frac` x D,
+  0..0.3 D; k in 1..3), grown with time constant `set_tau_grow_s` (0.3..30 s) while loaded
+  (deeper than `set_loaded_fraction` 0.3..0.9 of the largest depth), recovering with
+  `set_tau_recover_s` (3..300 s) toward `set_keep_fraction` (0.2..0.8) of it. Compression set
+  of flexible foams is 2-30 % of the compression in ASTM D3574 tests; a set of 0 (no set) is a
+  candidate, so an object without one gets none. The chosen values are `set_law_`.
 
 The target the bench records (the RFOB estimate) is the object's force plus the bench's own
 friction; the friction is fitted as its own term on the rows where the probe slides (|v| above
@@ -31,8 +57,10 @@ model: `h_in`/`h_out` carry [q_1..q_K, u_1..u_M, set, largest depth, previous e]
 are passed through.
 
 Sequences layout (`models.base`): `fit(X, y, info)`, X one [n_i, 2] array (x, v) per recording,
-rows in time order. Fitted attributes: `dt_`, `set_max_m_`, `a_` (equilibrium), `g_`
-(branches), `h_` (hysteresis), `c_` (friction), `b_` (viscous), `train_info_`.
+rows in time order. Fitted attributes: `dt_`, `depth_scale_m_`, `basis_` (the resolved basis in
+metres and seconds: what the graph and `predict` step), `set_law_`, `set_max_m_`, `a_`
+(equilibrium), `g_` (branches), `h_` (hysteresis), `c_` (friction), `b_` (viscous),
+`train_info_`.
 """
 
 from __future__ import annotations
@@ -50,22 +78,30 @@ from ..features import KINEMATICS
 from .base import ForceModel, check_sequences, step_dt
 from .torch_export import export_stateful
 
+#: The grids (see the module docstring for each range and why). Lengths are fractions of the
+#: training data's depth scale D; times in seconds.
 STRUCTURED_DEFAULT: dict = {
-    "yield_m": [0.001, 0.002, 0.003, 0.005, 0.008, 0.012],
-    "densification_m": [0.035, 0.040, 0.045, 0.055, 0.070],
-    "taus_s": [0.02, 0.06, 0.2, 0.7, 2.5, 9.0, 30.0],
-    "hysteresis_lengths_m": [2e-4, 1e-3, 4e-3],
+    "yield_frac": [0.02, 0.05, 0.1, 0.2, 0.4, 0.8],
+    "densification_frac": [1.1, 1.3, 1.7, 2.5, 4.0],
+    "densification_exponents": [1.0, 2.0, 3.0],
+    "taus_s": [0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0],
+    "hysteresis_frac": [0.01, 0.05, 0.3],
     "friction_lengths_m": [2e-5, 1e-4, 5e-4],
-    "set_max_m": [0.0, 0.0015, 0.0025, 0.0035],
-    # the compression-set law's shape (its magnitude max_m is fitted)
-    "set_reference_m": 0.030,
-    "set_tau_grow_s": 3.0,
-    "set_loaded_fraction": 0.6,
-    "set_tau_recover_s": 40.0,
-    "set_keep_fraction": 0.6,
+    # the compression-set law: each a grid, chosen by the training fit
+    "set_frac": [0.0, 0.02, 0.05, 0.1, 0.2, 0.3],
+    "set_exponent": [1.0, 2.0, 3.0],
+    "set_tau_grow_s": [0.3, 1.0, 3.0, 10.0, 30.0],
+    "set_loaded_fraction": [0.3, 0.5, 0.7, 0.9],
+    "set_tau_recover_s": [3.0, 10.0, 30.0, 100.0, 300.0],
+    "set_keep_fraction": [0.2, 0.5, 0.8],
+    "set_sweeps": 2,
     "fit_min_speed_mps": 1e-4,
     "iterations": 2,
 }
+
+#: The set law's grids, in the order the coordinate search visits them.
+SET_KEYS = ("set_frac", "set_exponent", "set_tau_grow_s", "set_loaded_fraction",
+            "set_tau_recover_s", "set_keep_fraction")  # fmt: skip
 
 
 def dahl(path: np.ndarray, length: float, reset: np.ndarray | None = None) -> np.ndarray:
@@ -93,23 +129,25 @@ def dahl(path: np.ndarray, length: float, reset: np.ndarray | None = None) -> np
 
 
 def permanent_set(x: np.ndarray, dt: float, max_m: float, h: dict) -> np.ndarray:
-    """The compression set along x (m): grows toward max_m (largest depth / reference)^2 while
+    """The compression set along x (m): grows toward max_m (largest depth / reference)^k while
     the probe is loaded (deeper than a fraction of the largest depth, in contact), recovers
-    toward a kept fraction of it otherwise (rt-loop's sponge law, SPEC section 7)."""
+    toward a kept fraction of it otherwise (a compression-set law of the kind of SPEC section
+    7's; its shape `h` is the fitted `set_law_`, never a material's)."""
     out = np.zeros(len(x))
     if max_m <= 0.0:
         return out
     s = md = 0.0
     kg = min(dt / float(h["set_tau_grow_s"]), 1.0)
     kr = min(dt / float(h["set_tau_recover_s"]), 1.0)
-    ref, lf, keep = (
+    ref, lf, keep, k = (
         float(h["set_reference_m"]),
         float(h["set_loaded_fraction"]),
         float(h["set_keep_fraction"]),
+        float(h["set_exponent"]),
     )
     for n, xn in enumerate(x.tolist()):
         md = max(md, xn)
-        target = max_m * (md / ref) ** 2
+        target = max_m * (md / ref) ** k
         loaded = xn > lf * md and xn - s > 0.0
         if loaded and s < target:
             s += (target - s) * kg
@@ -121,13 +159,14 @@ def permanent_set(x: np.ndarray, dt: float, max_m: float, h: dict) -> np.ndarray
 
 def equilibrium_basis(e: np.ndarray, h: dict) -> np.ndarray:
     """[n, J] the equilibrium's basis at compression e (0 at e <= 0, each rising with e):
-    tanh(e / y) plateaus and (1 - e/d)^-2 - 1 densification, continued linearly past 0.95 d."""
+    tanh(e / y) plateaus and (1 - e/d)^-n - 1 poles, continued linearly past 0.95 d. `h` is the
+    resolved basis (`basis_`: lengths in m, one exponent per pole)."""
     e = np.maximum(e, 0.0)
     cols = [np.tanh(e / y) for y in h["yield_m"]]
-    for d in h["densification_m"]:
+    for d, n in zip(h["densification_m"], h["densification_exponent"], strict=True):
         cap = 0.95 * d
         u = 1.0 - np.minimum(e, cap) / d
-        cols.append(u**-2 - 1.0 + 2.0 / d * u**-3 * np.maximum(e - cap, 0.0))
+        cols.append(u**-n - 1.0 + n / d * u ** (-n - 1) * np.maximum(e - cap, 0.0))
     return np.column_stack(cols)
 
 
@@ -158,12 +197,44 @@ def _bench_columns(x: np.ndarray, v: np.ndarray, h: dict) -> np.ndarray:
     return np.column_stack([*(dahl(x, L) for L in h["friction_lengths_m"]), v, -v])
 
 
+def _middle(grid: list) -> float:
+    """The grid's middle value (the coordinate search's start)."""
+    return float(grid[(len(grid) - 1) // 2])
+
+
+def resolve_basis(h: dict, depth: float) -> dict:
+    """The basis in metres and seconds for a depth scale D (m): the grids of `h` (fractions of
+    D) made lengths; one (length, exponent) pair per pole."""
+    poles = [(p * depth, float(n)) for p in h["densification_frac"]
+             for n in h["densification_exponents"]]  # fmt: skip
+    return {
+        "yield_m": [float(y) * depth for y in h["yield_frac"]],
+        "densification_m": [d for d, _ in poles],
+        "densification_exponent": [n for _, n in poles],
+        "taus_s": [float(t) for t in h["taus_s"]],
+        "hysteresis_lengths_m": [float(f) * depth for f in h["hysteresis_frac"]],
+        "friction_lengths_m": [float(f) for f in h["friction_lengths_m"]],
+    }
+
+
+def _set_shape(law: dict, depth: float) -> dict:
+    """The set law's shape as `permanent_set` and the graph read it (reference = D)."""
+    return {
+        "set_reference_m": depth,
+        "set_exponent": float(law["set_exponent"]),
+        "set_tau_grow_s": float(law["set_tau_grow_s"]),
+        "set_loaded_fraction": float(law["set_loaded_fraction"]),
+        "set_tau_recover_s": float(law["set_tau_recover_s"]),
+        "set_keep_fraction": float(law["set_keep_fraction"]),
+    }
+
+
 class _StructuredModule(torch.nn.Module):
     """One step of the object's force (the bench's friction is not rendered)."""
 
     def __init__(self, m: StructuredModel) -> None:
         super().__init__()
-        h, f32 = m.hyper, torch.float32
+        h, f32 = m.basis_, torch.float32
         self.nb, self.nk = len(m.a_), len(m.g_)
         self.nm = len(m.h_)
         dt = m.dt_
@@ -175,6 +246,7 @@ class _StructuredModule(torch.nn.Module):
         buf("a_d", m.a_[len(h["yield_m"]) :])
         buf("yld", h["yield_m"])
         buf("dens", h["densification_m"])
+        buf("dexp", h["densification_exponent"])
         buf("decay", np.exp(-dt / np.asarray(h["taus_s"], dtype=float)))
         buf("g", m.g_)
         buf("hw", m.h_)
@@ -185,13 +257,18 @@ class _StructuredModule(torch.nn.Module):
         self.kr = min(dt / float(h["set_tau_recover_s"]), 1.0)
         self.lf = float(h["set_loaded_fraction"])
         self.keep = float(h["set_keep_fraction"])
+        self.sexp = float(h["set_exponent"])
 
     def feq(self, e: torch.Tensor) -> torch.Tensor:
         e = torch.clamp(e, min=0.0)
         plateau = (torch.tanh(e / self.yld) * self.a_t).sum()
         cap = 0.95 * self.dens
         u = 1.0 - torch.minimum(e, cap) / self.dens
-        dens = u**-2 - 1.0 + 2.0 / self.dens * u**-3 * torch.clamp(e - cap, min=0.0)
+        dens = (
+            u**-self.dexp
+            - 1.0
+            + self.dexp / self.dens * u ** (-self.dexp - 1.0) * torch.clamp(e - cap, min=0.0)
+        )
         return plateau + (dens * self.a_d).sum()
 
     def forward(
@@ -203,7 +280,7 @@ class _StructuredModule(torch.nn.Module):
         s, md, e_prev = st[nk + nm], st[nk + nm + 1], st[nk + nm + 2]
         x = features[0, 0]
         md = torch.maximum(md, x)
-        target = self.set_m * (md / self.ref) ** 2
+        target = self.set_m * (md / self.ref) ** self.sexp
         loaded = (x > self.lf * md) & (x - s > 0.0)
         s = torch.where(loaded & (s < target), s + (target - s) * self.kg, s)
         floor = self.keep * target
@@ -236,7 +313,7 @@ class StructuredModel(ForceModel):
 
     @property
     def state_size(self) -> int:
-        return len(self.hyper["taus_s"]) + len(self.hyper["hysteresis_lengths_m"]) + 3
+        return len(self.hyper["taus_s"]) + len(self.hyper["hysteresis_frac"]) + 3
 
     def fit(
         self, X: list[np.ndarray], y: list[np.ndarray], info: list[SequenceInfo]
@@ -247,25 +324,53 @@ class StructuredModel(ForceModel):
         # Fitted on every stride-th row, the states stepped at that rate (the Dahl states are
         # rate-independent, the branches exact for the increments they are driven by).
         rows = []
+        depth = 0.0
         for xv, yy, i in zip(seqs, targets, info, strict=True):
             k = max(1, i.stride)
             x, v, t = xv[::k, 0], xv[::k, 1], yy[::k]
             keep = (t > i.contact_off_n) & (np.abs(v) > float(h["fit_min_speed_mps"]))
             rows.append((x, v, t, keep, self.dt_ * k, _bench_columns(x, v, h)))
-        best: dict | None = None
-        by_set: dict[str, float] = {}
-        for set_m in h["set_max_m"]:
-            a = None
-            for _ in range(1 + int(h["iterations"])):
-                fit = self._fit_pass(rows, float(set_m), a)
-                a = fit["coef"][: fit["nb"]]
-            by_set[str(set_m)] = fit["rmse"]
-            if best is None or fit["rmse"] < best["rmse"]:
-                best = {**fit, "set_max_m": float(set_m)}
-        assert best is not None
-        coef, nb, nk = best["coef"], best["nb"], len(h["taus_s"])
-        nm = len(h["hysteresis_lengths_m"])
-        self.set_max_m_ = best["set_max_m"]
+            if keep.any():
+                depth = max(depth, float(x[keep].max()))
+        if depth <= 0.0:
+            raise ValueError("structured: no training row in contact (x > 0 with force)")
+        self.depth_scale_m_ = depth
+        self.basis_ = resolve_basis(h, depth)
+        # The compression-set law, one coordinate at a time over its grids, each candidate
+        # scored by the first (linear) pass's residual; the full passes then run once.
+        law = {key: _middle(h[key]) for key in SET_KEYS}
+        law["set_frac"] = 0.0
+        scores: dict[str, float] = {}
+
+        def score(cand: dict) -> float:
+            key = repr(sorted(cand.items()))
+            if key not in scores:
+                b = {**self.basis_, **_set_shape(cand, depth)}
+                scores[key] = self._fit_pass(rows, float(cand["set_frac"]) * depth, None, b)["rmse"]
+            return scores[key]
+
+        best_score = score(law)
+        for _ in range(int(h["set_sweeps"])):
+            moved = False
+            for key in SET_KEYS:
+                if key != "set_frac" and law["set_frac"] == 0.0:
+                    continue  # no set: its shape does not matter
+                for val in h[key]:
+                    cand = {**law, key: float(val)}
+                    sc = score(cand)
+                    if sc < best_score - 1e-12:
+                        law, best_score, moved = cand, sc, True
+            if not moved:
+                break
+        self.basis_.update(_set_shape(law, depth))
+        self.set_law_ = dict(law)
+        self.set_max_m_ = float(law["set_frac"]) * depth
+        a = None
+        for _ in range(1 + int(h["iterations"])):
+            fit = self._fit_pass(rows, self.set_max_m_, a, self.basis_)
+            a = fit["coef"][: fit["nb"]]
+        coef, nb, nk = fit["coef"], fit["nb"], len(self.basis_["taus_s"])
+        nm = len(self.basis_["hysteresis_lengths_m"])
         self.a_ = coef[:nb]
         self.g_ = coef[nb : nb + nk]
         self.h_ = coef[nb + nk : nb + nk + nm]
@@ -274,11 +379,14 @@ class StructuredModel(ForceModel):
         self.b_ = float(bench[-2] - bench[-1])
         self.n_features_in_ = len(self.features)
         self.train_info_ = {
-            "rows": best["rows"],
+            "rows": fit["rows"],
             "dt_s": self.dt_,
+            "depth_scale_m": depth,
+            "set_law": self.set_law_,
             "set_max_m": self.set_max_m_,
-            "fit_rmse_by_set_max_m": by_set,
-            "fit_rmse": best["rmse"],
+            "set_candidates_scored": len(scores),
+            "set_search_rmse": best_score,
+            "fit_rmse": fit["rmse"],
             "equilibrium": self.a_.tolist(),
             "branch_gains": self.g_.tolist(),
             "hysteresis": self.h_.tolist(),
@@ -287,12 +395,11 @@ class StructuredModel(ForceModel):
         }
         return self
 
-    def _fit_pass(self, rows: list, set_m: float, a: np.ndarray | None) -> dict:
-        h = self.hyper
+    def _fit_pass(self, rows: list, set_m: float, a: np.ndarray | None, b: dict) -> dict:
         mats, ys = [], []
-        nb = len(h["yield_m"]) + len(h["densification_m"])
+        nb = len(b["yield_m"]) + len(b["densification_m"])
         for x, v, t, keep, dt, bench in rows:
-            obj, _ = _object_columns(x, dt, set_m, a, v, h)
+            obj, _ = _object_columns(x, dt, set_m, a, v, b)
             mats.append(np.column_stack([obj, bench])[keep])
             ys.append(t[keep])
         m, y = np.concatenate(mats), np.concatenate(ys)
@@ -306,10 +413,10 @@ class StructuredModel(ForceModel):
         self._check_fitted()
         xv = self._check_X(X)
         x, v = xv[:, 0], xv[:, 1]
-        obj, e = _object_columns(x, self.dt_, self.set_max_m_, self.a_, v, self.hyper)
+        obj, e = _object_columns(x, self.dt_, self.set_max_m_, self.a_, v, self.basis_)
         f = obj @ np.concatenate([self.a_, self.g_, self.h_])
         served = np.where(e > 0.0, np.maximum(f, 0.0), 0.0)
-        bench = _bench_columns(x, v, self.hyper)[:, :-2] @ self.c_ + self.b_ * v
+        bench = _bench_columns(x, v, self.basis_)[:, :-2] @ self.c_ + self.b_ * v
         return served, bench
 
     def predict(self, X: np.ndarray) -> np.ndarray:

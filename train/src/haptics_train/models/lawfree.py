@@ -1,0 +1,257 @@
+"""`lawfree`: a stateful model that assumes no law of the object, only that its force depends on
+the history of the motion through a fading memory in time and a rate-independent memory of
+the path, learned from data alone; kinematics (x, v) in, force out.
+
+Why: `structured` and `prony` are shaped like particular laws (a foam, a Prony solid) and lose
+accuracy the further an object's law is from theirs; the general learners (forests on memory
+features, feedback networks, LSTMs) lost to a three-coefficient spring-damper on objects whose
+law no model shares (issue 23). This model is a generic operator: any causal, time-invariant
+operator with fading memory is approximated by a bank of stable linear filters followed by a
+static polynomial map (Boyd & Chua, "Fading memory and the problem of approximating nonlinear
+operators with Volterra series", IEEE Trans. Circuits Syst. 32(11), 1985), and rate-independent
+hysteresis of the Preisach/Prandtl-Ishlinskii class by a superposition of play operators
+(Krasnosel'skii & Pokrovskii, Systems with Hysteresis, 1989; Brokate & Sprekels 1996). So:
+
+    u      = max(x, 0) / D                               compression, scaled by the data's depth
+    s_k(t) = d_k s_k(t - dt) + (1 - d_k) u(t)            fading memory, d_k = exp(-dt / tau_k)
+    p_r(t) = min(u + r, max(u - r, p_r(t - dt)))         play operators of half-width r (path)
+    q      = [u, v/V, u - s_k, u - p_r]                  inputs: now and the memory terms
+    object = max(0, sum_j q_j (w1_j + w2_j u + w3_j u^2)) x (x > 0)
+    bench  = sum_l c_l z_l + b v                         the bench's friction (not rendered),
+                                                         c_l >= 0 and b >= 0: it dissipates
+
+tau_k 0.01..100 s half a decade apart and r 0.005..0.4 of D are grids of the time and path
+scales, not of any material; D (the largest compression) and V (the 99th percentile of |v|)
+are measured on the training data. Every input enters times 1, u and u^2, so a memory's weight
+may grow with the depth as a relaxing or hysteretic force does in soft materials (a small MLP
+readout was tried first and extrapolated badly to rates it was not fitted on). The readout
+(ridge least squares) and the bench's friction (Dahl states of x and v, the terms `structured`
+identifies) are fitted together by bounded least squares on the rows where the probe slides,
+in contact and out of it: out of contact the target is the friction alone, which is what tells
+the friction from a hysteresis of the object (inside the object they look alike). The
+friction is fitted because the recorded target (the RFOB estimate) holds it; rendering it
+would count the bench's friction twice, so the graph renders the object only.
+
+Free run by construction: no state depends on the model's own output (the force is not fed
+back), so the one-step prediction IS the free run over the whole recording, and the state is
+bounded whatever the input (the filters are stable, a play stays within r of u): the model
+cannot drift. Dissipation is not enforced (the readout's signs are free); `train_info_`
+reports the work the rendered object does over the training recordings (> 0: it absorbs).
+
+The state steps once per row at the training period `dt`, like `structured`. Exported as a
+stateful model (docs/model-contract.md): `h_in`/`h_out` carry [s_1..s_K, p_1..p_P]; `c_in`/
+`c_out` are passed through. The graph is small (the state updates and one dot product: about
+thirty elementwise nodes besides constants, no matrix product). The filters' coefficients are
+rounded to float32 in `predict` too, so it agrees with the graph within float32 arithmetic.
+
+Sequences layout (`models.base`): `fit(X, y, info)`. Fitted attributes: `dt_`,
+`depth_scale_m_`, `speed_scale_mps_`, `widths_`, `w_` (the readout's weights), `c_`
+(friction), `b_` (viscous), `train_info_`.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import onnx
+import torch
+from scipy.optimize import lsq_linear
+from scipy.signal import lfilter
+from torch import nn
+
+from ..data import SequenceInfo
+from ..features import KINEMATICS
+from ..metrics import loop_work
+from .base import ForceModel, check_sequences, step_dt
+from .structured import dahl
+from .torch_export import export_stateful
+
+LAWFREE_DEFAULT: dict = {
+    "taus_s": [0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0],
+    "play_frac": [0.005, 0.02, 0.05, 0.15, 0.4],
+    "friction_lengths_m": [2e-5, 1e-4, 5e-4],
+    "fit_min_speed_mps": 1e-4,
+    "ridge": 1e-4,
+}
+
+
+def plays(u: np.ndarray, widths: np.ndarray) -> np.ndarray:
+    """[n, P] play operators of u (zero initial state), one per half-width."""
+    out = np.empty((len(u), len(widths)))
+    p = np.zeros(len(widths))
+    lo, hi = np.maximum, np.minimum
+    for n, un in enumerate(u.tolist()):
+        p = hi(lo(p, un - widths), un + widths)
+        out[n] = p
+    return out
+
+
+def _readout_columns(z: np.ndarray) -> np.ndarray:
+    """[n, 3 q] the readout's terms from its inputs q = [u, v/V, m_1..m_M] (m: the memory
+    terms u - s_k, u - p_r): every input times 1, u and u^2 (so the compression's powers u,
+    u^2, u^3, and a memory whose weight grows with the depth, as a relaxing or hysteretic
+    force does in soft materials): a polynomial readout of a filter bank (Boyd & Chua 1985)."""
+    u = z[:, :1]
+    return np.column_stack([z, u * z, u * u * z])
+
+
+class LawFreeModel(ForceModel):
+    algo = "lawfree"
+    kind = "stateful"
+    layout = "sequences"
+    defaults = LAWFREE_DEFAULT
+
+    def __init__(self, hyper: dict | None = None, *, seed: int = 0, progress: bool = False) -> None:
+        super().__init__(KINEMATICS[:2], "x_v", hyper, seed=seed, progress=progress)
+
+    @property
+    def name(self) -> str:
+        return "lawfree"
+
+    @property
+    def state_size(self) -> int:
+        return len(self.hyper["taus_s"]) + len(self.hyper["play_frac"])
+
+    def _inputs(self, x: np.ndarray, v: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """(the readout's inputs q [n, 2 + K + P], contact mask) along one sequence stepped at
+        `dt`."""
+        u = np.maximum(x, 0.0) / self.depth_scale_m_
+        contact = x > 0.0
+        d = np.exp(-dt / np.asarray(self.hyper["taus_s"], dtype=float))
+        a, b = d.astype(np.float32).astype(float), (1.0 - d).astype(np.float32).astype(float)
+        s = np.column_stack([lfilter([bk], [1.0, -ak], u) for ak, bk in zip(a, b, strict=True)])
+        p = plays(u, self.widths_)
+        vn = np.where(contact, v / self.speed_scale_mps_, 0.0)
+        return np.column_stack([u, vn, u[:, None] - s, u[:, None] - p]), contact
+
+    def fit(
+        self, X: list[np.ndarray], y: list[np.ndarray], info: list[SequenceInfo]
+    ) -> LawFreeModel:
+        seqs, targets = check_sequences(X, y, len(self.features), len(info))
+        h = self.hyper
+        t0 = time.perf_counter()
+        self.dt_ = step_dt("lawfree", info)
+        picked = []
+        for xv, yy, i in zip(seqs, targets, info, strict=True):
+            k = max(1, i.stride)
+            x, v, t = xv[::k, 0], xv[::k, 1], yy[::k]
+            # sliding rows: in contact where the force is above the contact threshold, and out
+            # of contact too, where the object is 0 and the target is the bench's friction
+            # alone: that is what tells the friction from a hysteresis of the object, which
+            # inside the object looks the same (a force step with the direction of motion)
+            slide = np.abs(v) > float(h["fit_min_speed_mps"])
+            keep = slide & ((x <= 0) | (t > i.contact_off_n))
+            picked.append((x, v, t, keep, self.dt_ * k))
+        xs = np.concatenate([x[kp & (x > 0)] for x, _, _, kp, _ in picked])
+        if len(xs) == 0:
+            raise ValueError("lawfree: no training row in contact with the probe sliding")
+        self.depth_scale_m_ = float(xs.max())
+        vs = np.concatenate([np.abs(v[kp & (x > 0)]) for x, v, _, kp, _ in picked])
+        self.speed_scale_mps_ = float(max(np.percentile(vs, 99), 1e-6))
+        self.widths_ = np.asarray(h["play_frac"], dtype=float)
+        mats, ts = [], []
+        for x, v, t, keep, dt in picked:
+            z, contact = self._inputs(x, v, dt)
+            obj = _readout_columns(z) * contact[:, None]
+            bench = np.column_stack([*(dahl(x, L) for L in h["friction_lengths_m"]), v])
+            mats.append(np.column_stack([obj, bench])[keep])
+            ts.append(t[keep])
+        a, t = np.concatenate(mats), np.concatenate(ts)
+        nf = len(h["friction_lengths_m"]) + 1
+        scale = np.abs(a).max(axis=0)
+        scale[scale == 0] = 1.0
+        # ridge on the object's weights (a generic readout must not chase noise), the
+        # bench's friction and viscosity >= 0 (they dissipate)
+        ridge = float(h["ridge"]) * np.sqrt(len(t))
+        n_obj = a.shape[1] - nf
+        reg = np.zeros((n_obj, a.shape[1]))
+        reg[:, :n_obj] = ridge * np.eye(n_obj)
+        lo = np.r_[np.full(n_obj, -np.inf), np.zeros(nf)]
+        sol = lsq_linear(np.vstack([a / scale, reg]), np.r_[t, np.zeros(n_obj)],
+                         bounds=(lo, np.full(a.shape[1], np.inf)))  # fmt: skip
+        coef = sol.x / scale
+        self.w_ = coef[:n_obj]
+        self.c_ = coef[n_obj:-1]
+        self.b_ = float(coef[-1])
+        resid = a @ coef - t
+        self.n_features_in_ = len(self.features)
+        self.train_info_ = {
+            "rows": int(len(t)),
+            "dt_s": self.dt_,
+            "depth_scale_m": self.depth_scale_m_,
+            "speed_scale_mps": self.speed_scale_mps_,
+            "readout_terms": int(n_obj),
+            "fit_rmse_n": float(np.sqrt(np.mean(resid**2))),
+            "friction_n": self.c_.tolist(),
+            "viscous_ns_per_m": self.b_,
+            "fit_seconds": round(time.perf_counter() - t0, 2),
+        }
+        # the work the rendered object does over each training recording (> 0: it absorbs)
+        self.train_info_["object_work_j_per_recording"] = [
+            loop_work(x, self.predict_served(np.column_stack([x, v]), dt))
+            for x, v, _, _, dt in picked
+        ]
+        return self
+
+    def _object(self, z: np.ndarray, contact: np.ndarray) -> np.ndarray:
+        out = _readout_columns(z) @ self.w_
+        return np.where(contact, np.maximum(out, 0.0), 0.0)
+
+    def predict_served(self, X: np.ndarray, dt: float | None = None) -> np.ndarray:
+        """The object's force alone (what the ONNX graph renders), one sequence from zero
+        state, stepped at `dt` (default: the training period)."""
+        self._check_fitted()
+        xv = self._check_X(X)
+        z, contact = self._inputs(xv[:, 0], xv[:, 1], self.dt_ if dt is None else dt)
+        return self._object(z, contact)
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        """The force the RFOB reads: the object's plus the bench's friction (one sequence,
+        from zero state)."""
+        served = self.predict_served(X)
+        xv = self._check_X(X)
+        h = self.hyper
+        bench = sum(c * dahl(xv[:, 0], L) for c, L in zip(self.c_, h["friction_lengths_m"],
+                                                          strict=True))  # fmt: skip
+        return served + bench + self.b_ * xv[:, 1]
+
+    def to_onnx(self) -> onnx.ModelProto:
+        self._check_fitted()
+        return export_stateful(_LawFreeModule(self), len(self.features), self.state_size)
+
+
+class _LawFreeModule(nn.Module):
+    """One step of the object's force (the bench's friction is not rendered)."""
+
+    def __init__(self, m: LawFreeModel) -> None:
+        super().__init__()
+        f32 = torch.float32
+        d = np.exp(-m.dt_ / np.asarray(m.hyper["taus_s"], dtype=float))
+        self.k = len(d)
+        nq = 2 + len(d) + len(m.widths_)
+        w = np.asarray(m.w_, dtype=float)
+        self.register_buffer("a", torch.tensor(d, dtype=f32))
+        self.register_buffer("b", torch.tensor(1.0 - d, dtype=f32))
+        self.register_buffer("r", torch.tensor(m.widths_, dtype=f32))
+        self.register_buffer("w1", torch.tensor(w[:nq], dtype=f32))
+        self.register_buffer("w2", torch.tensor(w[nq : 2 * nq], dtype=f32))
+        self.register_buffer("w3", torch.tensor(w[2 * nq :], dtype=f32))
+        self.inv_d = 1.0 / m.depth_scale_m_
+        self.inv_v = 1.0 / m.speed_scale_mps_
+
+    def forward(
+        self, features: torch.Tensor, h: torch.Tensor, c: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        st = h.reshape(-1)
+        x, v = features[0, 0:1], features[0, 1:2]
+        contact = (x > 0.0).to(torch.float32)
+        u = torch.relu(x) * self.inv_d
+        vn = v * self.inv_v * contact
+        s = st[: self.k] * self.a + self.b * u
+        p = torch.minimum(torch.maximum(st[self.k :], u - self.r), u + self.r)
+        state = torch.cat([s, p])
+        q = torch.cat([u, vn, u - state])
+        f = (q * (self.w1 + u * (self.w2 + u * self.w3))).sum()
+        f = torch.relu(f) * contact
+        return f.reshape(1, 1), torch.cat([s, p]).reshape(1, 1, -1), c + 0.0

@@ -1,0 +1,76 @@
+"""The law-free stateful model (`lawfree`): learns an object whose law it does not share (a
+Bouc-Wen hysteretic pad with a relaxing branch, not a foam) from presses alone, beats a
+spring-damper on presses it was not fitted on, leaves the bench's friction out of what it
+renders, and its ONNX graph steps in parity with `predict`."""
+
+import numpy as np
+import pytest
+from test_structured import RATE, info, presses  # the same presses and sequence info
+
+from haptics_train.closed_loop import OnnxStepper
+from haptics_train.contract import validate_model
+from haptics_train.export import provenance, to_contract_onnx
+from haptics_train.models import TrainConfig, make_model
+
+FRICTION_N = 0.4
+SMALL = {"taus_s": [0.1, 1.0, 10.0], "play_frac": [0.02, 0.1]}
+
+
+def pad(x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(object, measured = object + Coulomb friction): Bouc-Wen (n = 1) on a cubic spring
+    plus a relaxing branch; in no model's class."""
+    z = q = 0.0
+    zmax, d = 0.002, np.exp(-1 / (RATE * 0.3))
+    obj = np.zeros_like(x)
+    for n in range(1, len(x)):
+        e, de = max(x[n], 0.0), max(x[n], 0.0) - max(x[n - 1], 0.0)
+        if e <= 0:
+            z = q = 0.0
+            continue
+        dz = de * (1 - abs(z) / zmax * (0.6 * np.sign(z * de) + 0.4))
+        z = float(np.clip(z + dz, -zmax, zmax))
+        q = d * q + 150.0 * de
+        obj[n] = max(0.0, 200 * e + 1.5e6 * e**3 + 400 * z + q)
+    return obj, obj + FRICTION_N * np.tanh(v / 1e-4)
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    x, v = presses([0.01, 0.02, 0.015, 0.025, 0.006], 2.0)
+    _, y = pad(x, v)
+    m = make_model("lawfree", hyper=SMALL)
+    m.fit([np.column_stack([x, v])], [y], info=[info(len(x))])
+    return m
+
+
+def test_lawfree_learns_a_law_it_does_not_share_and_renders_the_object_only(fitted):
+    m = fitted
+    sd = make_model("sd_poly2")
+    x, v = presses([0.01, 0.02, 0.015, 0.025, 0.006], 2.0)
+    _, y = pad(x, v)
+    sd.fit(np.column_stack([x, v]), y)
+    xt, vt = presses([0.018, 0.008], 1.3)  # depths and a rate it was not fitted on
+    obj, yt = pad(xt, vt)
+    X = np.column_stack([xt, vt])
+    served = m.predict_served(X)
+    assert np.all(served >= 0) and np.all(served[xt <= 0] == 0)
+    rmse = float(np.sqrt(np.mean((m.predict(X) - yt) ** 2)))
+    rmse_sd = float(np.sqrt(np.mean((sd.predict(X) - yt) ** 2)))
+    assert rmse < 0.5 * rmse_sd, (rmse, rmse_sd)
+    assert m.c_.sum() == pytest.approx(FRICTION_N, rel=0.35), m.c_
+    assert np.sqrt(np.mean((served - obj) ** 2)) < 0.5 * rmse_sd
+
+
+def test_lawfree_onnx_steps_in_parity(fitted):
+    m = fitted
+    om = to_contract_onnx(m, provenance(m, TrainConfig(progress=False), None, None))
+    meta = validate_model(om)
+    assert meta["haptics.kind"] == "stateful"
+    assert meta["haptics.state_size"] == str(m.state_size)
+    ops = [n.op_type for n in om.graph.node if n.op_type != "Constant"]
+    assert len(ops) <= 40, ops  # a small graph: the model-cost budget is p50 <= 5 us
+    x, v = presses([0.02], 2.0)
+    X = np.column_stack([x, v])
+    st = OnnxStepper(om)
+    got = np.array([st.step(r) for r in X.astype(np.float32)])
+    np.testing.assert_allclose(got, m.predict_served(X), atol=1e-4)
