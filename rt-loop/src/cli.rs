@@ -292,7 +292,7 @@ pub struct RunArgs {
     /// Hold at F_max, s.
     #[arg(long)]
     pub hold_max: Option<f64>,
-    /// Record to this file (.parquet, or .csv).
+    /// Record to this file (.parquet, .csv or .mcap).
     #[arg(long)]
     pub record: Option<PathBuf>,
     #[arg(long, value_enum)]
@@ -373,6 +373,7 @@ impl RunArgs {
             c.format = Some(match f {
                 FormatArg::Parquet => Format::Parquet,
                 FormatArg::Csv => Format::Csv,
+                FormatArg::Mcap => Format::Mcap,
             });
         }
         if let Some(p) = &self.fit_fallback {
@@ -387,6 +388,8 @@ impl RunArgs {
 pub enum FormatArg {
     Parquet,
     Csv,
+    /// MCAP (Foxglove, PlotJuggler): docs/recording-format.md
+    Mcap,
 }
 
 #[derive(Args)]

@@ -71,6 +71,7 @@ impl Core {
         upload: Option<Vec<u8>>,
     ) -> Result<ModelInfo, ControlError> {
         validate_model_name(&name)?;
+        let uploaded = upload.is_some();
         let source = match upload {
             Some(bytes) => {
                 self.check_upload_size(bytes.len())?;
@@ -78,12 +79,17 @@ impl Core {
             }
             None => ModelSource::Directory { name },
         };
-        self.call(move |b| b.load_model(source)).await
+        let loaded = self.call(move |b| b.load_model(source)).await;
+        if uploaded && loaded.is_err() {
+            Stats::add(&self.stats.uploads_refused_invalid, 1);
+        }
+        loaded
     }
 
     pub fn check_upload_size(&self, len: usize) -> Result<(), ControlError> {
         let limit = self.config.max_upload_bytes;
         if len > limit {
+            Stats::add(&self.stats.uploads_refused_too_large, 1);
             return Err(ControlError::TooLarge(format!(
                 "the uploaded model is {len} bytes, over the server's limit of {limit} bytes \
                  ({} MiB); raise it with infer-server --max-upload-mib, or put the file in the \

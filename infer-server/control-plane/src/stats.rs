@@ -12,6 +12,10 @@ pub struct Stats {
     pub lagged_batches: AtomicU64,
     pub requests_ok: AtomicU64,
     pub requests_failed: AtomicU64,
+    /// Model uploads refused for their size (over --max-upload-mib).
+    pub uploads_refused_too_large: AtomicU64,
+    /// Model uploads received whole and refused by the load (not a valid model).
+    pub uploads_refused_invalid: AtomicU64,
 }
 
 impl Stats {

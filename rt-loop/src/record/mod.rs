@@ -1,5 +1,5 @@
 //! The recorder: a thread of its own, fed by the loop through a lock-free SPSC ring (`rtrb`),
-//! writing Parquet (default) or CSV with the columns of docs/recording-format.md.
+//! writing Parquet (default), CSV or MCAP (mcap_format.rs) with the columns of docs/recording-format.md.
 //!
 //! - Files are written under `<path>.partial` and renamed to `<path>` only once complete and
 //!   synced, so a crash never leaves a file that looks finished.
@@ -9,6 +9,7 @@
 //!   it ([`RecorderHandle::push_or_drop`]). In lockstep mode the loop waits for room
 //!   ([`RecorderHandle::push_wait`]) so nothing is lost.
 
+pub mod mcap_format;
 pub mod read;
 pub mod row;
 mod writer;

@@ -18,12 +18,15 @@ use std::sync::Arc;
 pub enum Format {
     Parquet,
     Csv,
+    /// MCAP with JSON messages (record/mcap_format.rs)
+    Mcap,
 }
 
 impl Format {
     pub fn from_path(path: &std::path::Path) -> Format {
         match path.extension().and_then(|e| e.to_str()) {
             Some(e) if e.eq_ignore_ascii_case("csv") => Format::Csv,
+            Some(e) if e.eq_ignore_ascii_case("mcap") => Format::Mcap,
             _ => Format::Parquet,
         }
     }
@@ -65,12 +68,13 @@ pub enum Sink {
         rows_pending: u64,
         line: String,
     },
+    Mcap(super::mcap_format::McapSink),
 }
 
 /// Counts bytes written (for the summary) around any writer.
 pub struct CountingWriter {
     inner: Box<dyn Write + Send>,
-    bytes: u64,
+    pub(super) bytes: u64,
 }
 
 impl Write for CountingWriter {
@@ -93,7 +97,7 @@ fn f64_col(rows: &[Row], f: impl Fn(&Row) -> f64) -> ArrayRef {
     col::<Float64Type>(rows, f)
 }
 
-fn batch(rows: &[Row]) -> Result<RecordBatch, arrow_schema::ArrowError> {
+pub(super) fn batch(rows: &[Row]) -> Result<RecordBatch, arrow_schema::ArrowError> {
     let cols: Vec<ArrayRef> = vec![
         col::<UInt64Type>(rows, |r| r.step),
         col::<UInt32Type>(rows, |r| r.timestamp),
@@ -178,6 +182,7 @@ impl Sink {
                     line: String::with_capacity(512),
                 }
             }
+            Format::Mcap => Sink::Mcap(super::mcap_format::McapSink::new(cw, metadata_json)?),
         })
     }
 
@@ -228,6 +233,7 @@ impl Sink {
                 }
                 Ok(())
             }
+            Sink::Mcap(m) => m.push(rows),
         }
     }
 
@@ -237,6 +243,7 @@ impl Sink {
         match self {
             Sink::Parquet { .. } => 0,
             Sink::Csv { rows_flushed, .. } => *rows_flushed,
+            Sink::Mcap(m) => m.rows_flushed(),
         }
     }
 
@@ -258,6 +265,7 @@ impl Sink {
                 cw.flush()?;
                 Ok(cw.bytes)
             }
+            Sink::Mcap(m) => m.finish(),
         }
     }
 }

@@ -177,6 +177,17 @@ pub async fn metrics(State(core): State<Core>) -> Result<Response, ControlError>
         "Control plane calls that failed",
         Stats::get(&s.requests_failed) as f64,
     );
+    for (reason, counter) in [
+        ("too_large", &s.uploads_refused_too_large),
+        ("invalid", &s.uploads_refused_invalid),
+    ] {
+        m.counter_with(
+            "haptics_model_uploads_refused_total",
+            "Model uploads refused: over the size limit (too_large) or not a valid model (invalid)",
+            &[("reason", reason)],
+            Stats::get(counter) as f64,
+        );
+    }
     Ok((
         [(
             header::CONTENT_TYPE,
