@@ -4,17 +4,19 @@
 # compensation, train, evaluate (the recommendation: validation free run) and export the
 # candidate models on each, record the out-of-distribution suite and score the recommended
 # model on it, and run the reproduction study (felt force, the oracle's floor, both friction
-# settings side by side; it ranks the candidates again with the felt force). Prints (and writes
+# settings side by side; it ranks the candidates again with the felt force of runs of their own,
+# another hand programme and seed than the headline). Prints (and writes
 # to the report folder as timings.json) the minutes each step took.
 #
 # Usage: scripts/fidelity-study.sh [--material FILE] [--out DIR] [extra haptics-train study options]
 #   --material  default materials/sponge.toml: its report goes to docs/study and its figures
 #               into docs/fidelity.json; another material's report goes to docs/study/<name>
 #               (unless --out says otherwise) and its figures into <out>/fidelity.json.
-# Env:  MODELS  haptics-train specs to train (default "sd_poly2,rf:memory,structured,lstm_slow":
-#               the spring-damper baseline, the learned model the earlier study found best to
-#               feel, the structured model, the LSTM stepped at 100 Hz over seconds; the full
-#               comparison takes about half an hour per setting on the shared 2-core machine).
+# Env:  MODELS  haptics-train specs to train (default "sd_poly2,rf:memory,structured,lawfree,
+#               lstm_slow": the spring-damper baseline, the learned model the earlier study
+#               found best to feel, the structured model, the law-free model, the LSTM stepped
+#               at 100 Hz over seconds; the full comparison takes about half an hour per
+#               setting on the shared 2-core machine).
 #       DECIMATE  for the recordings (default 1).
 #       HAPTICS_RT_LOOP, HAPTICS_INFER_SERVER  binaries to use instead of building them (frozen
 #               copies while others rebuild the tree).
@@ -27,13 +29,13 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --material) material=${2:?--material needs a file}; shift 2 ;;
     --out) out=${2:?--out needs a folder}; shift 2 ;;
-    -h|--help) sed -n 2,22p "$0"; exit 0 ;;
+    -h|--help) sed -n 2,23p "$0"; exit 0 ;;
     *) break ;;
   esac
 done
 [ -f "$material" ] || { echo "fidelity-study: no material file $material" >&2; exit 2; }
 name=$(basename "$material" .toml)
-models=${MODELS:-sd_poly2,rf:memory,structured,lstm_slow}
+models=${MODELS:-sd_poly2,rf:memory,structured,lawfree,lstm_slow}
 names=${models//:/_} # rf:memory -> rf_memory: the trained models' names
 if [ -z "$out" ]; then
   if [ "$name" = sponge ]; then out=docs/study; else out=docs/study/$name; fi

@@ -115,6 +115,7 @@ pub fn status_json(s: &pb::Status) -> Value {
             "fallback": s.fallback,
             "corrupt": s.corrupt,
             "max_transition_step_n": s.max_transition_step_n,
+            "saturated": s.saturated,
             "scheduling": s.scheduling,
             "recorder": s.recorder,
             "telemetry_drops": s.telemetry_drops,
@@ -179,8 +180,8 @@ pub fn status_text(s: &pb::Status) -> String {
         s.fallbacks, s.deadline_misses, s.telemetry_drops
     ));
     out.push_str(&format!(
-        "ladder:      on time {}    late one {}    held {}    fallback {}    max transition step {:.4} N    corrupt {}\n",
-        s.on_time, s.late_one, s.held, s.fallback, s.max_transition_step_n, s.corrupt
+        "ladder:      on time {}    late one {}    held {}    fallback {}    saturated {}    max transition step {:.4} N    corrupt {}\n",
+        s.on_time, s.late_one, s.held, s.fallback, s.saturated, s.max_transition_step_n, s.corrupt
     ));
     out.push_str(&format!(
         "round trip:  {}\n",

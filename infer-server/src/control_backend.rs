@@ -104,6 +104,7 @@ pub fn apply_loop_block(status: &mut LoopStatus, b: &haptics_proto::LoopStatus) 
         status.held = b.held;
         status.fallback = b.fallback_steps;
         status.max_transition_step_n = b.max_transition_step_n;
+        status.saturated = b.saturated;
     }
     status.corrupt = b.corrupt;
     // The loop knows which experiment it runs; the rows' phase cannot tell a shadow run

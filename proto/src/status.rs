@@ -197,6 +197,9 @@ pub struct LoopStatus {
     pub corrupt: u64,
     /// Largest change of the rendered force in one step caused by a ladder transition, N.
     pub max_transition_step_n: f64,
+    /// Steps rendered by a model's answer that was above the force limit, at the limit
+    /// (issue 23: a device saturates; not a rung, a count beside them).
+    pub saturated: u64,
     /// Steps whose answer did not come before the per-step deadline.
     pub deadline_misses: u64,
     /// Steps that ended after the next period had begun (realtime clock).
@@ -237,7 +240,9 @@ mod at {
     pub const CORRUPT: usize = ON_TIME + 4;
     pub const MAX_TRANSITION_STEP_N: usize = ON_TIME + 5;
     pub const EXPERIMENT: usize = ON_TIME + 6;
-    pub const END: usize = EXPERIMENT + words(EXPERIMENT_BYTES);
+    // layout version 4: saturated steps (issue 23)
+    pub const SATURATED: usize = EXPERIMENT + words(EXPERIMENT_BYTES);
+    pub const END: usize = SATURATED + 1;
 }
 
 const _: () = assert!(
@@ -284,6 +289,7 @@ impl LoopStatus {
         w[at::CORRUPT] = self.corrupt;
         w[at::MAX_TRANSITION_STEP_N] = self.max_transition_step_n.to_bits();
         self.experiment.store(&mut w[at::EXPERIMENT..]);
+        w[at::SATURATED] = self.saturated;
         w
     }
 
@@ -312,6 +318,7 @@ impl LoopStatus {
             fallback_steps: w[at::FALLBACK_STEPS],
             corrupt: w[at::CORRUPT],
             max_transition_step_n: f64::from_bits(w[at::MAX_TRANSITION_STEP_N]),
+            saturated: w[at::SATURATED],
         }
     }
 }
@@ -394,6 +401,7 @@ mod tests {
             fallback_steps: 15,
             corrupt: 16,
             max_transition_step_n: 0.04,
+            saturated: 17,
         };
         assert_eq!(block.publish(&s.to_words()), 1);
         let (generation, words) = block.read().expect("published");

@@ -155,8 +155,8 @@ pub fn print_summary(s: &crate::run::RunSummary) {
     }
     if let (Some(l), Some(r)) = (&s.ladder, &s.degraded_reasons) {
         eprintln!(
-            "rt-loop: ladder: {} on time, {} late one, {} held, {} fallback; max transition step {:.4} N over {} transition steps",
-            l.on_time, l.late_one, l.held, l.fallback, s.max_transition_step_n, s.transition_steps
+            "rt-loop: ladder: {} on time, {} late one, {} held, {} fallback, {} saturated at the force limit; max transition step {:.4} N over {} transition steps",
+            l.on_time, l.late_one, l.held, l.fallback, l.saturated, s.max_transition_step_n, s.transition_steps
         );
         eprintln!(
             "rt-loop: not on time because: {} late, {} no server, {} flagged, {} ring full, {} server lost, {} hung, {} rejected",

@@ -218,8 +218,8 @@ pub fn run(cfg: &DaemonConfig, shutdown: &Shutdown) -> Result<u64> {
                 );
                 if let (Some(l), Some(r)) = (&s.ladder, &s.degraded_reasons) {
                     eprintln!(
-                        "rt-loop: run {run_id} ladder: {} on time, {} late one, {} held, {} fallback (max transition step {:.4} N); not on time because: {} late, {} no server, {} flagged, {} ring full, {} server lost, {} hung, {} rejected",
-                        l.on_time, l.late_one, l.held, l.fallback, s.max_transition_step_n,
+                        "rt-loop: run {run_id} ladder: {} on time, {} late one, {} held, {} fallback, {} saturated (max transition step {:.4} N); not on time because: {} late, {} no server, {} flagged, {} ring full, {} server lost, {} hung, {} rejected",
+                        l.on_time, l.late_one, l.held, l.fallback, l.saturated, s.max_transition_step_n,
                         r.late, r.no_server, r.flagged, r.ring_full, r.server_lost, r.hung, r.rejected
                     );
                 }

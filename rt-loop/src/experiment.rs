@@ -290,7 +290,8 @@ impl PositionPid {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ReproductionConfig {
-    /// Predictions outside [-max_force_n, max_force_n] are rejected (fallback used), N.
+    /// The force limit, N: an answer above it is rendered at it and counted as saturated
+    /// (`ladder.saturated`), never replaced by the fallback.
     pub max_force_n: f64,
     /// The fallback law (and the built-in model).
     pub fallback: SpringDamper,

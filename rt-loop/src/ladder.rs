@@ -22,6 +22,13 @@
 //! is clamped to `[0, max_force_n]`, and it is 0 out of contact (x <= 0). With F_cmd = -F_pred
 //! (SPEC section 4) a non-negative F_pred can only push the probe back out of the object.
 //!
+//! Saturation (issue 23 item 5): a finite answer above `max_force_n` is rendered AT the limit
+//! and counted as `saturated` (a count beside the rungs: such a step is still rendered by its
+//! rung, on time or late one). A device saturates, it does not switch objects: before, such an
+//! answer was refused and the fallback law (another object, about 1 N away) took over, so a
+//! stiff object's oracle lost every deep press to the fallback and stopped being the floor.
+//! Only NaN/Inf answers are still refused (`rejected`).
+//!
 //! REAL-TIME PATH: [`Ladder::render`] allocates nothing, takes no lock and makes no syscall:
 //! fixed-size arrays and plain f64 arithmetic; the model hook it calls has the same contract.
 
@@ -96,6 +103,10 @@ pub struct LadderCounts {
     pub late_one: u64,
     pub held: u64,
     pub fallback: u64,
+    /// Of the steps rendered by a model's answer (on_time + late_one), those whose answer was
+    /// above `max_force_n` and were rendered at the limit. Not a rung: not part of
+    /// [`LadderCounts::total`].
+    pub saturated: u64,
 }
 
 impl LadderCounts {
@@ -120,7 +131,7 @@ pub struct Reasons {
     /// Lockstep: the server missed several answers in a row and its heartbeat has not moved
     /// since; it is treated as gone (nothing sent) until the heartbeat moves.
     pub hung: u64,
-    /// An answer came but was NaN/Inf or beyond `max_force_n`.
+    /// An answer came but was NaN/Inf (an answer beyond `max_force_n` saturates instead).
     pub rejected: u64,
 }
 
@@ -252,10 +263,13 @@ impl Ladder {
         }
     }
 
-    /// A served force accepted: the rung's force, NaN/Inf or out-of-range refused.
+    /// A served force accepted: the rung's force within `[0, max_force_n]` and whether it was
+    /// above the limit (saturated); NaN/Inf refused. A finite answer beyond the limit is the
+    /// limit, as a real device saturates (see the module doc); a negative one is 0 (unilateral).
     #[inline]
-    fn accept(&self, f: f64) -> Option<f64> {
-        (f.is_finite() && f.abs() <= self.max_force_n).then_some(f.clamp(0.0, self.max_force_n))
+    fn accept(&self, f: f64) -> Option<(f64, bool)> {
+        f.is_finite()
+            .then(|| (f.clamp(0.0, self.max_force_n), f > self.max_force_n))
     }
 
     #[inline]
@@ -318,17 +332,27 @@ impl Ladder {
         feats: &Features,
     ) -> Rendered {
         let (x, v) = (feats.position_x, feats.velocity);
+        let mut saturated = false;
         let answer = match model.answer(step, feats) {
             Answer::OnTime(f) => match self.accept(f) {
-                Some(f) => Answer::OnTime(f),
+                Some((f, sat)) => {
+                    saturated = sat;
+                    Answer::OnTime(f)
+                }
                 None => Answer::Missing(Miss::Rejected),
             },
             Answer::LateOne(f) => match self.accept(f) {
-                Some(f) => Answer::LateOne(f),
+                Some((f, sat)) => {
+                    saturated = sat;
+                    Answer::LateOne(f)
+                }
                 None => Answer::Missing(Miss::Rejected),
             },
             m => m,
         };
+        if saturated {
+            self.report.counts.saturated += 1;
+        }
         let level = match answer {
             Answer::OnTime(f) | Answer::LateOne(f) => {
                 self.model_side = f;
@@ -492,14 +516,14 @@ mod tests {
     }
 
     /// Unilateral: negative answers render 0 N, and nothing is rendered out of contact;
-    /// out-of-range and NaN answers are refused with a reason.
+    /// NaN/Inf answers are refused with a reason.
     #[test]
     fn only_pushes_and_refuses_bad_answers() {
         let mut m = Script(vec![
             Answer::OnTime(-3.0),
             Answer::OnTime(2.0),
             Answer::OnTime(f64::NAN),
-            Answer::OnTime(1e6),
+            Answer::OnTime(f64::INFINITY),
             Answer::OnTime(0.5),
         ]);
         let mut l = ladder();
@@ -512,7 +536,43 @@ mod tests {
         let r3 = l.render(&mut m, 3, 3.0 * T, &feats(0.01));
         assert_eq!(r3.level, Level::Held);
         assert_eq!(l.report().reasons.rejected, 2);
+        assert_eq!(l.report().counts.saturated, 0);
         assert!(r2.force >= 0.0 && r3.force >= 0.0);
+    }
+
+    /// A finite answer above the force limit is rendered at the limit by its own rung and
+    /// counted as saturated; the fallback law (here 400 x = 4 N, far below) never takes over.
+    /// A large negative answer is 0 (the object only pushes), not a refusal.
+    #[test]
+    fn answers_beyond_the_limit_saturate_instead_of_falling_back() {
+        let mut script = vec![Answer::OnTime(19.9); 50];
+        script.extend([Answer::OnTime(1e6); 400]); // 40 ms deep press, far beyond 20 N
+        script.push(Answer::LateOne(25.0));
+        script.push(Answer::OnTime(-1e6));
+        script.push(Answer::OnTime(19.0));
+        let n = script.len();
+        let mut m = Script(script);
+        let mut l = ladder();
+        let mut levels = Vec::new();
+        let mut forces = Vec::new();
+        for k in 0..n {
+            let r = l.render(&mut m, k as u64, k as f64 * T, &feats(0.01));
+            levels.push(r.level);
+            forces.push(r.force);
+        }
+        // after the first step's slew from 0 the answer is rendered as given, then at 20 N
+        for k in 50..450 {
+            assert_eq!(levels[k], Level::OnTime, "step {k}");
+            assert_eq!(forces[k], 20.0, "step {k}: at the limit, not the fallback");
+        }
+        assert_eq!(levels[450], Level::LateOne);
+        assert_eq!(forces[450], 20.0);
+        assert_eq!(levels[451], Level::OnTime);
+        let rep = l.report();
+        assert_eq!(rep.counts.saturated, 401);
+        assert_eq!(rep.counts.fallback + rep.counts.held, 0);
+        assert_eq!(rep.reasons.rejected, 0);
+        assert_eq!(rep.counts.total(), n as u64, "saturated is not a rung");
     }
 
     /// The fallback's own output is clamped to the force limit (a fitted law can go far

@@ -2,8 +2,8 @@
 //! sponge bench and a replay board, the DOB/RFOB force-control loop, the experiments, the nine
 //! online features, the lossless recorder and the two clocks.
 //!
-//! Layout: [`board`] (trait + `sim` + `replay`), [`sponge`]/[`material`]/[`hand`] (the
-//! simulated world), [`filters`] (pseudo-derivatives, observers), [`rig`] (the step),
+//! Layout: [`board`] (trait + `sim` + `replay`), [`object`] (the simulated object of any law:
+//! its material file, the laws, the oracle) and [`hand`] (the simulated world), [`filters`] (pseudo-derivatives, observers), [`rig`] (the step),
 //! [`experiment`], [`ladder`], [`features`], [`model`] (the force-model hook), [`record`],
 //! [`clock`], [`config`], [`run`] (one run; its per-step output to a [`sink`]), [`daemon`]
 //! (`rt-loop serve`), [`shm_io`]/[`shm_model`]/[`shm_renew`] (the shared-memory side),
@@ -28,9 +28,8 @@ pub mod import;
 pub mod invalid;
 pub mod ladder;
 pub mod lstsq;
-pub mod material;
 pub mod model;
-pub mod oracle;
+pub mod object;
 pub mod params;
 pub mod percentiles;
 pub mod record;
@@ -41,5 +40,16 @@ pub mod shm_io;
 pub mod shm_model;
 pub mod shm_renew;
 pub mod sink;
-pub mod sponge;
 pub mod stop;
+
+/// The old paths of the object's modules (before `object/`), kept so code written against them
+/// still compiles.
+pub mod material {
+    pub use crate::object::material::*;
+}
+pub mod oracle {
+    pub use crate::object::oracle::*;
+}
+pub mod sponge {
+    pub use crate::object::foam::*;
+}

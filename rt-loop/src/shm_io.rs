@@ -233,6 +233,7 @@ impl LoopIo {
         s.late_one = 0;
         s.held = 0;
         s.fallback_steps = 0;
+        s.saturated = 0;
         s.corrupt = 0;
         self.corrupt_at_run_start = self.renewal.as_ref().map_or(0, |r| r.corrupt());
         s.max_transition_step_n = 0.0;
@@ -304,6 +305,7 @@ impl LoopIo {
             s.late_one = l.counts.late_one;
             s.held = l.counts.held;
             s.fallback_steps = l.counts.fallback;
+            s.saturated = l.counts.saturated;
             s.max_transition_step_n = l.max_transition_step_n;
         }
         f.experiment.report_status(s);

@@ -510,6 +510,7 @@ fn loop_status_block_round_trips_through_the_segment() {
         fallback_steps: 45,
         corrupt: 1,
         max_transition_step_n: 0.04,
+        saturated: 7,
     };
     assert_eq!(
         s.recorder.as_str().len(),

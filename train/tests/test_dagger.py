@@ -1,5 +1,5 @@
-"""DAgger (`haptics_train.dagger`): the refit trains on the model's own free-run states and its
-free run on the training recordings does not get worse; the round is chosen on validation."""
+"""DAgger (`haptics_train.dagger`): the refit trains on the model's own free-run states, the
+round is chosen on validation, and the held-out test free run does not get worse."""
 
 from __future__ import annotations
 
@@ -52,13 +52,15 @@ def test_visited_rows_carry_the_rollout_force_and_the_recorded_target(tiny: Data
 def test_a_dagger_round_adds_the_visited_states_and_does_not_worsen_the_free_run(
     tiny: Dataset,
 ) -> None:
+    """The round is chosen on the validation recording; whether the choice did not worsen the
+    free run is checked on the test recording, which the choice never saw (issue 23: before,
+    both were the training recordings, so the check held by construction)."""
     plain = fit_recordings(_dnn_fb(), tiny.train, CFG)
     base_rows = plain.train_info_["rows"]
-    before = np.mean([_rmse(plain, r) for r in tiny.train])
     scores: list[float] = []
 
-    def score(m: object) -> float:  # the training recordings' free run, as the validation
-        scores.append(float(np.mean([_rmse(m, r) for r in tiny.train])))
+    def score(m: object) -> float:  # the validation recording's free run
+        scores.append(float(np.mean([_rmse(m, r) for r in tiny.validation])))
         return scores[-1]
 
     refined = fit_dagger(plain, tiny.train, CFG, 1, score)
@@ -69,9 +71,11 @@ def test_a_dagger_round_adds_the_visited_states_and_does_not_worsen_the_free_run
     assert [h["round"] for h in d["history"]] == [0, 1]
     # round 1 trained on the original rows plus one visited row per decimated row
     assert d["history"][1]["rows"] == 2 * base_rows
-    assert scores[0] == pytest.approx(before)
-    after = np.mean([_rmse(refined, r) for r in tiny.train])
-    assert after <= before + 1e-9
+    assert d["chosen_round"] == int(np.argmin(scores)), (scores, d)
+    # independent of the choice: the held-out test recording's free run
+    before = np.mean([_rmse(plain, r) for r in tiny.test])
+    after = np.mean([_rmse(refined, r) for r in tiny.test])
+    assert after <= 1.1 * before, (before, after, scores)
     if d["chosen_round"] == 1:
         assert refined.train_info_["rows"] == 2 * base_rows
 

@@ -45,10 +45,33 @@ def test_merge_keeps_other_keys_and_writes_null_for_non_finite(tmp_path):
     merge(p, {"recommended": "b", "ood_free_run_rmse_n": float("nan")})
     doc = json.loads(p.read_text())
     assert doc == {"felt_rmse_n": 0.3, "extra": 1, "recommended": "b", "ood_free_run_rmse_n": None}
-    assert set(FIDELITY_KEYS) == {
-        "recommended", "free_run_rmse_n", "ood_free_run_rmse_n", "ood_diverged", "felt_rmse_n",
-        "felt_fast_rmse_n", "oracle_felt_rmse_n", "sd_poly2_felt_rmse_n",
-    }  # fmt: skip
+
+
+def test_the_documented_keys_are_the_keys_the_writers_write(tmp_path):
+    """FIDELITY_KEYS against what the study, the suite and the pipeline's recommendation
+    actually write into docs/fidelity.json (issue 23: before, the constant was compared with a
+    copy of itself)."""
+    from pathlib import Path
+
+    from haptics_train.ood import write_fidelity as write_ood
+    from haptics_train.study import ORACLE, Row, Run
+    from haptics_train.study.report import write_fidelity as write_study
+
+    def row(name: str, rmse: float, learned: bool) -> Row:
+        m = {"r2": 0.9, "mae": rmse, "mse": rmse * rmse, "rmse": rmse, "coverage": 1.0}
+        return Row(name, "t", m, None, Run(name=name, kind="r", path=Path(name), ok=True), None,
+                   learned)  # fmt: skip
+
+    p = tmp_path / "fidelity.json"
+    doc = recommendation(RESULTS, ["validation_5.0"])
+    merge(p, {k: doc[k] for k in ("recommended", "free_run_rmse_n", "free_run_true_rmse_n")})
+    rows = [row(ORACLE, 0.05, False), row("sd_poly2", 1.5, False), row("b", 0.3, True)]
+    write_study(p, rows, [row("b", 0.4, True)])
+    suite = {"b": {"worst_rmse_n": 0.7, "diverged": 0, "worst_recording": "r"}}
+    written = set(write_ood(suite, "b", p))
+    assert set(FIDELITY_KEYS) <= written, set(FIDELITY_KEYS) - written
+    got = json.loads(p.read_text())
+    assert (got["recommended"], got["felt_rmse_n"], got["ood_free_run_rmse_n"]) == ("b", 0.3, 0.7)
 
 
 def test_divergence():

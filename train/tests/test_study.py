@@ -26,6 +26,7 @@ from haptics_train.study import (
     write_fidelity,
 )
 from haptics_train.study.report import floor_section
+from haptics_train.study.score import run_flags
 
 
 def test_align_identical_grid_is_identity() -> None:
@@ -206,14 +207,32 @@ def test_floor_section_is_computed_from_the_numbers() -> None:
     text = "\n".join(
         floor_section({"off": (ref, bad), "on": (ref, good)}, {"headline": "on"}, "-")
     )
-    assert "| on | 0.080 | 1.600 | - | `m` 0.100 | 1.25x |" in text
-    assert "| off | 0.300 | 1.200 | - | `m` 0.900 | 3.00x |" in text
+    assert "| on | 0.080 | 1.600 | - | `m` 0.100 | 1.25x | - |" in text
+    assert "| off | 0.300 | 1.200 | - | `m` 0.900 | 3.00x | - |" in text
     assert "Best learned at most 0.20 N: **met** (0.100 N)" in text
     assert "Within 1.5x of the oracle's floor: **met** (1.25x)" in text
     assert "Floor at most 0.10 N with friction compensated: **met** (0.080 N)" in text
     text = "\n".join(floor_section({"off": (ref, bad)}, {"headline": "off"}, "-"))
     assert "Best learned at most 0.20 N: **not met** (0.900 N)" in text
     assert "no bench file given" in text
+
+
+def test_runs_with_saturated_or_refused_steps_and_a_broken_floor_are_flagged() -> None:
+    ref = Run(name="ref", kind="reference", path=Path("r"), ok=True)
+    rows = [_row(ORACLE, 0.3, False), _row("sd_poly2", 1.2, False), _row("m", 0.2, True)]
+    rows[0].run.saturated, rows[0].run.rejected = 120, 3
+    assert run_flags(rows[0], rows) == [
+        "120 saturated",
+        "3 refused",
+        "oracle not the floor: m felt closer",
+    ]
+    assert run_flags(rows[2], rows) == ["below the oracle"]
+    assert run_flags(rows[1], rows) == []
+    text = "\n".join(floor_section({"off": (ref, rows)}, {"headline": "off"}, "-"))
+    assert (
+        "| `oracle`: 120 saturated, 3 refused, oracle not the floor: m felt closer; "
+        "`m`: below the oracle |" in text
+    ), text
 
 
 def test_oracle_renders_the_floor_with_rt_loop(rt_loop: Path, tmp_path: Path) -> None:

@@ -198,6 +198,8 @@ pub struct LoopStatus {
     pub corrupt: u64,
     /// Largest change of the rendered force in one step caused by a ladder transition, N.
     pub max_transition_step_n: f64,
+    /// Steps rendered by a model's answer above the force limit, at the limit (issue 23).
+    pub saturated: u64,
     /// What the loop actually obtained: "SCHED_FIFO 80", "SCHED_OTHER", ...
     pub scheduling: String,
     /// "off", "writing PATH (rows)", "failed: reason".

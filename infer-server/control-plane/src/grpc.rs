@@ -288,6 +288,7 @@ pub fn status_to_pb(
         fallback: l.fallback,
         corrupt: l.corrupt,
         max_transition_step_n: l.max_transition_step_n,
+        saturated: l.saturated,
         predictions: s.server.predictions,
         uptime_s: s.server.uptime_s,
         server_version: s.server.version.clone(),

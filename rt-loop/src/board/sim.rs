@@ -11,8 +11,8 @@ use crate::dac;
 use crate::hand::HandConfig;
 use crate::invalid::{require_non_negative, require_positive, InvalidSetting};
 use crate::material::Material;
+use crate::object::{Law, Object};
 use crate::rng::Rng;
-use crate::sponge::Sponge;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
@@ -109,7 +109,8 @@ pub struct SimBoard {
     cfg: SimConfig,
     time: SimTime,
     rng: Rng,
-    sponge: Option<Sponge>,
+    /// The simulated object (of the material's law); named `sponge` for the default one.
+    sponge: Option<Object>,
     hand: Option<HandConfig>,
     /// Simulated time in integer nanoseconds (no drift in the timestamps).
     t_ns: u64,
@@ -129,7 +130,7 @@ impl SimBoard {
     pub fn new(cfg: SimConfig, world: SimWorld, time: SimTime, seed: u64) -> Self {
         SimBoard {
             rng: Rng::new(seed ^ 0x5EED_B0A2_D000_0001),
-            sponge: world.sponge.as_ref().map(Sponge::new),
+            sponge: world.sponge.as_ref().map(Object::new),
             hand: world.hand,
             cfg,
             time,
@@ -156,7 +157,7 @@ impl SimBoard {
     pub fn sim_time(&self) -> f64 {
         self.t
     }
-    pub fn sponge(&self) -> Option<&Sponge> {
+    pub fn sponge(&self) -> Option<&Object> {
         self.sponge.as_ref()
     }
     pub fn applied_current(&self) -> f64 {

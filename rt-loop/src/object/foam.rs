@@ -1,14 +1,20 @@
-//! The simulated sponge (SPEC section 7): nonlinear foam stiffness (plateau, then
-//! densification), generalized Maxwell viscoelastic branches, a rate-independent Dahl
-//! hysteresis element, a permanent set that grows with the largest compression seen and slowly
-//! partly recovers, and unilateral contact (it pushes, never pulls). All state is inline
-//! (fixed arrays), so stepping it allocates nothing.
+//! The foam law (`law = "foam"`), the simulated sponge of SPEC section 7: nonlinear foam
+//! stiffness (plateau, then densification), generalized Maxwell viscoelastic branches, a
+//! rate-independent Dahl hysteresis element, a permanent set that grows with the largest
+//! compression seen and slowly partly recovers, and unilateral contact (it pushes, never
+//! pulls). All state is inline (fixed arrays), so stepping it allocates nothing.
+//!
+//! Sources of its parts: the tanh plateau and densification of flexible cellular foams (Gibson
+//! & Ashby, Cellular Solids, 2nd ed. 1997, ch. 5), quasi-linear viscoelasticity with a Prony
+//! series (Fung, Biomechanics, 1993, ch. 7), the Dahl friction/hysteresis element (Dahl 1968),
+//! compression set of flexible polyurethane foam (ASTM D3574, test D).
 
-use crate::material::{Material, MAX_BRANCHES};
+use super::material::{Foam, MAX_BRANCHES};
+use super::Law;
 
 #[derive(Clone, Debug)]
 pub struct Sponge {
-    m: Material,
+    m: Foam,
     n_branches: usize,
     gains: [f64; MAX_BRANCHES],
     taus: [f64; MAX_BRANCHES],
@@ -25,7 +31,7 @@ pub struct Sponge {
 }
 
 impl Sponge {
-    pub fn new(m: &Material) -> Self {
+    pub fn new(m: &Foam) -> Self {
         let mut gains = [0.0; MAX_BRANCHES];
         let mut taus = [1.0; MAX_BRANCHES];
         for (i, b) in m.maxwell.iter().take(MAX_BRANCHES).enumerate() {
@@ -182,12 +188,32 @@ impl Sponge {
     }
 }
 
+impl Law for Sponge {
+    #[inline]
+    fn prepare(&mut self, h: f64) {
+        Sponge::prepare(self, h)
+    }
+    #[inline]
+    fn substep(&mut self, x: f64) -> f64 {
+        Sponge::substep(self, x)
+    }
+    #[inline]
+    fn slow_update(&mut self, x: f64, dt: f64) {
+        Sponge::slow_update(self, x, dt)
+    }
+    #[inline]
+    fn force(&self) -> f64 {
+        self.force
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::object::material::Material;
 
     fn sponge() -> Sponge {
-        Sponge::new(&Material::repository_sponge())
+        Sponge::new(Material::repository_sponge().foam().unwrap())
     }
 
     #[test]

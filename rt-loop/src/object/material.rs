@@ -1,19 +1,58 @@
 //! The material file: everything that describes the simulated object, so a second object is a
-//! new TOML file, not new code. Format documented in docs/rt-loop.md; `materials/sponge.toml`
-//! is the default.
+//! new TOML file, not new code. A file names its law (`law = "foam"`, the default for files
+//! written before there was a choice; `"bouc_wen"`, `"poroelastic"`) and gives that law's
+//! tables. Format documented in docs/rt-loop.md ("Material file"); `materials/sponge.toml` is
+//! the default.
 
 use crate::invalid::InvalidSetting;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+use super::bouc_wen::BoucWenParams;
+use super::poroelastic::PoroelasticParams;
+
 /// Maxwell branches a material may have: the simulated sponge keeps their state inline (fixed
 /// arrays, so stepping it allocates nothing), and the file is checked against the same bound.
 pub const MAX_BRANCHES: usize = 6;
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// The laws a material file may name (`law = "..."`).
+pub const LAWS: [&str; 3] = ["foam", "bouc_wen", "poroelastic"];
+
+/// A material file: its name and its law's parameters.
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Material {
     pub name: String,
+    #[serde(flatten)]
+    pub law: LawParams,
+}
+
+/// The parameters of one law (the file's `law` key says which).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(tag = "law", rename_all = "snake_case")]
+pub enum LawParams {
+    /// The viscoelastic foam of SPEC section 7 ([`super::foam`]).
+    Foam(Foam),
+    /// A Bouc-Wen hysteretic material ([`super::bouc_wen`]).
+    BoucWen(BoucWenParams),
+    /// A poroelastic gel under a spherical indenter ([`super::poroelastic`]).
+    Poroelastic(PoroelasticParams),
+}
+
+impl LawParams {
+    /// The law's name as the file writes it.
+    pub fn name(&self) -> &'static str {
+        match self {
+            LawParams::Foam(_) => "foam",
+            LawParams::BoucWen(_) => "bouc_wen",
+            LawParams::Poroelastic(_) => "poroelastic",
+        }
+    }
+}
+
+/// The foam law's tables (`law = "foam"`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Foam {
     /// Rate-independent foam law F_eq(e) of the compression e (m):
     /// `plateau_n * tanh(e / yield_m) + densification_n * ((1 - e / densification_m)^-exponent - 1)`.
     pub equilibrium: Equilibrium,
@@ -93,20 +132,62 @@ impl Material {
     /// material drive.
     #[cfg(test)]
     pub(crate) fn repository_sponge() -> Material {
-        let text = std::fs::read_to_string(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../materials/sponge.toml"
-        ))
-        .unwrap();
-        Material::parse(&text).unwrap()
+        Material::repository("sponge")
     }
 
+    /// The repository's `materials/<name>.toml` (tests).
+    #[cfg(test)]
+    pub(crate) fn repository(name: &str) -> Material {
+        let path = format!("{}/../materials/{name}.toml", env!("CARGO_MANIFEST_DIR"));
+        Material::parse(&std::fs::read_to_string(path).unwrap()).unwrap()
+    }
+
+    /// The foam's tables, when the law is the foam.
+    pub fn foam(&self) -> Option<&Foam> {
+        match &self.law {
+            LawParams::Foam(f) => Some(f),
+            _ => None,
+        }
+    }
+
+    /// Parses a material file: `name`, `law` (default `"foam"`) and that law's tables, every
+    /// other key refused.
     pub fn parse(text: &str) -> anyhow::Result<Material> {
-        let m: Material = toml::from_str(text)?;
+        let mut table: toml::Table = toml::from_str(text)?;
+        let name = match table.remove("name") {
+            Some(toml::Value::String(s)) => s,
+            Some(_) => anyhow::bail!("name must be a string"),
+            None => anyhow::bail!("missing field `name`"),
+        };
+        let law = match table.remove("law") {
+            None => "foam".to_string(),
+            Some(toml::Value::String(s)) => s,
+            Some(_) => anyhow::bail!("law must be a string (one of {})", LAWS.join(", ")),
+        };
+        let rest = toml::Value::Table(table);
+        // one line: the law's tables are read without the text, so the error is its message
+        let line = |e: toml::de::Error| anyhow::anyhow!("law {law:?}: {}", e.message());
+        let law = match law.as_str() {
+            "foam" => LawParams::Foam(rest.try_into().map_err(line)?),
+            "bouc_wen" => LawParams::BoucWen(rest.try_into().map_err(line)?),
+            "poroelastic" => LawParams::Poroelastic(rest.try_into().map_err(line)?),
+            other => anyhow::bail!("unknown law {other:?} (known: {})", LAWS.join(", ")),
+        };
+        let m = Material { name, law };
         m.validate().map_err(|e| anyhow::anyhow!(e))?;
         Ok(m)
     }
 
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
+        match &self.law {
+            LawParams::Foam(f) => f.validate(),
+            LawParams::BoucWen(b) => b.validate(),
+            LawParams::Poroelastic(p) => p.validate(),
+        }
+    }
+}
+
+impl Foam {
     pub fn validate(&self) -> Result<(), InvalidSetting> {
         let e = &self.equilibrium;
         let checks = [
@@ -195,4 +276,45 @@ fn resolve(path: &Path) -> std::path::PathBuf {
         .map(|dir| dir.join(path))
         .find(|candidate| candidate.is_file())
         .unwrap_or_else(|| path.to_path_buf())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A file without `law` is a foam (every file written before there was a choice); a file
+    /// naming another law reads that law's table; an unknown law, a table of another law or an
+    /// unknown key is a one-line error naming it.
+    #[test]
+    fn a_file_names_its_law_foam_by_default() {
+        let sponge = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../materials/sponge.toml"
+        ))
+        .unwrap();
+        let old = Material::parse(&sponge).unwrap();
+        assert_eq!(old.law.name(), "foam");
+        let named = Material::parse(&format!("law = \"foam\"\n{sponge}")).unwrap();
+        assert_eq!(named, old);
+        let gel = "name = \"g\"\nlaw = \"poroelastic\"\n[poroelastic]\nshear_modulus_pa = 1.0\n\
+                   poisson_drained = 0.2\nindenter_radius_m = 0.01\ndiffusivity_m2_per_s = 1e-5\n";
+        assert_eq!(Material::parse(gel).unwrap().law.name(), "poroelastic");
+        for (text, needle) in [
+            ("name = \"x\"\nlaw = \"jelly\"\n", "unknown law \"jelly\""),
+            (
+                &gel.replace("poroelastic\"\n", "bouc_wen\"\n"),
+                "poroelastic",
+            ),
+            (
+                &gel.replace("poisson_drained = 0.2", "poisson_drained = 0.7"),
+                "poisson_drained",
+            ),
+            (&format!("{gel}colour = 1\n"), "colour"),
+            ("law = \"foam\"\n", "name"),
+        ] {
+            let err = Material::parse(text).unwrap_err().to_string();
+            assert!(err.contains(needle), "{text:?}: {err}");
+            assert!(!err.trim().contains('\n'), "one line: {err}");
+        }
+    }
 }

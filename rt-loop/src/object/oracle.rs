@@ -1,6 +1,7 @@
 //! The oracle model (issue 11, item 2): the simulated object's own physics as a [`ForceModel`].
 //!
-//! A separate [`Sponge`] of the same material, driven by the loop's measured position, predicts
+//! A separate [`Object`] of the same material (whatever its law), driven by the loop's measured
+//! position, predicts
 //! the force; reproduction renders it through the same force loop as any served model
 //! (observers, force controller, friction, motor). Its felt-force error is therefore the
 //! rendering floor: what no learned model can beat, since a perfect model of the object is
@@ -9,18 +10,18 @@
 //! REAL-TIME PATH: [`OracleModel::predict`] steps the inline sponge state: no allocation, no
 //! lock, no I/O. `begin_run` (off the real-time path) restores a fresh sponge.
 
+use super::material::Material;
+use super::{Law, Object};
 use crate::features::Features;
-use crate::material::Material;
 use crate::model::ForceModel;
-use crate::sponge::Sponge;
 
 /// Sub-steps per control period: the simulated bench integrates its sponge at 10 us sub-steps
 /// at 10 kHz; the oracle interpolates the measured position over the same number.
 const SUBSTEPS: usize = 10;
 
 pub struct OracleModel {
-    fresh: Sponge,
-    sponge: Sponge,
+    fresh: Object,
+    sponge: Object,
     period_s: f64,
     x_prev: f64,
     scale: f64,
@@ -34,7 +35,7 @@ impl OracleModel {
     /// force-constant error cancels between recording and rendering; the oracle is given the
     /// same conversion, or it would carry a 3 % error no learned model has.
     pub fn new(material: &Material, rate_hz: f64, scale: f64) -> Self {
-        let fresh = Sponge::new(material);
+        let fresh = Object::new(material);
         OracleModel {
             sponge: fresh.clone(),
             fresh,
@@ -77,6 +78,7 @@ impl ForceModel for OracleModel {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::object::foam::Sponge;
 
     fn material() -> Material {
         Material::repository_sponge()
@@ -88,7 +90,7 @@ mod tests {
     fn oracle_follows_the_sponge_and_restarts_fresh() {
         let m = material();
         let mut o = OracleModel::new(&m, 10_000.0, 1.0);
-        let mut s = Sponge::new(&m);
+        let mut s = Sponge::new(m.foam().unwrap());
         o.begin_run();
         let mut feats = Features::default();
         let mut worst: f64 = 0.0;

@@ -424,6 +424,7 @@ impl Backend for SimBackend {
                 fallback: s.fallbacks,
                 corrupt: 0,
                 max_transition_step_n: 0.0,
+                saturated: 0,
                 scheduling: "SCHED_OTHER".into(),
                 recorder: "off".into(),
                 telemetry_drops: 0,

@@ -61,6 +61,8 @@ pub struct LoopJson {
     pub fallback: u64,
     pub corrupt: u64,
     pub max_transition_step_n: f64,
+    /// Steps rendered at the force limit (a model answered above it).
+    pub saturated: u64,
     pub latency_us: LatencyJson,
     pub experiment: ExperimentJson,
     pub scheduling: String,
@@ -119,6 +121,7 @@ impl StatusJson {
                 fallback: l.fallback,
                 corrupt: l.corrupt,
                 max_transition_step_n: l.max_transition_step_n,
+                saturated: l.saturated,
                 latency_us: (&l.round_trip_latency).into(),
                 experiment: ExperimentJson {
                     kind: if l.experiment.kind.is_empty() {

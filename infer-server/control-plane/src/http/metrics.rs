@@ -51,6 +51,11 @@ pub async fn metrics(State(core): State<Core>) -> Result<Response, ControlError>
         );
     }
     m.counter(
+        "haptics_steps_saturated_total",
+        "Steps of the current (or last) run rendered at the force limit because the model answered above it",
+        l.saturated as f64,
+    );
+    m.counter(
         "haptics_ring_corrupt_total",
         "Ring slots or indices the loop found corrupt",
         l.corrupt as f64,

@@ -17,17 +17,17 @@ hysteresis of the Preisach/Prandtl-Ishlinskii class by a superposition of play o
     p_r(t) = min(u + r, max(u - r, p_r(t - dt)))         play operators of half-width r (path)
     q      = [u, v/V, u - s_k, u - p_r]                  inputs: now and the memory terms
     object = max(0, sum_j q_j (w1_j + w2_j u + w3_j u^2)) x (x > 0)
-    bench  = sum_l c_l z_l + b v                         the bench's friction (not rendered),
-                                                         c_l >= 0 and b >= 0: it dissipates
+    bench  = sum_l c_l z_l                               the bench's friction (not rendered),
+                                                         c_l >= 0: it dissipates
 
 tau_k 0.01..100 s half a decade apart and r 0.005..0.4 of D are grids of the time and path
 scales, not of any material; D (the largest compression) and V (the 99th percentile of |v|)
 are measured on the training data. Every input enters times 1, u and u^2, so a memory's weight
 may grow with the depth as a relaxing or hysteretic force does in soft materials (a small MLP
 readout was tried first and extrapolated badly to rates it was not fitted on). The readout
-(ridge least squares) and the bench's friction (Dahl states of x and v, the terms `structured`
-identifies) are fitted together by bounded least squares on the rows where the probe slides,
-in contact and out of it: out of contact the target is the friction alone, which is what tells
+and the bench's friction (Dahl states of x, the Coulomb part of what `structured` identifies)
+are fitted together by bounded ridge least squares on the rows where the probe slides, in
+contact and out of it: out of contact the target is the friction alone, which is what tells
 the friction from a hysteresis of the object (inside the object they look alike). The
 friction is fitted because the recorded target (the RFOB estimate) holds it; rendering it
 would count the bench's friction twice, so the graph renders the object only.
@@ -46,7 +46,7 @@ rounded to float32 in `predict` too, so it agrees with the graph within float32 
 
 Sequences layout (`models.base`): `fit(X, y, info)`. Fitted attributes: `dt_`,
 `depth_scale_m_`, `speed_scale_mps_`, `widths_`, `w_` (the readout's weights), `c_`
-(friction), `b_` (viscous), `train_info_`.
+(friction), `train_info_`.
 """
 
 from __future__ import annotations
@@ -154,26 +154,27 @@ class LawFreeModel(ForceModel):
         for x, v, t, keep, dt in picked:
             z, contact = self._inputs(x, v, dt)
             obj = _readout_columns(z) * contact[:, None]
-            bench = np.column_stack([*(dahl(x, L) for L in h["friction_lengths_m"]), v])
+            bench = np.column_stack([dahl(x, L) for L in h["friction_lengths_m"]])
             mats.append(np.column_stack([obj, bench])[keep])
             ts.append(t[keep])
         a, t = np.concatenate(mats), np.concatenate(ts)
-        nf = len(h["friction_lengths_m"]) + 1
+        nf = len(h["friction_lengths_m"])
         scale = np.abs(a).max(axis=0)
         scale[scale == 0] = 1.0
-        # ridge on the object's weights (a generic readout must not chase noise), the
-        # bench's friction and viscosity >= 0 (they dissipate)
+        # ridge on every weight (a generic readout must not chase noise, and the friction must
+        # not buy what the object's terms explain), the bench's friction >= 0 (it dissipates).
+        # No viscous bench term: inside the object it cannot be told from the object's own
+        # v-terms when the probe seldom slides out of contact (force-controlled ramps), and a
+        # large one cancelled by the object made a rendered object that gives energy back.
         ridge = float(h["ridge"]) * np.sqrt(len(t))
         n_obj = a.shape[1] - nf
-        reg = np.zeros((n_obj, a.shape[1]))
-        reg[:, :n_obj] = ridge * np.eye(n_obj)
         lo = np.r_[np.full(n_obj, -np.inf), np.zeros(nf)]
-        sol = lsq_linear(np.vstack([a / scale, reg]), np.r_[t, np.zeros(n_obj)],
+        sol = lsq_linear(np.vstack([a / scale, ridge * np.eye(a.shape[1])]),
+                         np.r_[t, np.zeros(a.shape[1])],
                          bounds=(lo, np.full(a.shape[1], np.inf)))  # fmt: skip
         coef = sol.x / scale
         self.w_ = coef[:n_obj]
-        self.c_ = coef[n_obj:-1]
-        self.b_ = float(coef[-1])
+        self.c_ = coef[n_obj:]
         resid = a @ coef - t
         self.n_features_in_ = len(self.features)
         self.train_info_ = {
@@ -184,7 +185,6 @@ class LawFreeModel(ForceModel):
             "readout_terms": int(n_obj),
             "fit_rmse_n": float(np.sqrt(np.mean(resid**2))),
             "friction_n": self.c_.tolist(),
-            "viscous_ns_per_m": self.b_,
             "fit_seconds": round(time.perf_counter() - t0, 2),
         }
         # the work the rendered object does over each training recording (> 0: it absorbs)
@@ -214,7 +214,7 @@ class LawFreeModel(ForceModel):
         h = self.hyper
         bench = sum(c * dahl(xv[:, 0], L) for c, L in zip(self.c_, h["friction_lengths_m"],
                                                           strict=True))  # fmt: skip
-        return served + bench + self.b_ * xv[:, 1]
+        return served + bench
 
     def to_onnx(self) -> onnx.ModelProto:
         self._check_fitted()

@@ -37,6 +37,10 @@ class Run:
     steps: int = 0
     served: int = 0
     fallbacks: int = 0
+    # the ladder's count of steps rendered at the force limit (a model answered above it) and
+    # of answers refused (NaN/Inf): flagged beside the run's figure (issue 23)
+    saturated: int = 0
+    rejected: int = 0
     note: str = ""
     series: dict[str, np.ndarray] = field(default_factory=dict)
 
@@ -144,6 +148,8 @@ def run_loop(
         steps=int(s.get("steps", 0) or 0),
         served=int(model.get("served", 0) or 0),
         fallbacks=int(model.get("fallbacks", 0) or 0),
+        saturated=int((s.get("ladder") or {}).get("saturated", 0) or 0),
+        rejected=int((s.get("degraded_reasons") or {}).get("rejected", 0) or 0),
         note=note,
     )
     if not run.note and loop.returncode != 0:

@@ -25,6 +25,13 @@ STUDY_HAND = {
     "repeats": 3,
 }
 
+#: The runs the felt force re-ranks the recommendation on (issue 23): another programme (other
+#: depths, a slower press and a faster release) and another seed than the headline's, so the
+#: headline's felt force is scored once, on runs the choice never saw.
+RANK_HAND = {**STUDY_HAND, "depth_m": 0.024, "depth_step_m": 0.004, "press_s": 1.3,
+             "release_s": 0.8}  # fmt: skip
+RANK_SEED_OFFSET = 10
+
 #: The sensitivity run: the same depths, pressed and released 2.5 times faster.
 FAST_HAND = {**STUDY_HAND, "press_s": 0.4, "release_s": 0.4}
 FAST_BEST = 3

@@ -22,12 +22,14 @@ from .score import (
     Row,
     best_row,
     felt_rmse,
+    flags_text,
     floor_summary,
     named_row,
     nan_to_none,
     rankable,
     ratio,
     repro_rmse,
+    run_flags,
     sd2_row,
 )
 
@@ -199,9 +201,9 @@ def write_readme(
     L.append(
         "| model | how | repro R2 | repro MAE | repro MSE | repro RMSE | pred along real RMSE "
         "| pred along real R2 | offline one-step / closed-loop RMSE | served / fallbacks "
-        "| stop | wall s |"
+        "| flags | stop | wall s |"
     )
-    L.append("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    L.append("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     order = sorted(rows, key=lambda r: (not rankable(r), r.repro["rmse"] if r.repro else math.inf))
     for r in order:
         off = offline_rmse(results, r.name)
@@ -214,7 +216,8 @@ def write_readme(
             f"| `{r.name}` | {r.how} | " + " | ".join(metric_cells(r.repro)) + " | "
             f"{fmt(r.shadow['rmse'] if r.shadow else None)} | "
             f"{fmt(r.shadow['r2'] if r.shadow else None)} | {off} | "
-            f"{r.run.served} / {r.run.fallbacks} | {stop} | {r.run.wall_s:.1f} |"
+            f"{r.run.served} / {r.run.fallbacks} | {flags_text(r, rows)} | {stop} | "
+            f"{r.run.wall_s:.1f} |"
         )
     L.append("")
     L.append("![felt-force RMSE per model](rmse.png)\n")
@@ -261,16 +264,17 @@ def write_readme(
             f"The same three presses with press and release in {fh['press_s']} s instead of "
             f"{h['press_s']} s (the reference re-run with that hand too), for the "
             f"{FAST_BEST} best learned models above and the spring-dampers. Reported whatever "
-            "it shows. Fallbacks are steps whose served force was refused (beyond "
-            "`reproduction.max_force_n`, late or missing): the loop rendered its built-in "
-            "fallback instead.\n"
+            "it shows. Fallbacks are steps whose served force was refused (NaN/Inf), late or "
+            "missing: the loop rendered its built-in fallback instead; an answer beyond "
+            "`reproduction.max_force_n` is rendered at the limit and flagged `saturated`.\n"
         )
-        L.append("| model | R2 | MAE | MSE | RMSE | served / fallbacks | stop |")
-        L.append("|---|---|---|---|---|---|---|")
+        L.append("| model | R2 | MAE | MSE | RMSE | served / fallbacks | flags | stop |")
+        L.append("|---|---|---|---|---|---|---|---|")
         for r in sorted(fast_rows, key=lambda r: (not rankable(r), repro_rmse(r))):
             L.append(
                 f"| `{r.name}` | " + " | ".join(metric_cells(r.repro)) + " | "
-                f"{r.run.served} / {r.run.fallbacks} | {r.run.stop or '-'} {r.run.note} |"
+                f"{r.run.served} / {r.run.fallbacks} | {flags_text(r, fast_rows)} | "
+                f"{r.run.stop or '-'} {r.run.note} |"
             )
         fb = best_row(fast_rows, True)
         fsd = sd2_row(fast_rows)
@@ -322,16 +326,20 @@ def floor_section(
         "model in the RFOB; `on`: the bench file's friction subtracted "
         f"({setup.get('bench') or '-'}).\n"
     )
-    L.append("| setting | oracle (floor) | sd_poly2 | builtin | best learned | best / oracle |")
-    L.append("|---|---|---|---|---|---|")
+    L.append(
+        "| setting | oracle (floor) | sd_poly2 | builtin | best learned | best / oracle "
+        "| flags (saturated / refused steps, a broken floor) |"
+    )
+    L.append("|---|---|---|---|---|---|---|")
     for key, (_, rows) in settings.items():
         f = floor_summary(rows)
         o, b = float(f["oracle_felt_rmse_n"]), float(f["best_learned_felt_rmse_n"])  # type: ignore[arg-type]
+        flags = "; ".join(f"`{n}`: {', '.join(v)}" for n, v in f["flags"].items()) or "-"  # type: ignore[attr-defined]
         L.append(
             f"| {key} | {fmt(o)} | {fmt(float(f['sd_poly2_felt_rmse_n']))} | "  # type: ignore[arg-type]
             f"{fmt(float(f['builtin_felt_rmse_n']))} | "  # type: ignore[arg-type]
             f"{'`' + str(f['best_learned']) + '` ' if f['best_learned'] else ''}{fmt(b)} | "
-            f"{fmt(b / o if o > 0 else math.nan, 2)}x |"
+            f"{fmt(b / o if o > 0 else math.nan, 2)}x | {flags} |"
         )
     L.append("")
     for key, (_, rows) in settings.items():
@@ -378,6 +386,9 @@ def results_json(
                 "prediction_along_real": r.shadow,
                 "served": r.run.served,
                 "fallbacks": r.run.fallbacks,
+                "saturated": r.run.saturated,
+                "refused": r.run.rejected,
+                "flags": run_flags(r, rows),
                 "stop": r.run.stop,
                 "note": r.run.note,
                 "wall_s": r.run.wall_s,

@@ -21,6 +21,8 @@ from .protocol import (
     FAST_BEST,
     FAST_HAND,
     ORACLE,
+    RANK_HAND,
+    RANK_SEED_OFFSET,
     SPRING_DAMPERS,
     STUDY_HAND,
     StudyError,
@@ -172,7 +174,16 @@ def run_study(
     doc["setup"] = setup
     doc["friction"] = {k: floor_summary(v[1]) for k, v in settings.items()}
     (out_dir / "results.json").write_text(json.dumps(doc, indent=1))
-    felt_doc = rerank_by_felt(models_dir, results, settings["off"][1])
+    # The re-rank's felt force comes from runs of their own (another hand programme and seed):
+    # the headline runs above are scored once and choose nothing.
+    rank_files = [f for f in study_models(models_dir, names) if f.stem in results]
+    felt_doc = None
+    if rank_files and load_recommendation(models_dir) is not None:
+        _, rank_rows = _reproduce_all(
+            tools, rank_files, work, "rank_", RANK_HAND, seed + RANK_SEED_OFFSET, False, say,
+            common, clock,
+        )  # fmt: skip
+        felt_doc = rerank_by_felt(models_dir, results, rank_rows)
     if felt_doc is not None:
         say(f"recommended (validation free run and felt force): {felt_doc['recommended']}")
         if fidelity is not None:
@@ -267,9 +278,10 @@ def _reproduce_all(
 
 
 def rerank_by_felt(models_dir: Path, results: dict, rows: list[Row]) -> dict | None:
-    """The pipeline's recommendation ranked again with the felt force measured here (without
-    friction compensation, the models of `models_dir`), written back to its
-    recommendation.json; None when the pipeline recommended nothing (no validation run)."""
+    """The pipeline's recommendation ranked again with the felt force of `rows` (the ranking
+    runs: another hand programme and seed than the headline's, without friction compensation,
+    the models of `models_dir`), written back to its recommendation.json; None when the
+    pipeline recommended nothing (no validation run)."""
     prior = load_recommendation(models_dir)
     if prior is None:
         return None

@@ -106,6 +106,32 @@ def felt_rmse(r: Row | None) -> float:
     return r.repro["rmse"] if r is not None and r.repro and rankable(r) else math.nan
 
 
+def run_flags(r: Row, rows: list[Row]) -> list[str]:
+    """What a reader must know beside a run's felt-force figure (issue 23): steps rendered at
+    the force limit (`saturated`), answers refused (`refused`: NaN/Inf), and, for the oracle,
+    that it is not the floor (a model felt closer than the object's own physics: the floor is
+    broken, e.g. by saturation or refusals) or, for a model, that it beat the oracle."""
+    out = []
+    if r.run.saturated:
+        out.append(f"{r.run.saturated} saturated")
+    if r.run.rejected:
+        out.append(f"{r.run.rejected} refused")
+    oracle = felt_rmse(named_row(rows, ORACLE))
+    mine = felt_rmse(r)
+    if math.isfinite(oracle):
+        if r.name == ORACLE:
+            below = [o.name for o in rows if o.name != ORACLE and felt_rmse(o) < oracle]
+            if below:
+                out.append("oracle not the floor: " + ", ".join(sorted(below)) + " felt closer")
+        elif math.isfinite(mine) and mine < oracle:
+            out.append("below the oracle")
+    return out
+
+
+def flags_text(r: Row, rows: list[Row]) -> str:
+    return "; ".join(run_flags(r, rows)) or "-"
+
+
 def floor_summary(rows: list[Row]) -> dict[str, object]:
     """Felt-force RMSE of the oracle (floor), sd_poly2, the builtin and the best learned model
     of one friction setting."""
@@ -117,6 +143,7 @@ def floor_summary(rows: list[Row]) -> dict[str, object]:
         "best_learned": best.name if best else None,
         "best_learned_felt_rmse_n": felt_rmse(best),
         "models": {r.name: felt_rmse(r) for r in rows},
+        "flags": {r.name: run_flags(r, rows) for r in rows if run_flags(r, rows)},
     }
 
 
