@@ -61,7 +61,15 @@ fn run_case(lib: &Path, dir: &Path, case: &Case, n: usize) -> Outcome {
         .arg("--config")
         .arg(&cfg)
         .args(["--clock", "realtime", "--rate-hz", RATE_HZ])
-        .args(["--experiment", "abstraction", "--duration", "1.5"])
+        // no hold at 0 N: the motor carries current when the faults hit
+        .args([
+            "--experiment",
+            "abstraction",
+            "--duration",
+            "1.5",
+            "--hold-zero",
+            "0",
+        ])
         .args(["--no-progress", "--record"])
         .arg(dir.join(format!("rec-{n}.parquet")))
         .arg("--summary-json")
@@ -198,13 +206,13 @@ fn s826_double_clean_run_and_every_injected_fault() {
                 let s = o.summary.as_ref().expect("summary");
                 assert!(stop.starts_with("board-gone: "), "{all}");
                 assert!(nothing_lost(s), "rows lost: {s}");
-                // nothing reaches a vanished card: its own watchdog cuts the output
-                let since = num(&o.log, "watchdog-expired", "since_kick_us").expect(&all);
-                assert!(since <= (WATCHDOG_US + WATCHDOG_SLACK_US) as f64, "{all}");
-                assert_eq!(num(&o.log, "safe-mode", "amps"), Some(0.0), "{all}");
+                // nothing reaches a vanished card: the output stays where it was until the
+                // card's own watchdog cuts it (shown by the serve test below, where the
+                // process outlives the watchdog)
+                let before = num(&o.log, "close", "amps").expect(&all);
                 (
-                    format!("stopped on the step it failed ({stop}); the card's watchdog cut the output {:.0} ms after the last kick", since / 1e3),
-                    "0 A (card's safe mode)".into(),
+                    format!("stopped on the step it failed ({stop}); no write reaches the card, so its own watchdog cuts the output (serve test: within the watchdog time)"),
+                    format!("{before:.4} A until the card's watchdog, then 0 A"),
                 )
             }
             "FIFO overflow" | "quadrature error" | "timestamp wraps mid-run" => {
@@ -242,14 +250,24 @@ fn s826_double_clean_run_and_every_injected_fault() {
                         "0 A (card's safe mode, host stalled)".into(),
                     )
                 } else {
+                    // the step (soft snapshot) the double injected the fault on
+                    let event = if case.fault == "DAC write refused" {
+                        "fault-dac-refused"
+                    } else {
+                        "fault-fifo-not-ready"
+                    };
+                    let fault_at = num(&o.log, event, "snapshot").expect(&all);
                     let zero_at = num(&o.log, "output-zero", "snapshot").expect(&all);
+                    assert_eq!(zero_at, fault_at, "0 A on the step of the fault\n{all}");
                     assert_eq!(
-                        zero_at, FAULT_AT as f64,
-                        "0 A on the step of the fault\n{all}"
+                        num(&o.log, "safe-mode", "snapshot"),
+                        Some(fault_at),
+                        "{all}"
                     );
+                    let before = num(&o.log, "output-zero", "amps_before").unwrap_or(0.0);
                     (
-                        format!("stopped on step {FAULT_AT}, 0 A written and safe mode set on that step ({stop})"),
-                        format!("0 A from step {zero_at:.0}"),
+                        format!("stopped on step {fault_at:.0} (the fault's), 0 A written and safe mode set on that step ({stop})"),
+                        format!("{before:.4} A -> 0 A on step {zero_at:.0}"),
                     )
                 }
             }
@@ -358,4 +376,77 @@ fn serve_on_the_double_shows_a_board_fault_everywhere() {
     lp.wait_for("is in safe mode", Duration::from_secs(10));
     drop(server);
     drop(lp);
+}
+
+/// A card that vanishes mid-run cannot be written to: its own watchdog must cut the output
+/// within its timeout. `rt-loop serve` outlives the run, so the double's card (in the same
+/// process) is still there to show it.
+#[test]
+fn serve_on_the_double_a_vanished_card_is_cut_by_its_own_watchdog() {
+    let Some(lib) = double() else { return };
+    let dir = temp_dir("s826-vanish");
+    let cfg = dir.join("s826.toml");
+    // no hold at 0 N: the motor carries current when the card vanishes
+    std::fs::write(
+        &cfg,
+        format!("[s826]\nwatchdog_us = {WATCHDOG_US}\n[ramp]\nhold_zero_s = 0.0\n"),
+    )
+    .unwrap();
+    let log = dir.join("double.log");
+    let inst = instance("s826v");
+    let mut lp = Proc::spawn(
+        "rt-loop serve",
+        Command::new(bin("rt-loop"))
+            .args([
+                "serve",
+                "--instance",
+                &inst,
+                "--board",
+                "s826",
+                "--s826-lib",
+            ])
+            .arg(&lib)
+            .arg("--config")
+            .arg(&cfg)
+            .args([
+                "--clock",
+                "realtime",
+                "--rate-hz",
+                "1000",
+                "--autostart",
+                "abstraction",
+            ])
+            .env("S826_DOUBLE_LOG", &log)
+            .env("S826_DOUBLE_VANISH_AT", "1000"),
+    );
+    let out = lp.wait_for("ended: board-gone: ", Duration::from_secs(30));
+    let end = Instant::now() + Duration::from_secs(10);
+    let text = loop {
+        let t = std::fs::read_to_string(&log).unwrap_or_default();
+        if t.contains(" safe-mode on") {
+            break t;
+        }
+        assert!(
+            Instant::now() < end,
+            "the card's watchdog never fired:\n{t}\n{out}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let since = num(&text, "watchdog-expired", "since_kick_us").expect(&text);
+    let before = num(&text, "watchdog-expired", "amps_before").expect(&text);
+    assert!(
+        since >= WATCHDOG_US as f64 && since <= (WATCHDOG_US + WATCHDOG_SLACK_US) as f64,
+        "the card cut the output {since} us after the last kick\n{text}"
+    );
+    assert!(
+        before != 0.0,
+        "the motor carried current when the card vanished\n{text}"
+    );
+    assert_eq!(num(&text, "safe-mode", "amps"), Some(0.0), "{text}");
+    println!(
+        "vanished card: {before:.4} A held until its watchdog cut it to 0 A {:.1} ms after the last kick (watchdog {} ms)",
+        since / 1e3,
+        WATCHDOG_US / 1000
+    );
+    assert!(!lp.output().contains("panicked"), "{}", lp.output());
 }

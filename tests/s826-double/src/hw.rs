@@ -58,8 +58,9 @@ pub struct Card {
     pub amps: f64,
     /// The DAC channel the amplifier is wired to (the one the driver writes).
     pub motor_chan: usize,
-    /// Whether the injected vanishing was logged.
-    pub vanish_logged: bool,
+    /// The card vanished (injected): from then on, for the life of the process, every call
+    /// fails and `S826_SystemOpen` finds no board; its watchdog still runs.
+    pub vanished: bool,
     log: Option<std::fs::File>,
 }
 
@@ -118,7 +119,7 @@ impl Card {
             dac_writes: 0,
             amps: 0.0,
             motor_chan: 0,
-            vanish_logged: false,
+            vanished: false,
             log,
         }
     }

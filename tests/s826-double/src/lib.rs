@@ -44,12 +44,17 @@ fn with_card(board: c_uint, f: impl FnOnce(&mut Card) -> c_int) -> c_int {
         return ERR_BOARD;
     }
     if let Some(at) = c.faults.vanish_at {
-        if c.snapshots >= at {
-            if !std::mem::replace(&mut c.vanish_logged, true) {
-                c.log("fault-board-vanished", format_args!("snapshot={at}"));
-            }
-            return ERR_DRIVER;
+        if c.snapshots >= at && !c.vanished {
+            c.vanished = true;
+            let amps = c.amps;
+            c.log(
+                "fault-board-vanished",
+                format_args!("snapshot={at} amps={amps:.4}"),
+            );
         }
+    }
+    if c.vanished {
+        return ERR_DRIVER;
     }
     f(c)
 }
@@ -63,7 +68,7 @@ pub extern "C" fn S826_SystemOpen() -> c_int {
     let mut g = card();
     let c = g.get_or_insert_with(|| Card::new(env.clone()));
     c.faults = faults;
-    if c.faults.no_board {
+    if c.faults.no_board || c.vanished {
         c.log("open", format_args!("no board (injected)"));
         return 0;
     }
@@ -71,7 +76,6 @@ pub extern "C" fn S826_SystemOpen() -> c_int {
     c.open = true;
     c.snapshots = 0;
     c.dac_writes = 0;
-    c.vanish_logged = false;
     let b = c.env.board;
     c.log("open", format_args!("board={b}"));
     drop(g);
