@@ -16,7 +16,11 @@
 #
 # Usage: scripts/bench-loaded.sh            (a few minutes; builds what it needs)
 # Env:   BENCH_SECONDS (per condition, default 20), FLOOR_SECONDS (default 20), SWAPS (100),
-#        BENCH_DIR (default target/bench-loaded), HAPTICS_MODEL (default rf_six).
+#        BENCH_DIR (default target/bench-loaded), HAPTICS_MODEL (default rf_six),
+#        HAPTICS_BOARD (the realtime runs' board: sim, default; or s826, on HAPTICS_S826_LIB, by
+#        default the C-ABI double target/release/libs826_double.so simulating the same hand, its
+#        watchdog HAPTICS_S826_WATCHDOG_US, default 100000; the lockstep references stay on sim;
+#        a real card has no F_true, so the felt-force columns are NaN there).
 # Spins both cores during the floor (a benchmark, never a test). Needs root or sudo only to
 # install stress-ng (Debian: apt-get install -y stress-ng rt-tests) when it is missing.
 set -euo pipefail
@@ -91,9 +95,20 @@ hand_repeats=$(((secs > 60 ? secs : 60) / 5 + 1))
 # position limit).
 printf '# bench-loaded: the hand programme of every run\n[hand]\nrepeats = %d\ndepth_step_m = 0.0\n' \
   "$hand_repeats" >"$work/hand.toml"
+# The realtime runs' board (HAPTICS_BOARD); the lockstep references always run on sim.
+board=${HAPTICS_BOARD:-sim}
+board_args=(--board "$board")
+case "$board" in
+  s826*)
+    board_args+=(--s826-lib "${HAPTICS_S826_LIB:-target/release/libs826_double.so}"
+      --s826-watchdog-us "${HAPTICS_S826_WATCHDOG_US:-100000}")
+    export S826_DOUBLE_WORLD=hand
+    ;;
+esac
 run_loop() { # name clock duration [extra rt-loop args]
   local name=$1 clock=$2 dur=$3
   shift 3
+  [ "$clock" = realtime ] && set -- "${board_args[@]}" "$@"
   target/release/rt-loop run --config "$work/hand.toml" --experiment reproduction --clock "$clock" \
     --model shm --instance "$instance" --seed 1 --duration "$dur" --record "$work/$name.parquet" --overwrite \
     --summary-json "$work/$name.json" --no-progress "$@" >"$work/$name.out" 2>&1

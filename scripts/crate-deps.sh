@@ -32,7 +32,7 @@ for p in sorted(meta["packages"], key=lambda p: p["name"]):
         line += f"   (tests/benches: {', '.join(other)})"
     print(line)
 
-TEST_SUPPORT = {"haptics-system-tests", "shm-ring-testing", "control-plane-sim", "shm-ring-bench-grpc"}
+TEST_SUPPORT = {"haptics-system-tests", "shm-ring-testing", "control-plane-sim", "shm-ring-bench-grpc", "s826-double"}
 FORBIDDEN = {
     "shm-ring": ours - {"shm-ring"},
     "haptics-proto": ours - {"haptics-proto", "shm-ring"},

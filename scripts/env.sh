@@ -11,5 +11,6 @@ unset _root
 # One build command for every script: cargo unifies dependency features over the packages it is
 # asked for, so building a different set (rt-loop alone, say) recompiles shared dependencies.
 haptics_build() {
-  cargo build --release -p rt-loop -p infer-server -p hapticctl
+  # s826-double: the C-ABI double of the Sensoray 826 library (test support; HAPTICS_BOARD=s826)
+  cargo build --release -p rt-loop -p infer-server -p hapticctl -p s826-double
 }

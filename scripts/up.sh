@@ -15,7 +15,11 @@
 # abstraction, reproduction, none), HAPTICS_HTTP (127.0.0.1:8080), HAPTICS_GRPC
 # (127.0.0.1:50051), HAPTICS_INSTANCE (default), HAPTICS_TOKEN (unset: no token), HAPTICS_PROFILE
 # (infer-server's wait profile: auto, chosen from the machine and printed at start; or dedicated,
-# period, shared).
+# period, shared), HAPTICS_BOARD (sim, default; or s826[:N], a Sensoray 826: docs/lab.md),
+# HAPTICS_S826_LIB (the 826 library; unset and none installed: the C-ABI double
+# target/release/libs826_double.so, which simulates the rig), HAPTICS_S826_WATCHDOG_US (the
+# card's watchdog; default five periods, 100000 on the double: this is no real-time host),
+# HAPTICS_RIG (the rig file of `rt-loop board calibrate`).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -26,6 +30,7 @@ http=${HAPTICS_HTTP:-127.0.0.1:8080}
 grpc=${HAPTICS_GRPC:-127.0.0.1:50051}
 instance=${HAPTICS_INSTANCE:-default}
 profile=${HAPTICS_PROFILE:-auto}
+board=${HAPTICS_BOARD:-sim}
 
 say() { printf '\n==> %s\n' "$*"; }
 
@@ -85,8 +90,26 @@ stop() {
 }
 trap stop INT TERM EXIT
 
-say "start rt-loop (simulated bench, realtime 10 kHz) and infer-server"
-loop_args=(serve --clock realtime --instance "$instance")
+loop_args=(serve --clock realtime --instance "$instance" --board "$board")
+bench="simulated bench"
+case "$board" in
+  s826*)
+    s826_lib=${HAPTICS_S826_LIB:-}
+    if [ -z "$s826_lib" ] && ! ldconfig -p 2>/dev/null | grep -q lib826_64.so \
+        && [ ! -f /usr/local/lib/lib826_64.so ]; then
+      s826_lib=target/release/libs826_double.so
+      watchdog=${HAPTICS_S826_WATCHDOG_US:-100000}
+      bench="the 826's C-ABI double (no lib826_64.so on this machine; the double simulates the rig)"
+    else
+      watchdog=${HAPTICS_S826_WATCHDOG_US:-}
+      bench="Sensoray 826 board ${board#s826}"
+    fi
+    [ -n "$s826_lib" ] && loop_args+=(--s826-lib "$s826_lib")
+    [ -n "$watchdog" ] && loop_args+=(--s826-watchdog-us "$watchdog")
+    ;;
+esac
+[ -n "${HAPTICS_RIG:-}" ] && loop_args+=(--rig "$HAPTICS_RIG")
+say "start rt-loop ($bench, realtime 10 kHz) and infer-server"
 [ "$autostart" != none ] && loop_args+=(--autostart "$autostart")
 target/release/rt-loop "${loop_args[@]}" &
 pids+=($!)
@@ -109,7 +132,7 @@ if [ "$up" != 1 ]; then
 fi
 cat <<EOF
 
-  The system is up on the simulated bench.
+  The system is up on the $bench.
     page:      http://$http/
     gRPC:      $grpc   (target/release/hapticctl status --watch)
     model:     $model (models/), experiment: $autostart

@@ -116,6 +116,10 @@ pub fn status_json(s: &pb::Status) -> Value {
             "corrupt": s.corrupt,
             "max_transition_step_n": s.max_transition_step_n,
             "saturated": s.saturated,
+            "board_faults": s.board_faults,
+            "board_fault": s.board_fault,
+            "board_fifo_overflows": s.board_fifo_overflows,
+            "board_quadrature_errors": s.board_quadrature_errors,
             "scheduling": s.scheduling,
             "recorder": s.recorder,
             "telemetry_drops": s.telemetry_drops,
@@ -183,6 +187,15 @@ pub fn status_text(s: &pb::Status) -> String {
         "ladder:      on time {}    late one {}    held {}    fallback {}    saturated {}    max transition step {:.4} N    corrupt {}\n",
         s.on_time, s.late_one, s.held, s.fallback, s.saturated, s.max_transition_step_n, s.corrupt
     ));
+    if s.board_faults > 0 || s.board_fifo_overflows > 0 || s.board_quadrature_errors > 0 {
+        out.push_str(&format!(
+            "board:       {} fault(s) (each at 0 A), last: {}    FIFO overflows {}    quadrature errors {}\n",
+            s.board_faults,
+            if s.board_fault.is_empty() { "-" } else { &s.board_fault },
+            s.board_fifo_overflows,
+            s.board_quadrature_errors
+        ));
+    }
     out.push_str(&format!(
         "round trip:  {}\n",
         lat(s.round_trip_latency.as_ref())

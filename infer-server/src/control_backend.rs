@@ -107,6 +107,10 @@ pub fn apply_loop_block(status: &mut LoopStatus, b: &haptics_proto::LoopStatus) 
         status.saturated = b.saturated;
     }
     status.corrupt = b.corrupt;
+    status.board_faults = b.board_faults;
+    status.board_fault = b.board_fault.as_str().into();
+    status.board_fifo_overflows = b.board_fifo_overflows;
+    status.board_quadrature_errors = b.board_quadrature_errors;
     // The loop knows which experiment it runs; the rows' phase cannot tell a shadow run
     // (an autostarted one included) from a reproduction.
     if status.experiment.running && b.running && !b.experiment.is_empty() {

@@ -21,6 +21,8 @@ pub const SCHEDULING_BYTES: usize = 64;
 pub const RECORDER_BYTES: usize = 128;
 /// Bytes of [`LoopStatus::experiment`].
 pub const EXPERIMENT_BYTES: usize = 32;
+/// Bytes of [`LoopStatus::board_fault`].
+pub const BOARD_FAULT_BYTES: usize = 64;
 
 /// How the loop paces its steps.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -208,6 +210,15 @@ pub struct LoopStatus {
     pub round_trip: Quantiles,
     /// |actual period - nominal period| (realtime clock).
     pub period_jitter: Quantiles,
+    /// Board failures that ended a run (a read, a DAC write or a watchdog kick failed, the
+    /// board gone, its watchdog tripped) since the loop started: each put the motor at 0 A.
+    pub board_faults: u64,
+    /// The last such failure's reason ("" when none).
+    pub board_fault: StatusText<BOARD_FAULT_BYTES>,
+    /// Snapshots a real board's FIFO lost (counted, not fatal), this run.
+    pub board_fifo_overflows: u64,
+    /// Snapshots with a quadrature error (counted, not fatal), this run.
+    pub board_quadrature_errors: u64,
 }
 
 const fn words(bytes: usize) -> usize {
@@ -240,9 +251,13 @@ mod at {
     pub const CORRUPT: usize = ON_TIME + 4;
     pub const MAX_TRANSITION_STEP_N: usize = ON_TIME + 5;
     pub const EXPERIMENT: usize = ON_TIME + 6;
-    // layout version 4: saturated steps (issue 23)
+    // layout version 4: saturated steps (issue 23) and the board's failures (issue 20)
     pub const SATURATED: usize = EXPERIMENT + words(EXPERIMENT_BYTES);
-    pub const END: usize = SATURATED + 1;
+    pub const BOARD_FAULTS: usize = SATURATED + 1;
+    pub const BOARD_FIFO_OVERFLOWS: usize = BOARD_FAULTS + 1;
+    pub const BOARD_QUADRATURE_ERRORS: usize = BOARD_FAULTS + 2;
+    pub const BOARD_FAULT: usize = BOARD_FAULTS + 3;
+    pub const END: usize = BOARD_FAULT + words(BOARD_FAULT_BYTES);
 }
 
 const _: () = assert!(
@@ -290,6 +305,10 @@ impl LoopStatus {
         w[at::MAX_TRANSITION_STEP_N] = self.max_transition_step_n.to_bits();
         self.experiment.store(&mut w[at::EXPERIMENT..]);
         w[at::SATURATED] = self.saturated;
+        w[at::BOARD_FAULTS] = self.board_faults;
+        w[at::BOARD_FIFO_OVERFLOWS] = self.board_fifo_overflows;
+        w[at::BOARD_QUADRATURE_ERRORS] = self.board_quadrature_errors;
+        self.board_fault.store(&mut w[at::BOARD_FAULT..]);
         w
     }
 
@@ -319,6 +338,10 @@ impl LoopStatus {
             corrupt: w[at::CORRUPT],
             max_transition_step_n: f64::from_bits(w[at::MAX_TRANSITION_STEP_N]),
             saturated: w[at::SATURATED],
+            board_faults: w[at::BOARD_FAULTS],
+            board_fault: StatusText::load(&w[at::BOARD_FAULT..]),
+            board_fifo_overflows: w[at::BOARD_FIFO_OVERFLOWS],
+            board_quadrature_errors: w[at::BOARD_QUADRATURE_ERRORS],
         }
     }
 }
@@ -402,6 +425,10 @@ mod tests {
             corrupt: 16,
             max_transition_step_n: 0.04,
             saturated: 17,
+            board_faults: 18,
+            board_fault: StatusText::new("S826_DacDataWrite returned S826_ERR_NOTREADY"),
+            board_fifo_overflows: 19,
+            board_quadrature_errors: 20,
         };
         assert_eq!(block.publish(&s.to_words()), 1);
         let (generation, words) = block.read().expect("published");

@@ -20,6 +20,7 @@ pub fn run(cmd: &Cmd, shutdown: &Shutdown) -> Result<ExitCode> {
         Cmd::Serve(a) => serve(a, shutdown),
         Cmd::IdentifyFriction(a) => identify_friction(a),
         Cmd::Fit(a) => fit(a),
+        Cmd::Board(b) => board(b),
     }
 }
 
@@ -70,7 +71,7 @@ pub fn run_experiment(a: &RunArgs, shutdown: &Shutdown) -> Result<ExitCode> {
         // in the loop's force units: K_fn / K_f of the simulated bench (crate::oracle)
         let scale = match cfg.board {
             BoardKind::Sim => cfg.params.k_fn / cfg.sim.force_constant,
-            BoardKind::Replay => 1.0,
+            BoardKind::Replay | BoardKind::S826 { .. } => 1.0,
         };
         model = Some(Box::new(crate::oracle::OracleModel::new(
             &material,
@@ -238,6 +239,7 @@ pub fn identify_friction(a: &IdentifyArgs) -> Result<ExitCode> {
     if let Some(s) = a.seed {
         cfg.seed = s;
     }
+    a.board.apply(&mut cfg)?;
     let mut plan = crate::friction_id::SweepPlan::default();
     if let Some(v) = &a.speeds_mm_s {
         plan.speeds_mps = v.iter().map(|s| s * 1e-3).collect();
@@ -247,4 +249,86 @@ pub fn identify_friction(a: &IdentifyArgs) -> Result<ExitCode> {
     let id = crate::friction_id::identify(&cfg, &plan)?;
     crate::friction_id::report(&id, &command, &a.out, a.json.as_deref())?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// `rt-loop board check | calibrate | clear-safe-mode`.
+pub fn board(cmd: &crate::cli::BoardCmd) -> Result<ExitCode> {
+    use crate::cli::BoardCmd;
+    match cmd {
+        BoardCmd::Check(a) => {
+            let cfg = a.resolve()?;
+            let lines = crate::bringup::check::check(&cfg)?;
+            for l in &lines {
+                println!("{l}");
+            }
+            if let Some(p) = &a.json {
+                std::fs::write(p, serde_json::to_string_pretty(&lines)?)
+                    .map_err(|e| anyhow::anyhow!("--json {}: {e}", p.display()))?;
+            }
+            let failed = lines.iter().filter(|l| !l.pass).count();
+            println!(
+                "{}",
+                if failed == 0 {
+                    "board check: every line passed".to_string()
+                } else {
+                    format!("board check: {failed} line(s) failed (see what to change above)")
+                }
+            );
+            Ok(if failed == 0 {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(1)
+            })
+        }
+        BoardCmd::Calibrate(a) => {
+            let cfg = a.check.resolve()?;
+            if a.out.exists() && !a.overwrite {
+                anyhow::bail!(
+                    "{} already exists: choose another --out or pass --overwrite",
+                    a.out.display()
+                );
+            }
+            let given = crate::bringup::calibrate::Given {
+                counts_per_metre: a.counts_per_metre,
+                force_constant: a.force_constant,
+                amps_per_volt: a.amps_per_volt,
+                skip_friction: a.skip_friction,
+            };
+            let (rig, notes) = crate::bringup::calibrate::calibrate(&cfg, &given)?;
+            let args: Vec<String> = std::env::args().skip(1).collect();
+            let header = format!(
+                "The rig file: written by `rt-loop {}`.\n{}\nRead by every command with --rig FILE.",
+                args.join(" "),
+                notes.join("\n")
+            );
+            std::fs::write(&a.out, rig.to_toml(&header)?)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", a.out.display()))?;
+            for n in &notes {
+                println!("{n}");
+            }
+            println!("wrote {}", a.out.display());
+            Ok(ExitCode::SUCCESS)
+        }
+        BoardCmd::ClearSafeMode(a) => {
+            let cfg = a.resolve()?;
+            let mut b = crate::bringup::check::open_board(&cfg)?;
+            b.open()?;
+            let was = b.safe_mode().map_err(|e| anyhow::anyhow!("{e}"))?;
+            b.clear_safe_mode()?;
+            let now = b.safe_mode().map_err(|e| anyhow::anyhow!("{e}"))?;
+            crate::board::Board::shutdown(&mut b);
+            if now {
+                anyhow::bail!("the board is still in safe mode after clearing it");
+            }
+            println!(
+                "{}",
+                if was {
+                    "safe mode cleared: the board drives the amplifier again when a run starts"
+                } else {
+                    "the board was not in safe mode"
+                }
+            );
+            Ok(ExitCode::SUCCESS)
+        }
+    }
 }

@@ -46,12 +46,116 @@ pub enum Cmd {
     /// Identify the bench's friction (Coulomb, Stribeck, viscous) with constant-velocity sweeps
     /// in free air under position control; writes the bench file that --bench reads.
     IdentifyFriction(IdentifyArgs),
+    /// A real board's first day: `check` (each line pass or what to change), `calibrate`
+    /// (writes the rig file every command takes with --rig), `clear-safe-mode`.
+    #[command(subcommand)]
+    Board(BoardCmd),
+}
+
+#[derive(Subcommand)]
+pub enum BoardCmd {
+    /// Versions, the encoder following a small current pulse, DAC polarity and amplifier gain,
+    /// counts per metre, and a watchdog trip without the host. Run it in free air.
+    Check(BoardCheckArgs),
+    /// Measures direction, moving mass and friction; writes the rig file (--out).
+    Calibrate(CalibrateArgs),
+    /// Leaves safe mode after a watchdog trip or a fault (the explicit action it needs).
+    ClearSafeMode(BoardCheckArgs),
+}
+
+#[derive(Args)]
+pub struct BoardCheckArgs {
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    #[command(flatten)]
+    pub board: BoardArgs,
+    /// Also write the lines as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+impl BoardCheckArgs {
+    /// The configuration with these flags over it.
+    pub fn resolve(&self) -> Result<RunConfig> {
+        let mut c = match &self.config {
+            Some(p) => RunConfig::load(p)?,
+            None => RunConfig::default(),
+        };
+        self.board.apply(&mut c)?;
+        c.validate().map_err(|e| anyhow::anyhow!(e))?;
+        Ok(c)
+    }
+}
+
+#[derive(Args)]
+pub struct CalibrateArgs {
+    #[command(flatten)]
+    pub check: BoardCheckArgs,
+    /// The rig file to write.
+    #[arg(long, default_value = "rig.toml")]
+    pub out: PathBuf,
+    /// Encoder counts per metre (datasheet, or from `board check` with a gauge).
+    #[arg(long)]
+    pub counts_per_metre: Option<f64>,
+    /// Motor force constant, N/A (datasheet).
+    #[arg(long)]
+    pub force_constant: Option<f64>,
+    /// Amplifier gain, A/V (datasheet or its gain setting).
+    #[arg(long)]
+    pub amps_per_volt: Option<f64>,
+    /// Keep the configured friction instead of running the sweeps.
+    #[arg(long)]
+    pub skip_friction: bool,
+    /// Replace an existing --out file.
+    #[arg(long)]
+    pub overwrite: bool,
+}
+
+/// Which board, and for a real one where its library and its calibration are (`run`,
+/// `serve`, `identify-friction`, `board ...`).
+#[derive(Args, Clone, Default)]
+pub struct BoardArgs {
+    /// sim, replay, or s826[:N] (a Sensoray 826, N the board number its switches set).
+    #[arg(long)]
+    pub board: Option<BoardKind>,
+    /// The Sensoray 826 library (default: HAPTICS_S826_LIB, else lib826_64.so on the library
+    /// paths).
+    #[arg(long)]
+    pub s826_lib: Option<PathBuf>,
+    /// The 826's hardware watchdog, us (default: five periods of --rate-hz).
+    #[arg(long)]
+    pub s826_watchdog_us: Option<u32>,
+    /// Rig file (`rt-loop board calibrate`): counts per metre, direction, A/V, force
+    /// constant, moving mass, friction.
+    #[arg(long)]
+    pub rig: Option<PathBuf>,
+}
+
+impl BoardArgs {
+    /// These flags over a configuration.
+    pub fn apply(&self, c: &mut RunConfig) -> Result<()> {
+        if let Some(v) = self.board {
+            c.board = v;
+        }
+        if let Some(p) = &self.s826_lib {
+            c.s826.lib = Some(p.clone());
+        }
+        if let Some(us) = self.s826_watchdog_us {
+            c.s826.watchdog_us = Some(us);
+        }
+        if let Some(p) = &self.rig {
+            crate::board::rig_file::RigFile::load(p)?.apply(c);
+        }
+        Ok(())
+    }
 }
 
 #[derive(Args)]
 pub struct IdentifyArgs {
     #[arg(long)]
     pub config: Option<PathBuf>,
+    #[command(flatten)]
+    pub board: BoardArgs,
     #[arg(long)]
     pub seed: Option<u64>,
     /// Bench file to write (TOML, `[friction]`).
@@ -168,8 +272,8 @@ pub struct CommonArgs {
     pub config: Option<PathBuf>,
     #[arg(long)]
     pub rate_hz: Option<f64>,
-    #[arg(long, value_enum)]
-    pub board: Option<BoardKind>,
+    #[command(flatten)]
+    pub board: BoardArgs,
     #[arg(long)]
     pub seed: Option<u64>,
     #[arg(long)]
@@ -193,9 +297,7 @@ impl CommonArgs {
         if let Some(v) = self.rate_hz {
             c.rate_hz = v;
         }
-        if let Some(v) = self.board {
-            c.board = v;
-        }
+        self.board.apply(&mut c)?;
         if let Some(v) = self.seed {
             c.seed = v;
         }
@@ -235,7 +337,7 @@ impl ServeArgs {
     pub fn resolve(&self) -> Result<DaemonConfig> {
         let mut base = self.common.resolve()?;
         base.clock = self.clock;
-        if base.board != BoardKind::Sim {
+        if base.board == BoardKind::Replay {
             bail!("serve runs on the simulated bench (--board sim) or a real board; the replay board ends with its data");
         }
         base.record = None;
@@ -356,7 +458,7 @@ impl RunArgs {
         }
         if self.replay.is_some() {
             c.replay = self.replay.clone();
-            if self.common.board.is_none() {
+            if self.common.board.board.is_none() {
                 c.board = BoardKind::Replay;
             }
         }

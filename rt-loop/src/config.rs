@@ -28,11 +28,58 @@ pub enum ClockKind {
     Realtime,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "kebab-case")]
+/// Which board the loop drives: `sim`, `replay`, or `s826[:N]` (a Sensoray 826 card, N the
+/// board number its switches set, 0 by default). Written as that text in configs and metadata.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum BoardKind {
+    #[default]
     Sim,
     Replay,
+    S826 {
+        board: u32,
+    },
+}
+
+impl std::str::FromStr for BoardKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "sim" => Ok(BoardKind::Sim),
+            "replay" => Ok(BoardKind::Replay),
+            "s826" => Ok(BoardKind::S826 { board: 0 }),
+            _ => match s.strip_prefix("s826:").map(str::parse::<u32>) {
+                Some(Ok(n)) if n < 16 => Ok(BoardKind::S826 { board: n }),
+                Some(_) => Err(format!(
+                    "board {s:?}: the 826's board number is 0..15 (its switches), e.g. s826:1"
+                )),
+                None => Err(format!("board {s:?}: expected sim, replay, s826 or s826:N")),
+            },
+        }
+    }
+}
+
+impl std::fmt::Display for BoardKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            BoardKind::Sim => f.write_str("sim"),
+            BoardKind::Replay => f.write_str("replay"),
+            BoardKind::S826 { board: 0 } => f.write_str("s826"),
+            BoardKind::S826 { board } => write!(f, "s826:{board}"),
+        }
+    }
+}
+
+impl Serialize for BoardKind {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+impl<'de> Deserialize<'de> for BoardKind {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let s = String::deserialize(d)?;
+        s.parse().map_err(serde::de::Error::custom)
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -63,6 +110,8 @@ pub struct RunConfig {
     pub ramp: RampConfig,
     pub params: LoopParams,
     pub sim: SimConfig,
+    /// The Sensoray 826's wiring and amplifier (`--board s826`).
+    pub s826: crate::board::s826::S826Config,
     pub hand: HandConfig,
     pub features: FeatureParams,
     pub reproduction: ReproductionConfig,
@@ -91,6 +140,7 @@ impl Default for RunConfig {
             ramp: RampConfig::default(),
             params: LoopParams::default(),
             sim: SimConfig::default(),
+            s826: Default::default(),
             hand: HandConfig::default(),
             features: FeatureParams::default(),
             reproduction: ReproductionConfig::default(),
@@ -135,8 +185,11 @@ impl RunConfig {
         if self.experiment == ExperimentKind::PositionReplay && self.trajectory.is_none() {
             return Err("position replay needs a trajectory (--trajectory RECORDING)".into());
         }
-        if self.params.meters_per_count != self.sim.meters_per_count
-            || self.params.dac_full_scale != self.sim.dac_full_scale
+        // The simulated bench measures with the loop's scales; a real board's come from the
+        // rig file (`--rig`).
+        if self.board == BoardKind::Sim
+            && (self.params.meters_per_count != self.sim.meters_per_count
+                || self.params.dac_full_scale != self.sim.dac_full_scale)
         {
             return Err("params and sim disagree on the encoder or DAC scale".into());
         }
@@ -146,6 +199,7 @@ impl RunConfig {
         self.ladder.validate()?;
         self.ramp.validate()?;
         self.sim.validate()?;
+        self.s826.validate()?;
         self.hand.validate()?;
         self.features.validate()?;
         Ok(())

@@ -75,7 +75,7 @@ pub fn run(cfg: &DaemonConfig, shutdown: &Shutdown) -> Result<u64> {
     let mut io = seg.io;
     io.set_identity(
         cfg.base.clock,
-        &format!("{:?}", cfg.base.board).to_lowercase(),
+        &cfg.base.board.to_string(),
         cfg.base.rate_hz,
     );
     io.publish_status();

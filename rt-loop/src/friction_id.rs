@@ -152,7 +152,8 @@ pub fn identify(cfg: &RunConfig, plan: &SweepPlan) -> Result<Identification> {
     // No material: the bench in free air.
     let board = crate::run::build_board(cfg, None)?;
     let mut rig: Rig<Box<dyn Board>> =
-        Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone());
+        Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone())
+            .map_err(|f| anyhow!("board {}: {}", cfg.board, f.error))?;
     // Per segment: sums over its steady window.
     let mut acc = vec![(0.0f64, 0.0f64, 0.0f64, 0usize); segs.len()];
     let windows: Vec<(f64, f64)> = segs
@@ -185,6 +186,7 @@ pub fn identify(cfg: &RunConfig, plan: &SweepPlan) -> Result<Identification> {
             ),
         }
     }
+    rig.finish();
     let points: Vec<SweepPoint> = segs
         .iter()
         .zip(&acc)

@@ -13,6 +13,7 @@
 
 pub mod app;
 pub mod board;
+pub mod bringup;
 pub mod cli;
 pub mod clock;
 pub mod config;

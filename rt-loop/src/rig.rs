@@ -5,7 +5,7 @@
 //! board's own register access). Everything it touches is built in [`Rig::new`]. A test binary
 //! with a counting global allocator (tests/alloc_free_step.rs) holds it to that.
 
-use crate::board::{Board, BoardStop};
+use crate::board::{Board, BoardError, BoardHealth, BoardStop};
 use crate::dac;
 use crate::experiment::{Command, Experiment, Phase};
 use crate::features::{FeatureExtractor, FeatureParams};
@@ -25,10 +25,27 @@ pub enum Stop {
     Finished,
     /// |x| reached the position limit: current set to 0, run aborted.
     PositionLimit,
-    /// The board reported a fault: current set to 0, run aborted.
+    /// The board reported a fault (a read, a DAC write or a watchdog kick failed): current
+    /// set to 0, the board in its safe mode, run aborted.
     BoardFault(&'static str),
+    /// The board is gone (unplugged, closed under the loop): its safe mode holds 0 A.
+    BoardGone(&'static str),
     /// The watchdog fired (the loop was not kicking it in time).
     Watchdog,
+}
+
+/// The board could not be configured or activated; the experiment (and its model) comes
+/// back so that a long-running caller keeps its served model.
+pub struct StartFailed {
+    pub error: BoardError,
+    /// Boxed: an experiment is large, and this travels in an `Err`.
+    pub experiment: Box<Experiment>,
+}
+
+impl std::fmt::Debug for StartFailed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "StartFailed({:?})", self.error)
+    }
 }
 
 pub struct Rig<B: Board> {
@@ -46,6 +63,14 @@ pub struct Rig<B: Board> {
     period: f64,
     long_steps: u64,
     max_dt: f64,
+    /// The board's failure that ended the run, if any (the reason shown in status).
+    fault: Option<&'static str>,
+    /// Whether [`Rig::finish`] has run (deactivate + shutdown happen once).
+    finished: bool,
+    /// Whether the board was activated (watchdog armed, encoder zeroed).
+    activated: bool,
+    /// Why activation failed, when it failed on the first step.
+    activate_error: Option<BoardError>,
 }
 
 impl<B: Board> Rig<B> {
@@ -54,13 +79,21 @@ impl<B: Board> Rig<B> {
         params: LoopParams,
         mut experiment: Experiment,
         feature_params: FeatureParams,
-    ) -> Self {
-        // 0 A and the watchdog first: the experiment's start may wait for a server (seconds),
-        // and whatever the DAC held before this process must not stay on the motor meanwhile.
-        board.write_dac(32768);
-        board.arm_watchdog(params.watchdog_us);
+    ) -> Result<Self, StartFailed> {
+        // The board's lifecycle: configure (open, channels, 0 A) before the experiment's
+        // start, which may wait for a server (seconds): whatever the DAC held before this
+        // process must not stay on the motor meanwhile. Activation (the hardware watchdog
+        // armed, the encoder zeroed) waits until the loop is about to step ([`Rig::activate`]):
+        // a real card's watchdog of a few periods would trip during any wait before it.
+        if let Err(error) = board.configure() {
+            board.shutdown();
+            return Err(StartFailed {
+                error,
+                experiment: Box::new(experiment),
+            });
+        }
         experiment.begin();
-        Rig {
+        Ok(Rig {
             est: Estimator::new(&params),
             features: FeatureExtractor::new(feature_params),
             board,
@@ -74,6 +107,69 @@ impl<B: Board> Rig<B> {
             period: 1e-4,
             long_steps: 0,
             max_dt: 0.0,
+            fault: None,
+            finished: false,
+            activated: false,
+            activate_error: None,
+        })
+    }
+
+    /// Activates the board (arms its watchdog, zeroes its encoder) if not done yet: call it
+    /// right before the first step, after every wait. The first [`Rig::step`] does it itself
+    /// when the caller did not.
+    pub fn activate(&mut self) -> Result<(), BoardError> {
+        if self.activated {
+            return Ok(());
+        }
+        self.activated = true;
+        self.board.activate(self.params.watchdog_us)
+    }
+
+    /// Why activating the board on the first step failed (that step stopped the run).
+    pub fn activate_error(&self) -> Option<&BoardError> {
+        self.activate_error.as_ref()
+    }
+
+    /// The board failure that ended the run (`None` when none did).
+    pub fn fault(&self) -> Option<&'static str> {
+        self.fault
+    }
+
+    /// The board's non-fatal counters (FIFO overflows, quadrature errors, ...).
+    pub fn board_health(&self) -> BoardHealth {
+        self.board.health()
+    }
+
+    /// The run is over: 0 A, watchdog off, board closed (once; off the real-time path).
+    pub fn finish(&mut self) {
+        if !self.finished {
+            self.finished = true;
+            self.i_motor = 0.0;
+            self.board.deactivate();
+            self.board.shutdown();
+        }
+    }
+
+    /// A step's read, write or kick failed: 0 A and safe mode at once, the reason kept.
+    /// REAL-TIME PATH: no allocation (static message).
+    #[cold]
+    fn board_failed(&mut self, stop: BoardStop) -> Stop {
+        self.i_motor = 0.0;
+        match stop {
+            BoardStop::EndOfData => {
+                self.safe_stop();
+                Stop::Finished
+            }
+            BoardStop::Fault(m) => {
+                self.fault = Some(m);
+                self.board.on_error(m);
+                Stop::BoardFault(m)
+            }
+            BoardStop::Gone(m) => {
+                self.fault = Some(m);
+                self.board.on_error(m);
+                Stop::BoardGone(m)
+            }
         }
     }
 
@@ -96,25 +192,30 @@ impl<B: Board> Rig<B> {
         self.step
     }
 
-    /// Commands zero current (used on every stop).
+    /// Commands zero current (used on every stop). A board that refuses even this is put
+    /// into its safe mode (which holds 0 A by itself).
     pub fn safe_stop(&mut self) {
-        self.board.write_dac(32768);
         self.i_motor = 0.0;
+        if let Err(e) = self.board.write(32768) {
+            self.fault.get_or_insert(e.reason());
+            self.board.on_error(e.reason());
+        }
     }
 
     /// One control step. On `Err` the current has already been set to zero.
     #[inline]
     pub fn step(&mut self) -> Result<Row, Stop> {
-        let snap = match self.board.snapshot() {
+        if !self.activated {
+            // once, before the first read (the allocation of a failure's message is off the
+            // steady state: the run ends here)
+            if let Err(e) = self.activate() {
+                self.activate_error = Some(e);
+                return Err(self.board_failed(BoardStop::Fault("the board could not be activated")));
+            }
+        }
+        let snap = match self.board.read() {
             Ok(s) => s,
-            Err(BoardStop::EndOfData) => {
-                self.safe_stop();
-                return Err(Stop::Finished);
-            }
-            Err(BoardStop::Fault(m)) => {
-                self.safe_stop();
-                return Err(Stop::BoardFault(m));
-            }
+            Err(e) => return Err(self.board_failed(e)),
         };
         if self.board.watchdog_tripped() {
             self.safe_stop();
@@ -187,8 +288,13 @@ impl<B: Board> Rig<B> {
             word = if word > 32768 { word - 1 } else { word + 1 };
         }
         self.i_motor = dac::word_to_current(word, p.dac_full_scale);
-        self.board.write_dac(word);
-        self.board.kick_watchdog();
+        // A refused write or kick is handled on this step: 0 A, safe mode, the reason kept.
+        if let Err(e) = self.board.write(word) {
+            return Err(self.board_failed(e));
+        }
+        if let Err(e) = self.board.kick() {
+            return Err(self.board_failed(e));
+        }
         self.features.commit(est.x, d.feature_force);
         let row = Row {
             step: self.step,

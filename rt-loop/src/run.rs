@@ -62,6 +62,9 @@ pub struct RunSummary {
     pub long_steps: u64,
     /// The longest step, ms.
     pub max_step_ms: f64,
+    /// The board's counters of what went wrong without stopping the loop (FIFO overflows,
+    /// quadrature errors, empty-FIFO retries, timestamp wraps).
+    pub board: crate::board::BoardHealth,
     pub warnings: Vec<String>,
 }
 
@@ -169,6 +172,13 @@ pub fn build_board(cfg: &RunConfig, material: Option<&Material>) -> Result<Box<d
             };
             Box::new(SimBoard::new(cfg.sim.clone(), world, time, cfg.seed))
         }
+        BoardKind::S826 { board } => Box::new(crate::board::s826::S826Board::new(
+            board,
+            cfg.s826.clone(),
+            cfg.params.current_limit,
+            cfg.params.dac_full_scale,
+            cfg.rate_hz,
+        )?),
     })
 }
 
@@ -182,7 +192,8 @@ pub fn build_rig(
     let (material, _) = Material::load(&cfg.material)?;
     let experiment = build_experiment(cfg, model)?;
     let board = build_board(cfg, Some(&material))?;
-    let mut rig = Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone());
+    let mut rig = Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone())
+        .map_err(|f| anyhow!("board {}: {}", cfg.board, f.error))?;
     rig.set_period(1.0 / cfg.rate_hz);
     Ok(rig)
 }
@@ -262,10 +273,19 @@ fn set_up_and_run(
             return Err(e);
         }
     };
-    // Rig::new writes 0 A and arms the watchdog, then lets the model wait for its server.
-    let mut rig = Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone());
+    // Rig::new configures the board (0 A), then lets the model wait for its server; the
+    // board is activated (watchdog armed) right before the first step.
+    let mut rig = match Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone()) {
+        Ok(r) => r,
+        Err(failed) => {
+            give_back(*failed.experiment, model);
+            return Err(anyhow!("board {}: {}", cfg.board, failed.error));
+        }
+    };
     rig.set_period(1.0 / cfg.rate_hz);
     let result = drive(cfg, &mut rig, &material_text, shutdown, progress, sink);
+    // 0 A, watchdog off, board closed, whatever happened.
+    rig.finish();
     give_back(rig.experiment, model);
     result
 }
@@ -335,6 +355,11 @@ fn drive(
     if let Some(s) = sink.as_deref_mut() {
         s.begin_run(cfg, &scheduling);
     }
+    // The watchdog is armed now, right before the first step, after every wait and set-up.
+    if let Err(e) = rig.activate() {
+        rig.safe_stop();
+        anyhow::bail!("board {}: {e}", cfg.board);
+    }
     let lockstep = cfg.clock == ClockKind::Lockstep;
     let wall = Instant::now();
     let mut last_time = 0.0;
@@ -391,6 +416,7 @@ fn drive(
             Err(Stop::PositionLimit) => break StopReason::PositionLimit,
             Err(Stop::Watchdog) => break StopReason::Watchdog,
             Err(Stop::BoardFault(m)) => break StopReason::BoardFault(m),
+            Err(Stop::BoardGone(m)) => break StopReason::BoardGone(m),
         }
     };
     if let Some(p) = progress {
@@ -448,6 +474,7 @@ fn drive(
         corrupt: totals.map_or(0, |t| t.corrupt),
         long_steps: rig.long_steps(),
         max_step_ms: rig.max_dt() * 1e3,
+        board: rig.board_health(),
         warnings,
     })
 }
@@ -463,5 +490,7 @@ fn figures<'a>(
         experiment: &rig.experiment,
         clock,
         recorder: recorder.map(|r| (r.pushed(), r.failed())),
+        board: rig.board_health(),
+        board_fault: rig.fault(),
     }
 }

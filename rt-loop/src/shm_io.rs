@@ -213,11 +213,7 @@ impl LoopIo {
         scheduling: &str,
         recording: Option<&std::path::Path>,
     ) {
-        self.set_identity(
-            cfg.clock,
-            &format!("{:?}", cfg.board).to_lowercase(),
-            cfg.rate_hz,
-        );
+        self.set_identity(cfg.clock, &cfg.board.to_string(), cfg.rate_hz);
         let s = &mut self.status;
         s.running = true;
         s.run_id = u64::from(self.run_id);
@@ -309,6 +305,8 @@ impl LoopIo {
             s.max_transition_step_n = l.max_transition_step_n;
         }
         f.experiment.report_status(s);
+        s.board_fifo_overflows = f.board.fifo_overflows;
+        s.board_quadrature_errors = f.board.quadrature_errors;
         if let Some(c) = f.clock {
             s.overruns = c.overruns();
             s.period_jitter = quantiles(c.jitter());
@@ -478,6 +476,11 @@ impl StepSink for LoopIo {
         recorder: Option<&RecorderReport>,
     ) -> SinkTotals {
         self.fill_status(figures);
+        if let Some(why) = figures.board_fault {
+            // counted across runs: the loop's life, like the page's fault indicator
+            self.status.board_faults += 1;
+            self.status.board_fault.set(why);
+        }
         if let Some(r) = recorder {
             match (&r.error, &r.path) {
                 (Some(e), _) => self.set_recorder_text(&format!("failed: {e}")),

@@ -28,6 +28,10 @@ pub struct RunFigures<'a> {
     pub clock: Option<&'a RealtimeClock>,
     /// Rows handed to the recorder so far and whether it failed; `None` without a recording.
     pub recorder: Option<(u64, bool)>,
+    /// The board's non-fatal counters (FIFO overflows, quadrature errors).
+    pub board: crate::board::BoardHealth,
+    /// The board failure that ended the run (`None` while it runs, or when none did).
+    pub board_fault: Option<&'static str>,
 }
 
 /// What a sink sent during the run, for the run's summary.

@@ -21,6 +21,8 @@ pub enum StopReason {
     Watchdog,
     /// The board reported a fault (its message).
     BoardFault(&'static str),
+    /// The board is gone (its message).
+    BoardGone(&'static str),
     /// The recorder failed: nothing more could be recorded, so the run ended at 0 A.
     RecorderFailed,
     /// `--duration` (loop time) was reached.
@@ -51,6 +53,7 @@ impl fmt::Display for StopReason {
             StopReason::PositionLimit => "position-limit",
             StopReason::Watchdog => "watchdog",
             StopReason::BoardFault(m) => return write!(f, "board-fault: {m}"),
+            StopReason::BoardGone(m) => return write!(f, "board-gone: {m}"),
             StopReason::RecorderFailed => "recorder-failed",
             StopReason::TimeLimit => "time-limit",
             StopReason::Interrupted => "interrupted",
@@ -76,6 +79,7 @@ mod tests {
             (StopReason::PositionLimit, "position-limit", false),
             (StopReason::Watchdog, "watchdog", false),
             (StopReason::BoardFault("x"), "board-fault: x", false),
+            (StopReason::BoardGone("y"), "board-gone: y", false),
             (StopReason::RecorderFailed, "recorder-failed", false),
             (StopReason::TimeLimit, "time-limit", true),
             (StopReason::Interrupted, "interrupted", true),

@@ -8,7 +8,7 @@ mod alloc_count;
 mod common;
 
 use haptics_proto::{ForceMsg, Segment};
-use rt_loop::board::{Board, BoardStop, Snapshot};
+use rt_loop::board::{Board, BoardError, BoardStop, Snapshot};
 use rt_loop::config::{ClockKind, ExperimentKind};
 use rt_loop::features::Features;
 use rt_loop::ladder::{Ladder, LadderConfig, Level};
@@ -272,7 +272,8 @@ struct Stalling {
 }
 
 impl Board for Stalling {
-    fn snapshot(&mut self) -> Result<Snapshot, BoardStop> {
+    rt_loop::forward_board_lifecycle!(inner);
+    fn read(&mut self) -> Result<Snapshot, BoardStop> {
         let t = self.start.get_or_insert_with(Instant::now).elapsed();
         if let Some((at, d)) = self.stalls.get(self.next) {
             if t.as_secs_f64() >= *at {
@@ -280,22 +281,13 @@ impl Board for Stalling {
                 self.next += 1;
             }
         }
-        self.inner.snapshot()
+        self.inner.read()
     }
-    fn write_dac(&mut self, word: u16) {
-        self.inner.write_dac(word)
+    fn write(&mut self, word: u16) -> Result<(), BoardStop> {
+        self.inner.write(word)
     }
-    fn arm_watchdog(&mut self, us: u32) {
-        self.inner.arm_watchdog(us)
-    }
-    fn kick_watchdog(&mut self) {
-        self.inner.kick_watchdog()
-    }
-    fn true_force(&self) -> f64 {
-        self.inner.true_force()
-    }
-    fn watchdog_tripped(&self) -> bool {
-        self.inner.watchdog_tripped()
+    fn kick(&mut self) -> Result<(), BoardStop> {
+        self.inner.kick()
     }
     fn name(&self) -> &'static str {
         "stalling sim"
@@ -406,28 +398,43 @@ struct LoggingBoard {
 }
 
 impl Board for LoggingBoard {
-    fn snapshot(&mut self) -> Result<Snapshot, BoardStop> {
-        self.inner.snapshot()
+    fn configure(&mut self) -> Result<(), BoardError> {
+        self.log.lock().unwrap().push("configure (0 A)".into());
+        self.inner.configure()
     }
-    fn write_dac(&mut self, word: u16) {
-        self.log.lock().unwrap().push(format!("dac {word}"));
-        self.inner.write_dac(word)
-    }
-    fn arm_watchdog(&mut self, us: u32) {
+    fn activate(&mut self, us: u32) -> Result<(), BoardError> {
         self.log.lock().unwrap().push("arm".into());
-        self.inner.arm_watchdog(us)
+        self.inner.activate(us)
     }
-    fn kick_watchdog(&mut self) {
-        self.inner.kick_watchdog()
+    fn read(&mut self) -> Result<Snapshot, BoardStop> {
+        self.inner.read()
+    }
+    fn write(&mut self, word: u16) -> Result<(), BoardStop> {
+        self.log.lock().unwrap().push(format!("dac {word}"));
+        self.inner.write(word)
+    }
+    fn kick(&mut self) -> Result<(), BoardStop> {
+        self.inner.kick()
+    }
+    fn deactivate(&mut self) {
+        self.inner.deactivate()
+    }
+    fn on_error(&mut self, reason: &'static str) {
+        self.inner.on_error(reason)
+    }
+    fn shutdown(&mut self) {
+        self.inner.shutdown()
     }
     fn name(&self) -> &'static str {
         "logging"
     }
 }
 
-/// The loop writes 0 A and arms the watchdog before the model's start may wait for a server.
+/// The loop configures the board (0 A) before the model's start may wait for a server, and
+/// arms the watchdog only after the wait, at the first step (a real card's watchdog of a few
+/// periods would trip during the wait).
 #[test]
-fn zero_current_and_watchdog_come_before_any_wait_for_a_server() {
+fn zero_current_comes_before_any_wait_for_a_server_and_the_watchdog_after_it() {
     struct Waiting(Log);
     impl ForceModel for Waiting {
         fn name(&self) -> &str {
@@ -445,7 +452,7 @@ fn zero_current_and_watchdog_come_before_any_wait_for_a_server() {
     cfg.experiment = ExperimentKind::Reproduction;
     let board = rt_loop::run::build_board(&cfg, None).unwrap();
     let exp = rt_loop::run::build_experiment(&cfg, Some(Box::new(Waiting(log.clone())))).unwrap();
-    let _rig = rt_loop::rig::Rig::new(
+    let mut rig = rt_loop::rig::Rig::new(
         LoggingBoard {
             log: log.clone(),
             inner: board,
@@ -453,11 +460,17 @@ fn zero_current_and_watchdog_come_before_any_wait_for_a_server() {
         cfg.params.clone(),
         exp,
         cfg.features.clone(),
+    )
+    .unwrap();
+    assert_eq!(
+        &log.lock().unwrap()[..],
+        &["configure (0 A)", "wait for server"],
     );
+    rig.step().unwrap();
     let log = log.lock().unwrap();
     assert_eq!(
         &log[..3],
-        &["dac 32768", "arm", "wait for server"],
+        &["configure (0 A)", "wait for server", "arm"],
         "{log:?}"
     );
 }

@@ -190,21 +190,16 @@ fn position_limit_aborts_with_zero_current() {
         written: Vec<u16>,
     }
     impl<B: Board> Board for Words<B> {
-        fn snapshot(&mut self) -> Result<Snapshot, BoardStop> {
-            self.board.snapshot()
+        rt_loop::forward_board_lifecycle!(board);
+        fn read(&mut self) -> Result<Snapshot, BoardStop> {
+            self.board.read()
         }
-        fn write_dac(&mut self, word: u16) {
+        fn write(&mut self, word: u16) -> Result<(), BoardStop> {
             self.written.push(word);
-            self.board.write_dac(word)
+            self.board.write(word)
         }
-        fn arm_watchdog(&mut self, timeout_us: u32) {
-            self.board.arm_watchdog(timeout_us)
-        }
-        fn kick_watchdog(&mut self) {
-            self.board.kick_watchdog()
-        }
-        fn true_force(&self) -> f64 {
-            self.board.true_force()
+        fn kick(&mut self) -> Result<(), BoardStop> {
+            self.board.kick()
         }
         fn name(&self) -> &'static str {
             "words"
@@ -220,7 +215,8 @@ fn position_limit_aborts_with_zero_current() {
     };
     let experiment = rt_loop::run::build_experiment(&cfg, Some(Box::new(Nothing))).unwrap();
     let mut rig =
-        rt_loop::rig::Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone());
+        rt_loop::rig::Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone())
+            .unwrap();
     rig.set_period(1.0 / cfg.rate_hz);
     let mut last = None;
     let stop = loop {

@@ -511,6 +511,10 @@ fn loop_status_block_round_trips_through_the_segment() {
         corrupt: 1,
         max_transition_step_n: 0.04,
         saturated: 7,
+        board_faults: 1,
+        board_fault: StatusText::new("the hardware watchdog tripped"),
+        board_fifo_overflows: 2,
+        board_quadrature_errors: 3,
     };
     assert_eq!(
         s.recorder.as_str().len(),

@@ -4,44 +4,11 @@
 //! leaves nothing in /dev/shm.
 
 use haptics_system_tests::{
-    bin, instance, shm_entries, start_infer_server, temp_dir, write_linear_model, Proc,
+    bin, ctl, http_get, instance, shm_entries, start_infer_server, temp_dir, write_linear_model,
+    Proc,
 };
 use std::process::Command;
 use std::time::{Duration, Instant};
-
-fn ctl(addr: &str, args: &[&str]) -> (bool, String) {
-    let o = Command::new(bin("hapticctl"))
-        .arg("--addr")
-        .arg(format!("http://{addr}"))
-        .args(args)
-        .output()
-        .expect("hapticctl");
-    (
-        o.status.success(),
-        format!(
-            "{}{}",
-            String::from_utf8_lossy(&o.stdout),
-            String::from_utf8_lossy(&o.stderr)
-        ),
-    )
-}
-
-/// GET over a plain TCP connection (HTTP/1.0, the body after the headers).
-fn http_get(addr: &str, path: &str) -> String {
-    use std::io::{Read, Write};
-    let mut c = std::net::TcpStream::connect(addr).expect("connect HTTP");
-    c.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-    write!(c, "GET {path} HTTP/1.0\r\nHost: {addr}\r\n\r\n").unwrap();
-    let mut out = String::new();
-    c.read_to_string(&mut out).expect("HTTP response");
-    assert!(
-        out.starts_with("HTTP/1.") && out.contains(" 200 "),
-        "{path}: {out}"
-    );
-    out.split_once("\r\n\r\n")
-        .map(|(_, b)| b.to_string())
-        .unwrap_or_default()
-}
 
 fn status(addr: &str) -> serde_json::Value {
     let (ok, out) = ctl(addr, &["--json", "status"]);

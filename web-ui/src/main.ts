@@ -466,7 +466,9 @@ function setText(id: string, text: string, cls = ""): void {
 
 function updateFigures(): void {
   const s = status;
-  setText("f-loop", s.loop_alive === undefined ? "–" : s.loop_alive ? `alive${[s.clock, s.board].filter(Boolean).map((x) => `, ${x}`).join("")}` : "gone", s.loop_alive === false ? "bad" : s.loop_alive ? "ok" : "");
+  // A board failure (each put the motor at 0 A) stays on the loop's line with its reason.
+  const boardFault = (s.board_faults ?? 0) > 0 ? `, board fault ×${s.board_faults}: ${s.board_fault ?? ""}` : "";
+  setText("f-loop", s.loop_alive === undefined ? "–" : s.loop_alive ? `alive${[s.clock, s.board].filter(Boolean).map((x) => `, ${x}`).join("")}${boardFault}` : "gone", s.loop_alive === false || boardFault ? "bad" : s.loop_alive ? "ok" : "");
   setText("f-rate", typeof s.rate_hz === "number" && s.loop_alive !== false ? (s.rate_hz >= 1000 ? `${(s.rate_hz / 1000).toFixed(3)} kHz` : `${s.rate_hz.toFixed(1)} Hz`) : "–");
   setText("f-steps", fmtInt(s.step));
   // A histogram with no samples yet has nothing to say (its zeros are not latencies).

@@ -109,6 +109,9 @@ export interface Status {
   corrupt?: number;
   /** Largest one-step change of the rendered force a ladder transition caused, N. */
   max_transition_step_n?: number;
+  /** Board failures that ended a run (each at 0 A) and the last one's reason. */
+  board_faults?: number;
+  board_fault?: string;
   experiment_cycle?: number;
   experiment_phase?: string;
   board?: string;
@@ -200,6 +203,8 @@ export function normalizeStatus(raw: unknown): Status {
     fallback: num(loop?.fallback),
     corrupt: num(loop?.corrupt),
     max_transition_step_n: num(loop?.max_transition_step_n),
+    board_faults: num(loop?.board_faults),
+    board_fault: str(loop?.board_fault),
     scheduling: str(loop?.scheduling),
     recorder: str(loop?.recorder),
     telemetry_drops: num(loop?.telemetry_drops),

@@ -200,6 +200,14 @@ pub struct LoopStatus {
     pub max_transition_step_n: f64,
     /// Steps rendered by a model's answer above the force limit, at the limit (issue 23).
     pub saturated: u64,
+    /// Board failures that ended a run since the loop started (each put the motor at 0 A).
+    pub board_faults: u64,
+    /// The last one's reason ("" when none).
+    pub board_fault: String,
+    /// The run's snapshots a real board's FIFO lost, and snapshots with a quadrature error
+    /// (counted, not fatal).
+    pub board_fifo_overflows: u64,
+    pub board_quadrature_errors: u64,
     /// What the loop actually obtained: "SCHED_FIFO 80", "SCHED_OTHER", ...
     pub scheduling: String,
     /// "off", "writing PATH (rows)", "failed: reason".

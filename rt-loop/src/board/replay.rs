@@ -3,7 +3,7 @@
 //! loop writes are ignored (the recorded motion already happened); the recorded F_true is
 //! passed through.
 
-use super::{Board, BoardStop, Snapshot};
+use super::{Board, BoardError, BoardStop, Snapshot};
 use crate::invalid::InvalidSeries;
 
 pub struct ReplayBoard {
@@ -80,8 +80,16 @@ fn integers(col: &[f64], name: &str, lo: f64, hi: f64) -> Result<Vec<f64>, Strin
     }
 }
 
+/// The replayed motion already happened: configuring, arming, writing and kicking change
+/// nothing, and cannot fail.
 impl Board for ReplayBoard {
-    fn snapshot(&mut self) -> Result<Snapshot, BoardStop> {
+    fn configure(&mut self) -> Result<(), BoardError> {
+        Ok(())
+    }
+    fn activate(&mut self, _watchdog_us: u32) -> Result<(), BoardError> {
+        Ok(())
+    }
+    fn read(&mut self) -> Result<Snapshot, BoardStop> {
         if self.next >= self.counts.len() {
             return Err(BoardStop::EndOfData);
         }
@@ -92,9 +100,15 @@ impl Board for ReplayBoard {
             timestamp_us: self.timestamps[self.current],
         })
     }
-    fn write_dac(&mut self, _word: u16) {}
-    fn arm_watchdog(&mut self, _timeout_us: u32) {}
-    fn kick_watchdog(&mut self) {}
+    fn write(&mut self, _word: u16) -> Result<(), BoardStop> {
+        Ok(())
+    }
+    fn kick(&mut self) -> Result<(), BoardStop> {
+        Ok(())
+    }
+    fn deactivate(&mut self) {}
+    fn on_error(&mut self, _reason: &'static str) {}
+    fn shutdown(&mut self) {}
     fn true_force(&self) -> f64 {
         self.f_true.get(self.current).copied().unwrap_or(f64::NAN)
     }

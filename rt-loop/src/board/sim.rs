@@ -6,7 +6,7 @@
 //! The physics is integrated with fixed sub-steps inside each control period. Everything is
 //! inline state: `snapshot`/`write_dac` allocate nothing and take no lock.
 
-use super::{Board, BoardStop, Snapshot};
+use super::{Board, BoardError, BoardStop, Snapshot};
 use crate::dac;
 use crate::hand::HandConfig;
 use crate::invalid::{require_non_negative, require_positive, InvalidSetting};
@@ -239,8 +239,27 @@ impl SimBoard {
     }
 }
 
+impl SimBoard {
+    /// Forces 0 A (the amplifier's command; the noise is the amplifier's own, not commanded).
+    fn zero(&mut self) {
+        self.current = 0.0;
+    }
+}
+
 impl Board for SimBoard {
-    fn snapshot(&mut self) -> Result<Snapshot, BoardStop> {
+    fn configure(&mut self) -> Result<(), BoardError> {
+        self.zero();
+        Ok(())
+    }
+
+    fn activate(&mut self, watchdog_us: u32) -> Result<(), BoardError> {
+        self.watchdog_timeout = watchdog_us as f64 * 1e-6;
+        self.last_kick = self.t;
+        self.tripped = false;
+        Ok(())
+    }
+
+    fn read(&mut self) -> Result<Snapshot, BoardStop> {
         if !self.started {
             self.started = true;
             if self.time == SimTime::Wall {
@@ -268,23 +287,32 @@ impl Board for SimBoard {
         })
     }
 
-    fn write_dac(&mut self, word: u16) {
+    fn write(&mut self, word: u16) -> Result<(), BoardStop> {
         if self.tripped {
-            self.current = 0.0;
-            return;
+            self.zero();
+            return Ok(());
         }
         let noise = self.cfg.current_noise_a * self.rng.normal();
         self.current = dac::word_to_current(word, self.cfg.dac_full_scale) + noise;
+        Ok(())
     }
 
-    fn arm_watchdog(&mut self, timeout_us: u32) {
-        self.watchdog_timeout = timeout_us as f64 * 1e-6;
+    fn kick(&mut self) -> Result<(), BoardStop> {
         self.last_kick = self.t;
-        self.tripped = false;
+        Ok(())
     }
 
-    fn kick_watchdog(&mut self) {
-        self.last_kick = self.t;
+    fn deactivate(&mut self) {
+        self.zero();
+        self.watchdog_timeout = f64::INFINITY;
+    }
+
+    fn on_error(&mut self, _reason: &'static str) {
+        self.zero();
+    }
+
+    fn shutdown(&mut self) {
+        self.zero();
     }
 
     fn true_force(&self) -> f64 {
@@ -334,13 +362,13 @@ mod tests {
     #[test]
     fn free_motion_follows_true_constants_and_timestamps_wrap() {
         let mut b = free_board();
-        let s0 = b.snapshot().unwrap();
-        b.write_dac(dac::current_to_word(0.1, 0.6));
+        let s0 = b.read().unwrap();
+        b.write(dac::current_to_word(0.1, 0.6)).unwrap();
         let i = dac::word_to_current(dac::current_to_word(0.1, 0.6), 0.6);
         let mut wrapped = false;
         let mut last = s0;
         for _ in 0..2000 {
-            let s = b.snapshot().unwrap();
+            let s = b.read().unwrap();
             assert_eq!(s.timestamp_us.wrapping_sub(last.timestamp_us), 100);
             wrapped |= s.timestamp_us < last.timestamp_us;
             last = s;
@@ -375,17 +403,19 @@ mod tests {
             SimTime::Virtual { period_s: 1e-4 },
             3,
         );
-        b.snapshot().unwrap();
+        b.read().unwrap();
         // 0.9 N of motor force < 1 N breakaway: no motion
-        b.write_dac(dac::current_to_word(0.9 / (24.0 * 0.97), 0.6));
+        b.write(dac::current_to_word(0.9 / (24.0 * 0.97), 0.6))
+            .unwrap();
         for _ in 0..1000 {
-            b.snapshot().unwrap();
+            b.read().unwrap();
         }
         assert_eq!(b.position(), 0.0);
         // 2 N: it slides
-        b.write_dac(dac::current_to_word(2.0 / (24.0 * 0.97), 0.6));
+        b.write(dac::current_to_word(2.0 / (24.0 * 0.97), 0.6))
+            .unwrap();
         for _ in 0..1000 {
-            b.snapshot().unwrap();
+            b.read().unwrap();
         }
         assert!(b.position() > 1e-4);
     }
@@ -393,20 +423,20 @@ mod tests {
     #[test]
     fn watchdog_cuts_current_when_not_kicked() {
         let mut b = free_board();
-        b.snapshot().unwrap();
-        b.arm_watchdog(1000);
-        b.write_dac(dac::current_to_word(0.2, 0.6));
+        b.read().unwrap();
+        b.activate(1000).unwrap();
+        b.write(dac::current_to_word(0.2, 0.6)).unwrap();
         for _ in 0..5 {
-            b.snapshot().unwrap();
-            b.kick_watchdog();
+            b.read().unwrap();
+            b.kick().unwrap();
         }
         assert!(!b.watchdog_tripped());
         for _ in 0..20 {
-            b.snapshot().unwrap();
+            b.read().unwrap();
         }
         assert!(b.watchdog_tripped());
         assert_eq!(b.applied_current(), 0.0);
-        b.write_dac(dac::current_to_word(0.2, 0.6));
+        b.write(dac::current_to_word(0.2, 0.6)).unwrap();
         assert_eq!(b.applied_current(), 0.0);
     }
 }

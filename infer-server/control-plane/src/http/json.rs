@@ -63,6 +63,12 @@ pub struct LoopJson {
     pub max_transition_step_n: f64,
     /// Steps rendered at the force limit (a model answered above it).
     pub saturated: u64,
+    /// Board failures that ended a run (each at 0 A), the last one's reason, and the run's
+    /// counted non-fatal troubles.
+    pub board_faults: u64,
+    pub board_fault: String,
+    pub board_fifo_overflows: u64,
+    pub board_quadrature_errors: u64,
     pub latency_us: LatencyJson,
     pub experiment: ExperimentJson,
     pub scheduling: String,
@@ -122,6 +128,10 @@ impl StatusJson {
                 corrupt: l.corrupt,
                 max_transition_step_n: l.max_transition_step_n,
                 saturated: l.saturated,
+                board_faults: l.board_faults,
+                board_fault: l.board_fault.clone(),
+                board_fifo_overflows: l.board_fifo_overflows,
+                board_quadrature_errors: l.board_quadrature_errors,
                 latency_us: (&l.round_trip_latency).into(),
                 experiment: ExperimentJson {
                     kind: if l.experiment.kind.is_empty() {

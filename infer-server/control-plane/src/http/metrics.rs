@@ -67,6 +67,21 @@ pub async fn metrics(State(core): State<Core>) -> Result<Response, ControlError>
         l.max_transition_step_n,
     );
     m.counter(
+        "haptics_board_faults_total",
+        "Board failures that ended a run (failed read, DAC write or watchdog kick, board gone, watchdog tripped); each put the motor at 0 A",
+        l.board_faults as f64,
+    );
+    m.counter(
+        "haptics_board_fifo_overflows_total",
+        "Encoder snapshots the board's FIFO lost in the current (or last) run (counted, not fatal)",
+        l.board_fifo_overflows as f64,
+    );
+    m.counter(
+        "haptics_board_quadrature_errors_total",
+        "Encoder snapshots flagged with a quadrature error in the current (or last) run (counted, not fatal)",
+        l.board_quadrature_errors as f64,
+    );
+    m.counter(
         "haptics_loop_deadline_misses_total",
         "Steps that missed their deadline",
         l.deadline_misses as f64,
