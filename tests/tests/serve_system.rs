@@ -4,13 +4,14 @@
 //! leaves nothing in /dev/shm.
 
 use haptics_system_tests::{
-    bin, instance, shm_entries, start_infer_server, temp_dir, write_linear_model, Proc,
+    bin, instance, shm_entries, start_infer_server, temp_dir, write_linear_model, Proc, TEST_TOKEN,
 };
 use std::process::Command;
 use std::time::{Duration, Instant};
 
 fn ctl(addr: &str, args: &[&str]) -> (bool, String) {
     let o = Command::new(bin("hapticctl"))
+        .env("HAPTICS_TOKEN", TEST_TOKEN)
         .arg("--addr")
         .arg(format!("http://{addr}"))
         .args(args)
@@ -31,7 +32,11 @@ fn http_get(addr: &str, path: &str) -> String {
     use std::io::{Read, Write};
     let mut c = std::net::TcpStream::connect(addr).expect("connect HTTP");
     c.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-    write!(c, "GET {path} HTTP/1.0\r\nHost: {addr}\r\n\r\n").unwrap();
+    write!(
+        c,
+        "GET {path} HTTP/1.0\r\nHost: {addr}\r\nAuthorization: Bearer {TEST_TOKEN}\r\n\r\n"
+    )
+    .unwrap();
     let mut out = String::new();
     c.read_to_string(&mut out).expect("HTTP response");
     assert!(
