@@ -149,7 +149,7 @@ sleep 2
 : >"$work/swaps.jsonl"
 for i in $(seq 1 "$swaps"); do
   if [ $((i % 2)) = 1 ]; then name="${model}_b"; else name="$model"; fi
-  if ! target/release/hapticctl swap --addr "http://$grpc" --json "$name" >>"$work/swaps.jsonl"; then
+  if ! target/release/hapticctl swap --addr "http://$grpc" --instance "$instance" --json "$name" >>"$work/swaps.jsonl"; then
     echo "bench-loaded: swap $i failed (see above); the loop ran $(tail -n 3 "$work/swap.out")" >&2
     break
   fi

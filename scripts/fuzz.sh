@@ -88,6 +88,14 @@ if [ "$runs" = 0 ]; then
   work=fuzz/work/short
   rm -rf "$work"
 fi
+# The targets' scratch files (fuzz/src/lib.rs) go into one directory of this run, removed
+# however the script ends: libFuzzer exits without running destructors, so the targets cannot
+# clean up after themselves, and nothing named haptics-fuzz-* may stay in /dev/shm.
+scratch_root=/dev/shm
+[ -d "$scratch_root" ] && [ -w "$scratch_root" ] || scratch_root=${TMPDIR:-/tmp}
+HAPTICS_FUZZ_SCRATCH=$(mktemp -d "$scratch_root/haptics-fuzz-XXXXXX")
+export HAPTICS_FUZZ_SCRATCH
+trap 'rm -rf "$HAPTICS_FUZZ_SCRATCH"' EXIT
 for t in "${targets[@]}"; do
   mkdir -p "$work/$t" "fuzz/corpus/$t" "fuzz/artifacts/$t"
   log="$work/$t.log"

@@ -13,7 +13,8 @@
 # HAPTICS_AUTOSTART (default shadow:
 # the simulated hand presses the simulated sponge while the model predicts alongside; or
 # abstraction, reproduction, none), HAPTICS_HTTP (127.0.0.1:8080), HAPTICS_GRPC
-# (127.0.0.1:50051), HAPTICS_INSTANCE (default), HAPTICS_TOKEN (unset: no token), HAPTICS_PROFILE
+# (127.0.0.1:50051), HAPTICS_INSTANCE (default), HAPTICS_TOKEN (unset: infer-server creates one and writes it into
+# its connection file, which hapticctl reads; the page's address below carries it), HAPTICS_PROFILE
 # (infer-server's wait profile: auto, chosen from the machine and printed at start; or dedicated,
 # period, shared), HAPTICS_BOARD (sim, default; or s826[:N], a Sensoray 826: docs/lab.md),
 # HAPTICS_S826_LIB (the 826 library; unset and none installed: the C-ABI double
@@ -130,10 +131,24 @@ if [ "$up" != 1 ]; then
   echo "up: the page did not answer on http://$http/ within 30 s" >&2
   exit 1
 fi
+# The page's address with the token (`#token=...`), from the connection file infer-server writes
+# once it listens (docs/control-plane.md, "The connection file"); only this user can read it.
+if [ -n "${XDG_RUNTIME_DIR:-}" ] && [ -d "${XDG_RUNTIME_DIR}" ]; then
+  conn="$XDG_RUNTIME_DIR/haptics/$instance.json"
+else
+  conn="/tmp/haptics-$(id -u)/$instance.json"
+fi
+page="http://$http/"
+for _ in $(seq 1 50); do
+  if [ -f "$conn" ]; then
+    page=$(.venv/bin/python -c 'import json, sys; print(json.load(open(sys.argv[1]))["page"])' "$conn") && break
+  fi
+  sleep 0.1
+done
 cat <<EOF
 
   The system is up on the $bench.
-    page:      http://$http/
+    page:      $page
     gRPC:      $grpc   (target/release/hapticctl status --watch)
     model:     $model (models/), experiment: $autostart
   Ctrl-C stops both.

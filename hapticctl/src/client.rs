@@ -61,6 +61,56 @@ pub fn normalize_addr(addr: &str) -> String {
     }
 }
 
+/// The address when neither a flag, the environment nor a connection file gives one.
+pub const DEFAULT_ADDR: &str = "http://127.0.0.1:50051";
+
+/// The largest message hapticctl decodes: the server's own limit on what it accepts
+/// (`haptics_proto::grpc::MAX_MESSAGE_BYTES`), so an answer the server may send is never
+/// refused here as "decoded message length too large".
+pub const MAX_DECODE_BYTES: usize = haptics_proto::grpc::MAX_MESSAGE_BYTES;
+
+/// The address and token to use (docs/control-plane.md, "The connection file"): address =
+/// `--addr` > HAPTICS_ADDR > the connection file's `grpc` > [`DEFAULT_ADDR`]; token = `--token` >
+/// HAPTICS_TOKEN > the file's token when the address is the file's > none. Empty values count as
+/// unset; no file (no server, or an older one) is no error; an unsafe directory or a broken file
+/// is said on stderr and ignored.
+pub fn resolve(
+    addr: Option<&str>,
+    token: Option<&str>,
+    instance: &str,
+) -> Result<(String, Option<String>), CliError> {
+    let addr = addr.map(str::trim).filter(|a| !a.is_empty());
+    let token = token.filter(|t| !t.is_empty());
+    let file = if addr.is_some() && token.is_some() {
+        None
+    } else {
+        match haptics_proto::connection::read(instance) {
+            Ok(f) => f,
+            Err(haptics_proto::connection::ConnectionError::BadInstance(i)) => {
+                return Err(CliError::new(
+                    format!("--instance {i:?}: only letters, digits, '.', '_' and '-'"),
+                    EXIT_USAGE,
+                ))
+            }
+            Err(e) => {
+                eprintln!("hapticctl: ignoring the connection file: {e}");
+                None
+            }
+        }
+    };
+    let addr = match (addr, &file) {
+        (Some(a), _) => normalize_addr(a),
+        (None, Some(f)) => f.grpc.clone(),
+        (None, None) => DEFAULT_ADDR.to_string(),
+    };
+    let token = match (token, &file) {
+        (Some(t), _) => Some(t.to_string()),
+        (None, Some(f)) if normalize_addr(&f.grpc) == addr => f.token.clone(),
+        _ => None,
+    };
+    Ok((addr, token))
+}
+
 pub async fn connect(addr: &str, token: Option<&str>) -> Result<Client, CliError> {
     let addr = normalize_addr(addr);
     let endpoint = Endpoint::from_shared(addr.clone())
@@ -90,24 +140,32 @@ pub async fn connect(addr: &str, token: Option<&str>) -> Result<Client, CliError
     let add = AddToken(token);
     Ok(Client {
         models: ModelServiceClient::with_interceptor(channel.clone(), add.clone())
-            .max_decoding_message_size(64 << 20),
-        looper: LoopServiceClient::with_interceptor(channel, add),
+            .max_decoding_message_size(MAX_DECODE_BYTES)
+            .max_encoding_message_size(usize::MAX),
+        looper: LoopServiceClient::with_interceptor(channel, add)
+            .max_decoding_message_size(MAX_DECODE_BYTES),
         addr,
     })
 }
 
-/// Words a failed call.
-pub fn explain(status: &Status, addr: &str) -> CliError {
+/// Words a failed call, naming it (`call`: the gRPC method, e.g. `GetStatus`).
+pub fn explain(call: &str, status: &Status, addr: &str) -> CliError {
+    let e = explain_status(status, addr);
+    CliError::new(format!("{call} failed: {}", e.message), e.code)
+}
+
+fn explain_status(status: &Status, addr: &str) -> CliError {
     let msg = status.message();
     let message = match status.code() {
         Code::Unauthenticated => format!(
-            "{msg}\nThis server requires a token for changes: pass --token TOKEN or set \
+            "{msg}\nThis server requires its token: hapticctl reads it from the connection file \
+             of the user who started infer-server; otherwise pass --token TOKEN or set \
              HAPTICS_TOKEN."
         ),
         Code::Unavailable => {
             format!("infer-server at {addr} is unavailable: {msg}. Is infer-server running?")
         }
-        Code::OutOfRange | Code::ResourceExhausted => format!("upload refused: {msg}"),
+        Code::OutOfRange | Code::ResourceExhausted => format!("too large: {msg}"),
         Code::NotFound => format!("not found: {msg}"),
         Code::InvalidArgument => format!("refused: {msg}"),
         Code::FailedPrecondition => format!("not possible now: {msg}"),

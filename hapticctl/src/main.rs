@@ -12,8 +12,6 @@ use haptics_proto::grpc as pb;
 
 use client::{connect, explain, CliError, Client, EXIT_USAGE};
 
-const DEFAULT_ADDR: &str = "http://127.0.0.1:50051";
-
 #[derive(Parser, Debug)]
 #[command(
     name = "hapticctl",
@@ -22,17 +20,23 @@ const DEFAULT_ADDR: &str = "http://127.0.0.1:50051";
     after_help = "Examples:\n  hapticctl models\n  hapticctl swap rf6.onnx\n  hapticctl swap ./new/lstm.onnx      (uploads a local file, then swaps)\n  hapticctl status --watch\n  hapticctl experiment start abstraction --ramp-rate 2.1 --cycles 10\n  hapticctl telemetry --decimation 1000"
 )]
 struct Cli {
-    /// gRPC address of infer-server.
+    /// gRPC address of infer-server. Default: $HAPTICS_ADDR, else the address in the
+    /// instance's connection file (written by infer-server), else http://127.0.0.1:50051.
+    #[arg(long, global = true, env = "HAPTICS_ADDR")]
+    addr: Option<String>,
+    /// The server's token. Default: $HAPTICS_TOKEN, else the token in the instance's
+    /// connection file when the address is that file's (so the server's owner needs none).
+    #[arg(long, global = true, env = "HAPTICS_TOKEN", hide_env_values = true)]
+    token: Option<String>,
+    /// The instance whose connection file is read: $XDG_RUNTIME_DIR/haptics/INSTANCE.json,
+    /// else /tmp/haptics-UID/INSTANCE.json.
     #[arg(
         long,
         global = true,
-        env = "HAPTICS_ADDR",
-        default_value = "http://127.0.0.1:50051"
+        env = "HAPTICS_INSTANCE",
+        default_value = "default"
     )]
-    addr: String,
-    /// Bearer token for changes (load, swap, unload, experiments), when the server has one.
-    #[arg(long, global = true, env = "HAPTICS_TOKEN", hide_env_values = true)]
-    token: Option<String>,
+    instance: String,
     /// Print JSON instead of text (one object per line for streams).
     #[arg(long, global = true)]
     json: bool,
@@ -110,7 +114,7 @@ enum ExperimentAction {
 
 #[tokio::main(flavor = "current_thread")]
 async fn main() {
-    let cli = Cli::parse();
+    let cli: Cli = haptics_proto::cli_parse::parse();
     if let Err(e) = run(cli).await {
         eprintln!("hapticctl: {}", e.message);
         std::process::exit(e.code);
@@ -132,22 +136,21 @@ fn print_done(json: bool, done: &str, what: &str) {
 }
 
 async fn run(cli: Cli) -> Result<(), CliError> {
-    // An empty HAPTICS_ADDR or HAPTICS_TOKEN counts as unset.
-    let addr = match cli.addr.trim() {
-        "" => DEFAULT_ADDR,
-        a => a,
-    };
-    let token = cli.token.as_deref().filter(|t| !t.is_empty());
-    let mut c = connect(addr, token).await?;
+    let (addr, token) = client::resolve(cli.addr.as_deref(), cli.token.as_deref(), &cli.instance)?;
+    let mut c = connect(&addr, token.as_deref()).await?;
     let addr = c.addr.clone();
-    let fail = |s: tonic::Status| explain(&s, &addr);
+    // Every failure names the call that failed (`GetStatus failed: ...`).
+    let fail = |call: &'static str| {
+        let addr = addr.clone();
+        move |s: tonic::Status| explain(call, &s, &addr)
+    };
     match cli.command {
         Command::Models => {
             let list = c
                 .models
                 .list_models(pb::ListModelsRequest {})
                 .await
-                .map_err(fail)?
+                .map_err(fail("ListModels"))?
                 .into_inner();
             if cli.json {
                 print_json(&serde_json::Value::Array(
@@ -183,7 +186,7 @@ async fn run(cli: Cli) -> Result<(), CliError> {
             c.models
                 .unload_model(pb::UnloadModelRequest { name: name.clone() })
                 .await
-                .map_err(fail)?;
+                .map_err(fail("UnloadModel"))?;
             print_done(cli.json, "unloaded", &name);
         }
         Command::Active => {
@@ -211,7 +214,7 @@ async fn run(cli: Cli) -> Result<(), CliError> {
                         println!("no active model: the loop renders its fallback");
                     }
                 }
-                Err(s) => return Err(fail(s)),
+                Err(s) => return Err(fail("GetActiveModel")(s)),
             }
         }
         Command::Status {
@@ -228,7 +231,7 @@ async fn run(cli: Cli) -> Result<(), CliError> {
                     .looper
                     .get_status(pb::GetStatusRequest {})
                     .await
-                    .map_err(fail)?
+                    .map_err(fail("GetStatus"))?
                     .into_inner();
                 if cli.json {
                     print_json(&output::status_json(&s));
@@ -263,14 +266,14 @@ async fn run(cli: Cli) -> Result<(), CliError> {
                         f_max_step: params.f_max_step,
                     })
                     .await
-                    .map_err(fail)?;
+                    .map_err(fail("StartExperiment"))?;
                 print_done(cli.json, "started", &kind);
             }
             ExperimentAction::Stop => {
                 c.looper
                     .stop_experiment(pb::StopExperimentRequest {})
                     .await
-                    .map_err(fail)?;
+                    .map_err(fail("StopExperiment"))?;
                 if cli.json {
                     print_json(&serde_json::json!({ "stopped": true }));
                 } else {
@@ -283,7 +286,7 @@ async fn run(cli: Cli) -> Result<(), CliError> {
                 .looper
                 .stream_telemetry(pb::StreamTelemetryRequest { decimation })
                 .await
-                .map_err(fail)?
+                .map_err(fail("StreamTelemetry"))?
                 .into_inner();
             if !cli.json {
                 println!("{}", output::SAMPLE_HEADER);
@@ -294,7 +297,7 @@ async fn run(cli: Cli) -> Result<(), CliError> {
                     next = stream.message() => next,
                     _ = tokio::signal::ctrl_c() => break,
                 };
-                let Some(x) = next.map_err(fail)? else {
+                let Some(x) = next.map_err(fail("StreamTelemetry"))? else {
                     eprintln!("hapticctl: the server ended the stream (shutting down?)");
                     break;
                 };
@@ -322,7 +325,7 @@ async fn load(
             onnx: bytes.unwrap_or_default(),
         })
         .await
-        .map_err(|s| explain(&s, &c.addr))?;
+        .map_err(|s| explain("LoadModel", &s, &c.addr))?;
     r.into_inner()
         .model
         .ok_or_else(|| CliError::new("the server answered without the model", client::EXIT_SERVER))
@@ -356,7 +359,7 @@ async fn upload(
         .looper
         .get_status(pb::GetStatusRequest {})
         .await
-        .map_err(|s| explain(&s, &c.addr))?
+        .map_err(|s| explain("GetStatus", &s, &c.addr))?
         .into_inner();
     let limit = status.max_upload_bytes;
     if limit > 0 && bytes.len() as u64 > limit {
@@ -394,7 +397,7 @@ async fn swap(c: &mut Client, model: &str) -> Result<(pb::ModelInfo, u64), CliEr
         }
         r => r,
     }
-    .map_err(|s| explain(&s, &c.addr))?
+    .map_err(|s| explain("ActivateModel", &s, &c.addr))?
     .into_inner();
     let model = r.model.ok_or_else(|| {
         CliError::new("the server answered without the model", client::EXIT_SERVER)

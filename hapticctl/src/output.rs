@@ -122,6 +122,7 @@ pub fn status_json(s: &pb::Status) -> Value {
             "board_quadrature_errors": s.board_quadrature_errors,
             "scheduling": s.scheduling,
             "recorder": s.recorder,
+            "recorder_failed": s.recorder_failed,
             "telemetry_drops": s.telemetry_drops,
             "experiment": { "kind": e.kind, "running": e.running, "cycle": e.cycle, "phase": e.phase },
             "round_trip_latency": latency_json(s.round_trip_latency.as_ref()),
@@ -168,14 +169,19 @@ pub fn status_text(s: &pb::Status) -> String {
     }
     match &s.active_model {
         Some(m) => out.push_str(&format!(
-            "model:       {} ({}, since step {})\n",
+            "model:       {} ({}, {})\n",
             m.name,
             if m.kind.is_empty() {
                 "kind unknown"
             } else {
                 &m.kind
             },
-            m.active_since_step
+            // A step of a loop that is gone would be stale: say what holds now.
+            if s.loop_alive {
+                format!("since step {}", m.active_since_step)
+            } else {
+                "waiting for a loop".to_string()
+            }
         )),
         None => out.push_str("model:       none (the loop renders its fallback)\n"),
     }
@@ -210,7 +216,15 @@ pub fn status_text(s: &pb::Status) -> String {
         s.overruns
     ));
     out.push_str(&format!("scheduling:  {}\n", or_dash(&s.scheduling)));
-    out.push_str(&format!("recorder:    {}\n", or_dash(&s.recorder)));
+    out.push_str(&format!(
+        "recorder:    {}{}\n",
+        if s.recorder_failed {
+            "RECORDER ERROR: "
+        } else {
+            ""
+        },
+        or_dash(&s.recorder)
+    ));
     out.push_str(&format!(
         "server:      {} up {:.0} s, {} predictions{}\n",
         or_dash(&s.server_version),

@@ -49,12 +49,25 @@ async fn ctl(s: &Server, args: &[&str]) -> Out {
 }
 
 async fn ctl_env(addr: &str, args: &[&str], env: &[(&str, &str)]) -> Out {
+    let mut with_addr = vec!["--addr", addr];
+    with_addr.extend_from_slice(args);
+    // No connection file of a real server on this machine gets in (an empty runtime directory).
+    let empty = tempfile::tempdir().unwrap();
+    let mut env: Vec<(&str, &str)> = env.to_vec();
+    let xdg = empty.path().to_str().unwrap().to_string();
+    if !env.iter().any(|(k, _)| *k == "XDG_RUNTIME_DIR") {
+        env.push(("XDG_RUNTIME_DIR", &xdg));
+    }
+    ctl_raw(&with_addr, &env).await
+}
+
+/// hapticctl with exactly these arguments and environment (no --addr added).
+async fn ctl_raw(args: &[&str], env: &[(&str, &str)]) -> Out {
     let mut cmd = tokio::process::Command::new(env!("CARGO_BIN_EXE_hapticctl"));
-    cmd.arg("--addr")
-        .arg(addr)
-        .args(args)
+    cmd.args(args)
         .env_remove("HAPTICS_TOKEN")
-        .env_remove("HAPTICS_ADDR");
+        .env_remove("HAPTICS_ADDR")
+        .env_remove("HAPTICS_INSTANCE");
     for (k, v) in env {
         cmd.env(k, v);
     }
@@ -196,7 +209,12 @@ async fn token_from_flag_or_environment() {
     assert!(o.stderr.contains("wrong token"), "{}", o.stderr);
     assert!(s.backend.swaps().is_empty());
     let o = ctl(&s, &["status"]).await;
-    assert_eq!(o.code, 0, "reading needs no token: {}", o.stderr);
+    assert_eq!(o.code, 1, "reading needs the token too: {}", o.stderr);
+    assert!(
+        o.stderr.starts_with("hapticctl: GetStatus failed:"),
+        "{}",
+        o.stderr
+    );
     let o = ctl(&s, &["--token", "t0k", "swap", "a.onnx"]).await;
     assert_eq!(o.code, 0, "{}", o.stderr);
     let o = ctl_env(&s.addr, &["swap", "b.onnx"], &[("HAPTICS_TOKEN", "t0k")]).await;
@@ -315,4 +333,66 @@ async fn no_server_says_so() {
         "{}",
         o.stderr
     );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_owner_needs_no_token_the_connection_file_has_it() {
+    let s = server(Some("f11e-token")).await;
+    let xdg = tempfile::tempdir().unwrap();
+    let dir = xdg.path().join("haptics");
+    std::fs::create_dir(&dir).unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o700)).unwrap();
+    let grpc = format!("http://{}", s.addr);
+    let file = format!(
+        "{{\"instance\": \"lab\", \"pid\": 1, \"grpc\": \"{grpc}\", \"http\": \"http://127.0.0.1:1\", \
+         \"token\": \"f11e-token\", \"page\": \"http://127.0.0.1:1/#token=f11e-token\"}}"
+    );
+    std::fs::write(dir.join("lab.json"), file).unwrap();
+    let xdg_s = xdg.path().to_str().unwrap();
+    let env = [("XDG_RUNTIME_DIR", xdg_s), ("HAPTICS_INSTANCE", "lab")];
+    // Address and token both from the file.
+    let o = ctl_raw(&["swap", "a.onnx"], &env).await;
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    let o = ctl_raw(
+        &["--instance", "lab", "status"],
+        &[("XDG_RUNTIME_DIR", xdg_s)],
+    )
+    .await;
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    // The file's token goes only to the file's address: another address gets none.
+    let o = ctl_raw(&["--addr", "127.0.0.1:1", "status"], &env).await;
+    assert_eq!(o.code, 3, "{}", o.stderr);
+    let o = ctl_raw(&["--addr", &s.addr, "status"], &env).await;
+    assert_eq!(
+        o.code, 0,
+        "the same address written without http://: {}",
+        o.stderr
+    );
+    // An explicit token wins over the file's.
+    let o = ctl_raw(&["--token", "wrong-token", "status"], &env).await;
+    assert_eq!(o.code, 1, "{}", o.stderr);
+    // A directory others may enter is not trusted: said, and ignored.
+    std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let o = ctl_raw(&["status"], &env).await;
+    assert!(
+        o.stderr.contains("ignoring the connection file"),
+        "{}",
+        o.stderr
+    );
+    assert_ne!(o.code, 0, "{}", o.stderr);
+    std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o700)).unwrap();
+    // No file at all (an older server, or none): the default address, no token, no error.
+    let o = ctl_raw(
+        &["--addr", &s.addr, "--instance", "nothing-here", "status"],
+        &[("XDG_RUNTIME_DIR", xdg_s)],
+    )
+    .await;
+    assert_eq!(
+        o.code, 1,
+        "refused for want of a token, not a file error: {}",
+        o.stderr
+    );
+    assert!(!o.stderr.contains("connection file:"), "{}", o.stderr);
+    assert_eq!(s.backend.swaps().len(), 1);
 }

@@ -33,6 +33,8 @@ use crate::telemetry::{LoopObserver, TelemetryThread};
 /// [`crate::cli::ServeArgs::into_config`]).
 #[derive(Debug, Clone)]
 pub struct AppConfig {
+    /// The instance: names the connection file (`haptics_proto::connection`).
+    pub instance: String,
     /// The ONNX Runtime library; `None`: the usual search (`Runtime::init`).
     pub ort_lib: Option<PathBuf>,
     /// The model directory.
@@ -79,6 +81,8 @@ impl AppError {
 /// ONNX Runtime version: scripts that start it on port 0 read it), and serves until `shutdown`
 /// is requested (or, with `exit_when_loop_gone`, the loop leaves). Blocks the caller.
 pub fn run(config: AppConfig, shutdown: Shutdown) -> Result<(), AppError> {
+    let instance = config.instance.clone();
+    let token = config.control.token.clone();
     let app = App::start(config)?;
     println!(
         "infer-server: gRPC {} HTTP http://{} segment {} models {} (ONNX Runtime {})",
@@ -89,10 +93,53 @@ pub fn run(config: AppConfig, shutdown: Shutdown) -> Result<(), AppError> {
         app.rt.version()
     );
     let _ = std::io::stdout().flush();
-    if app.token_required {
-        eprintln!("infer-server: mutating calls need the bearer token");
+    let info = connection_info(&instance, app.grpc_addr(), app.http_addr(), token);
+    match haptics_proto::connection::write(&info) {
+        Ok(path) => eprintln!(
+            "infer-server: every call needs the token; the connection file {} (this user only) \
+             holds it for hapticctl; page: {}",
+            path.display(),
+            info.page
+        ),
+        Err(e) => eprintln!(
+            "infer-server: warning: no connection file ({e}); give clients the token by hand \
+             (--token / HAPTICS_TOKEN); page: {}",
+            info.page
+        ),
     }
-    app.run_until(&shutdown)
+    let result = app.run_until(&shutdown);
+    haptics_proto::connection::remove_if_owned(&instance, info.pid);
+    result
+}
+
+/// What the connection file says: the addresses a client of this machine connects to (an
+/// unspecified bind address, 0.0.0.0 or ::, is reached over loopback) and the token.
+pub fn connection_info(
+    instance: &str,
+    grpc: SocketAddr,
+    http: SocketAddr,
+    token: Option<String>,
+) -> haptics_proto::connection::ConnectionInfo {
+    let reachable = |a: SocketAddr| {
+        let mut a = a;
+        if a.ip().is_unspecified() {
+            a.set_ip(if a.is_ipv4() {
+                std::net::Ipv4Addr::LOCALHOST.into()
+            } else {
+                std::net::Ipv6Addr::LOCALHOST.into()
+            });
+        }
+        format!("http://{a}")
+    };
+    let http = reachable(http);
+    haptics_proto::connection::ConnectionInfo {
+        instance: instance.to_string(),
+        pid: std::process::id(),
+        grpc: reachable(grpc),
+        page: haptics_proto::connection::ConnectionInfo::page_for(&http, token.as_deref()),
+        http,
+        token,
+    }
 }
 
 /// The server, started: every thread running, both listeners bound.
@@ -100,7 +147,6 @@ pub struct App {
     rt: &'static Runtime,
     segment: shm_ring::SegmentName,
     models_dir: PathBuf,
-    token_required: bool,
     stats_every: Option<Duration>,
     inference: Arc<InferenceControl>,
     registry: Arc<Registry>,
@@ -162,7 +208,6 @@ impl App {
             observer,
             env!("CARGO_PKG_VERSION"),
         ));
-        let token_required = config.control.token.is_some();
         let control_shutdown = control_plane::Shutdown::new();
         let control = control_plane::start(config.control, backend, control_shutdown.clone())
             .map_err(|e| AppError::Refused(format!("{e:#}")))?;
@@ -170,7 +215,6 @@ impl App {
             rt,
             segment,
             models_dir: config.models_dir,
-            token_required,
             stats_every: config.stats_every,
             inference,
             registry,

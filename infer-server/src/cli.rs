@@ -81,11 +81,18 @@ pub struct ServeArgs {
     /// HTTP address (the page, /api, /ws/telemetry, /metrics).
     #[arg(long, default_value = "127.0.0.1:8080")]
     pub http: SocketAddr,
-    /// Bearer token required by mutating calls (load, activate, unload, experiments).
-    /// Default: $HAPTICS_TOKEN (empty counts as unset). Required before listening on a
-    /// non-loopback address.
+    /// Bearer token every call needs (changes, status, models, telemetry, /metrics), on
+    /// loopback too. Default: $HAPTICS_TOKEN (empty counts as unset), else a random one
+    /// created at start and written, with the addresses, into the connection file only this
+    /// user can read ($XDG_RUNTIME_DIR/haptics/INSTANCE.json, else
+    /// /tmp/haptics-UID/INSTANCE.json), where hapticctl finds it; the page's address with the
+    /// token is printed at start. 1-256 visible ASCII characters.
     #[arg(long)]
     pub token: Option<String>,
+    /// Serve /metrics without the token (for a Prometheus that cannot send one; anyone who can
+    /// reach the port then reads the loop's state and the active model's name).
+    #[arg(long)]
+    pub open_metrics: bool,
     /// Listen on a non-loopback address without a token (e.g. inside a container whose
     /// ports are published on the host's 127.0.0.1 only). Anyone who can reach the
     /// address can then swap models and start experiments.
@@ -103,13 +110,24 @@ pub struct ServeArgs {
     /// stopped and refused (docs/model-contract.md, "Loader limits").
     #[arg(long, default_value_t = 10.0)]
     pub load_timeout_s: f64,
+    /// Most MiB the models' working memory may take while they run (one ONNX Runtime CPU arena
+    /// all models share, capped): a model whose warm-up needs more is refused at load, the
+    /// active model untouched (docs/model-contract.md, "Loader limits"). 16 to 65536.
+    #[arg(long, default_value_t = crate::memory_limit::DEFAULT_MODEL_MEMORY_MIB)]
+    pub model_memory_mib: usize,
     /// A host name the page and /api may be reached under, besides localhost and the
     /// listening addresses (repeatable; also $HAPTICS_ALLOWED_HOSTS, comma-separated). Any
     /// other name in a request's Host is refused (DNS rebinding; docs/control-plane.md).
     #[arg(long = "allowed-host", value_name = "NAME")]
     pub allowed_hosts: Vec<String>,
-    /// rt-loop instance name: the segment is /haptics-INSTANCE.
-    #[arg(long, default_value = "default", conflicts_with = "segment")]
+    /// rt-loop instance name: the segment is /haptics-INSTANCE, the connection file
+    /// INSTANCE.json.
+    #[arg(
+        long,
+        env = "HAPTICS_INSTANCE",
+        default_value = "default",
+        conflicts_with = "segment"
+    )]
     pub instance: String,
     /// Explicit segment name (starting with /), instead of --instance.
     #[arg(long)]
@@ -183,7 +201,8 @@ impl ServeArgs {
             Some(s) => SegmentName::new(s),
             None => SegmentName::for_instance(&self.instance),
         }
-        .map_err(|e| AppError::Refused(e.to_string()))?;
+        // A bad name is a usage error (exit 2), as in rt-loop.
+        .map_err(|e| AppError::Usage(e.to_string()))?;
         if self.rt_priority.is_some_and(|p| !(0..=99).contains(&p)) {
             return Err(AppError::Usage(
                 "--rt-priority must be 0..=99 (0: default scheduler)".into(),
@@ -226,6 +245,13 @@ impl ServeArgs {
             ("--load-timeout-s", self.load_timeout_s, 0.0, 600.0, false),
             ("--stats-every", self.stats_every, 0.0, 86_400.0, true),
             ("--ort-threads", self.ort_threads as f64, 1.0, 64.0, true),
+            (
+                "--model-memory-mib",
+                self.model_memory_mib as f64,
+                16.0,
+                65_536.0,
+                true,
+            ),
         ];
         for (flag, v, lo, hi, lo_ok) in numeric {
             let above_lo = if lo_ok { v >= lo } else { v > lo };
@@ -240,12 +266,29 @@ impl ServeArgs {
             intra_threads: self.ort_threads,
             spinning: self.ort_spin,
             load_timeout: Duration::from_secs_f64(self.load_timeout_s),
+            memory_limit: Some(self.model_memory_mib << 20),
             ..SessionConfig::default()
         };
-        let token = self
+        let token = match self
             .token
             .or_else(|| std::env::var("HAPTICS_TOKEN").ok())
-            .filter(|t| !t.is_empty());
+            .filter(|t| !t.is_empty())
+        {
+            Some(t) => {
+                control_plane::auth::check_token(&t)
+                    .map_err(|e| AppError::Usage(format!("--token / HAPTICS_TOKEN: {e}")))?;
+                t
+            }
+            None => new_token().map_err(|e| {
+                AppError::Refused(format!("cannot create a token (/dev/urandom): {e}"))
+            })?,
+        };
+        // The connection file's name: the instance, or the explicit segment's name.
+        let instance = match &self.segment {
+            Some(s) => s.trim_start_matches('/').trim_start_matches("haptics-"),
+            None => self.instance.as_str(),
+        }
+        .to_string();
         let mut allowed_hosts = self.allowed_hosts;
         if let Ok(env) = std::env::var("HAPTICS_ALLOWED_HOSTS") {
             allowed_hosts.extend(
@@ -258,7 +301,8 @@ impl ServeArgs {
         let control = control_plane::Config {
             grpc_addr: self.grpc,
             http_addr: self.http,
-            token,
+            token: Some(token),
+            metrics_open: self.open_metrics,
             allow_public_without_token: self.allow_public_without_token,
             max_upload_bytes: self.max_upload_mib.saturating_mul(1 << 20),
             max_uploads_in_flight_bytes: self.max_uploads_mib.saturating_mul(1 << 20),
@@ -271,6 +315,7 @@ impl ServeArgs {
         let (models_dir, start_model) =
             resolve_models(self.models, self.model).map_err(AppError::Usage)?;
         Ok(AppConfig {
+            instance,
             ort_lib,
             models_dir,
             start_model,
@@ -288,6 +333,14 @@ impl ServeArgs {
                 .then(|| Duration::from_secs_f64(self.stats_every)),
         })
     }
+}
+
+/// A token of 16 random bytes in hex (32 characters), from the kernel's generator.
+pub fn new_token() -> std::io::Result<String> {
+    use std::io::Read;
+    let mut bytes = [0u8; 16];
+    std::fs::File::open("/dev/urandom")?.read_exact(&mut bytes)?;
+    Ok(bytes.iter().map(|b| format!("{b:02x}")).collect())
 }
 
 /// `--models` / `--model` to (model directory, name to activate).

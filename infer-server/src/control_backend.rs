@@ -132,6 +132,18 @@ pub fn apply_loop_block(status: &mut LoopStatus, b: &haptics_proto::LoopStatus) 
     }
 }
 
+/// The active model as the status shows it: once the loop is gone, the step it became active at
+/// belongs to a loop that no longer runs, so it is left out (the model is still the one the next
+/// loop gets).
+fn without_stale_step(model: Option<ModelInfo>, loop_alive: bool) -> Option<ModelInfo> {
+    model.map(|mut m| {
+        if !loop_alive {
+            m.active_since_step = None;
+        }
+        m
+    })
+}
+
 impl ControlBackend {
     /// The attached loop's status block, if it published one (a short lock on the endpoints,
     /// then a seqlock read: never waits on the loop).
@@ -309,7 +321,7 @@ impl Backend for ControlBackend {
                 uptime_s: self.started.elapsed().as_secs_f64(),
                 version: self.version.clone(),
             },
-            active_model: self.registry.active(),
+            active_model: without_stale_step(self.registry.active(), alive),
         }
     }
 

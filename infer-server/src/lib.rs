@@ -40,6 +40,7 @@ pub mod handoff;
 pub mod inference_control;
 pub mod inference_thread;
 pub mod latency;
+pub mod memory_limit;
 pub mod model;
 pub mod period_sync;
 pub mod profile;

@@ -5,14 +5,13 @@
 
 use std::process::ExitCode;
 
-use clap::Parser;
 use infer_server::cli::{Cli, Command};
 use infer_server::exit::EXIT_REFUSED;
 use infer_server::{app, commands};
 use shm_ring::os::shutdown;
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli: Cli = haptics_proto::cli_parse::parse();
     let ort_lib = cli.ort_lib.as_deref();
     match cli.command {
         Command::Validate {

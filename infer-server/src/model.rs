@@ -34,6 +34,10 @@ pub struct SessionConfig {
     /// How long the server's registry lets a load (session, checks, warm-up) take before it
     /// stops it ([`crate::engine::load_bounded`]); 10 s by default.
     pub load_timeout: std::time::Duration,
+    /// Most bytes the models' working memory may take, in one CPU arena all sessions share
+    /// ([`crate::memory_limit`]); a model whose run needs more fails its warm-up and is refused.
+    /// `None`: ONNX Runtime's own arena per session, unbounded (the one-shot subcommands).
+    pub memory_limit: Option<usize>,
 }
 
 impl Default for SessionConfig {
@@ -44,6 +48,7 @@ impl Default for SessionConfig {
             warmup_runs: 32,
             io_binding: false,
             load_timeout: std::time::Duration::from_secs(10),
+            memory_limit: None,
         }
     }
 }
@@ -113,10 +118,28 @@ pub fn open_session_from_bytes(
         // planned once and served from the arena on every later run.
         .with_memory_pattern(true)
         .map_err(session_err)?;
+    builder = with_memory_limit(rt, builder, cfg)?;
     builder
         .commit_from_memory(bytes)
         .map_err(|e| ModelError::Corrupt {
             path: path.to_path_buf(),
+            reason: e.to_string(),
+        })
+}
+
+/// Makes the session allocate from the bounded arena when `cfg.memory_limit` is set.
+fn with_memory_limit(
+    rt: &Runtime,
+    builder: ort::session::builder::SessionBuilder,
+    cfg: &SessionConfig,
+) -> Result<ort::session::builder::SessionBuilder, ModelError> {
+    let Some(limit) = cfg.memory_limit else {
+        return Ok(builder);
+    };
+    crate::memory_limit::register(rt, limit).map_err(|reason| ModelError::Session { reason })?;
+    builder
+        .with_env_allocators()
+        .map_err(|e| ModelError::Session {
             reason: e.to_string(),
         })
 }
@@ -139,12 +162,50 @@ fn float_tensor_shape(name: &str, ty: &ValueType) -> Result<Vec<i64>, ModelError
     }
 }
 
-/// Reads and checks the `haptics.*` metadata entries.
+/// Most bytes of `haptics.provenance` a model may carry (64 KiB): it is shown by every model
+/// list and status (gRPC, `/api/models`, the page), so a model with megabytes of it would make
+/// those answers huge (docs/model-contract.md, "Loader limits").
+pub const MAX_PROVENANCE_BYTES: usize = 64 << 10;
+/// Most bytes of any other `haptics.*` entry (4 KiB): names, a kind, units, a number.
+pub const MAX_METADATA_VALUE_BYTES: usize = 4 << 10;
+
+/// Reads and checks the `haptics.*` metadata entries, each capped in size first.
 pub fn read_metadata(session: &Session) -> Result<Metadata, ModelError> {
     let meta = session.metadata().map_err(|e| ModelError::RunFailed {
         reason: format!("cannot read metadata: {e}"),
     })?;
+    check_metadata_sizes(|key| meta.custom(key))?;
     parse_metadata(|key| meta.custom(key))
+}
+
+/// Refuses a model whose `haptics.*` metadata is over its cap ([`MAX_PROVENANCE_BYTES`],
+/// [`MAX_METADATA_VALUE_BYTES`]); the error names the entry and its size, never its value.
+pub fn check_metadata_sizes(custom: impl Fn(&str) -> Option<String>) -> Result<(), ModelError> {
+    use crate::contract::{
+        META_FEATURES, META_KIND, META_PREVIOUS_FORCE, META_PROVENANCE, META_STATE_SIZE, META_UNITS,
+    };
+    for key in [
+        META_FEATURES,
+        META_KIND,
+        META_UNITS,
+        META_PROVENANCE,
+        META_STATE_SIZE,
+        META_PREVIOUS_FORCE,
+    ] {
+        let limit = if key == META_PROVENANCE {
+            MAX_PROVENANCE_BYTES
+        } else {
+            MAX_METADATA_VALUE_BYTES
+        };
+        if let Some(v) = custom(key).filter(|v| v.len() > limit) {
+            return Err(ModelError::BadMetadata {
+                key: key.to_string(),
+                value: format!("<{} bytes>", v.len()),
+                reason: format!("at most {limit} bytes (the loader's metadata limit)"),
+            });
+        }
+    }
+    Ok(())
 }
 
 /// Checks input/output names, element types and shapes against the contract for `kind` with

@@ -50,6 +50,14 @@ enum Source {
     Upload(Arc<[u8]>),
 }
 
+/// A failed upload keeps its name, state and reason for the model list, not its bytes: they
+/// would count against the cap on uploads held (`--max-uploads-mib`) and refuse good uploads.
+fn release_failed_upload(entry: &mut Entry) {
+    if let Source::Upload(_) = entry.source {
+        entry.source = Source::Upload(Arc::from(Vec::new()));
+    }
+}
+
 /// A load's checked inputs, before the engine is built.
 struct Prepared {
     name: String,
@@ -396,6 +404,7 @@ impl Registry {
                 let err = control_error(&name, &e);
                 entry.state = ModelState::Failed;
                 entry.error = Some(err.to_string());
+                release_failed_upload(&mut entry);
                 Err(err)
             }
         };
@@ -538,6 +547,11 @@ impl Registry {
                 (e.state, bytes)
             })
         };
+        if matches!(&known, Some((ModelState::Failed, Some(b))) if b.is_empty()) {
+            return Err(ControlError::FailedPrecondition(format!(
+                "{name} is an upload that failed to load; its bytes were not kept: upload it again"
+            )));
+        }
         let in_memory = matches!(known, Some((ModelState::Loaded | ModelState::Active, _)));
         if !in_memory && !load_if_needed {
             if known.is_none() && !self.dir.join(name).is_file() {

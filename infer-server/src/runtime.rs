@@ -68,6 +68,25 @@ impl std::fmt::Debug for Runtime {
 
 static RUNTIME: OnceLock<Runtime> = OnceLock::new();
 
+/// One ONNX Runtime log line on stderr, plain text: `infer-server: onnxruntime warning: ...`.
+fn plain_log_line(
+    level: ort::logging::LogLevel,
+    _category: &str,
+    _id: &str,
+    location: &str,
+    message: &str,
+) {
+    use ort::logging::LogLevel;
+    let level = match level {
+        LogLevel::Verbose | LogLevel::Info => return,
+        LogLevel::Warning => "warning",
+        LogLevel::Error => "error",
+        LogLevel::Fatal => "fatal",
+    };
+    let message: String = message.chars().filter(|c| *c != '\u{1b}').collect();
+    eprintln!("infer-server: onnxruntime {level}: {message} ({location})");
+}
+
 impl Runtime {
     /// Loads ONNX Runtime once per process. `explicit` (the `--ort-lib` flag) wins over
     /// `ORT_DYLIB_PATH`, which wins over a search for `.ort/libonnxruntime.so` in the ancestors of
@@ -91,11 +110,17 @@ impl Runtime {
             // The loop must not depend on anybody's network; ONNX Runtime builds from PyPI have
             // telemetry off on Linux anyway, this says it explicitly.
             .with_telemetry(false)
+            // ONNX Runtime's own sink colours its lines with ANSI codes even into a file or a
+            // pipe; ours writes plain lines (warnings and errors only, see below).
+            .with_logger(std::sync::Arc::new(plain_log_line))
             .build()
             .map_err(|e| RuntimeError::Environment {
                 path: path.clone(),
                 reason: e.to_string(),
             })?;
+        // A custom logger receives every level unless told otherwise: warnings and errors only,
+        // as ONNX Runtime's default, so no verbose line is ever formatted during a step.
+        env.set_log_level(ort::logging::LogLevel::Warning);
         let rt = Runtime {
             env,
             library: path,

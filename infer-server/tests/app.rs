@@ -49,6 +49,16 @@ fn the_real_server_runs_in_process_and_stops_on_its_shutdown_signal() {
     };
     let config = args.into_config(None).unwrap();
     assert_eq!(config.start_model.as_deref(), Some("linear.onnx"));
+    // No --token and no HAPTICS_TOKEN: infer-server made one (16 random bytes in hex).
+    let token = config
+        .control
+        .token
+        .clone()
+        .expect("a token created at start");
+    assert!(
+        token.len() == 32 && token.bytes().all(|b| b.is_ascii_hexdigit()),
+        "{token}"
+    );
 
     let app = App::start(config).unwrap();
     let http = app.http_addr();
@@ -94,7 +104,12 @@ fn the_real_server_runs_in_process_and_stops_on_its_shutdown_signal() {
     }
 
     // The control plane of the same server answers on its bound port.
-    let (line, status) = common::http_get(&http.to_string(), "/api/status");
+    let (line, _) = common::http_get(&http.to_string(), "/api/status", None);
+    assert!(
+        line.starts_with("HTTP/1.1 401"),
+        "the status needs the token: {line}"
+    );
+    let (line, status) = common::http_get(&http.to_string(), "/api/status", Some(&token));
     assert!(line.starts_with("HTTP/1.1 200"), "{line}");
     assert!(status.contains("linear.onnx"), "the active model: {status}");
 

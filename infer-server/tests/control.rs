@@ -56,11 +56,35 @@ fn models_dir(tag: &str, fixtures: &Path, names: &[&str]) -> PathBuf {
     dir
 }
 
+/// The token these tests' servers get through HAPTICS_TOKEN (infer-server requires one on
+/// every call, on loopback too), unless a test gives its own with `--token`.
+const CTL_TOKEN: &str = "ctl-test-token-8d2e";
+
+/// A client whose calls carry `token` unless the call set its own `authorization`.
+type Authed = tonic::service::interceptor::InterceptedService<Channel, AddToken>;
+
+#[derive(Clone)]
+struct AddToken(Option<String>);
+
+impl tonic::service::Interceptor for AddToken {
+    fn call(&mut self, mut r: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
+        if let Some(t) = &self.0 {
+            if !r.metadata().contains_key("authorization") {
+                let v = format!("Bearer {t}").parse().expect("ASCII token");
+                r.metadata_mut().insert("authorization", v);
+            }
+        }
+        Ok(r)
+    }
+}
+
 struct ServerProcess {
     child: Child,
     grpc: String,
     http: String,
     stderr: PathBuf,
+    /// The token the clients send by default: CTL_TOKEN, or none when the test chose one.
+    token: Option<String>,
 }
 
 impl ServerProcess {
@@ -74,7 +98,7 @@ impl ServerProcess {
             .arg(dir)
             .args(["--segment", segment.as_str()])
             .args(extra)
-            .env_remove("HAPTICS_TOKEN")
+            .env("HAPTICS_TOKEN", CTL_TOKEN)
             .stdout(Stdio::piped())
             .stderr(std::fs::File::create(&stderr).unwrap())
             .spawn()
@@ -94,11 +118,13 @@ impl ServerProcess {
         };
         let grpc = format!("http://{}", at("gRPC"));
         let http = at("HTTP").trim_start_matches("http://").to_string();
+        let token = (!extra.contains(&"--token")).then(|| CTL_TOKEN.to_string());
         Self {
             child,
             grpc,
             http,
             stderr,
+            token,
         }
     }
 
@@ -106,14 +132,28 @@ impl ServerProcess {
         read(&self.stderr)
     }
 
-    async fn models(&self) -> ModelServiceClient<Channel> {
-        ModelServiceClient::connect(self.grpc.clone())
+    async fn channel(&self) -> Channel {
+        tonic::transport::Endpoint::from_shared(self.grpc.clone())
+            .unwrap()
+            .connect()
             .await
             .unwrap()
     }
 
-    async fn loop_client(&self) -> LoopServiceClient<Channel> {
-        LoopServiceClient::connect(self.grpc.clone()).await.unwrap()
+    async fn models(&self) -> ModelServiceClient<Authed> {
+        self.models_with(self.token.clone()).await
+    }
+
+    async fn models_with(&self, token: Option<String>) -> ModelServiceClient<Authed> {
+        ModelServiceClient::with_interceptor(self.channel().await, AddToken(token))
+    }
+
+    async fn loop_client(&self) -> LoopServiceClient<Authed> {
+        self.loop_client_with(self.token.clone()).await
+    }
+
+    async fn loop_client_with(&self, token: Option<String>) -> LoopServiceClient<Authed> {
+        LoopServiceClient::with_interceptor(self.channel().await, AddToken(token))
     }
 
     /// SIGTERM, then the exit status and how long the exit took.
@@ -301,7 +341,7 @@ fn model<'a>(list: &'a [pb::ModelInfo], name: &str) -> &'a pb::ModelInfo {
         .unwrap_or_else(|| panic!("{name} not listed: {list:?}"))
 }
 
-async fn list(c: &mut ModelServiceClient<Channel>) -> Vec<pb::ModelInfo> {
+async fn list(c: &mut ModelServiceClient<Authed>) -> Vec<pb::ModelInfo> {
     c.list_models(pb::ListModelsRequest {})
         .await
         .unwrap()
@@ -310,7 +350,7 @@ async fn list(c: &mut ModelServiceClient<Channel>) -> Vec<pb::ModelInfo> {
 }
 
 async fn load(
-    c: &mut ModelServiceClient<Channel>,
+    c: &mut ModelServiceClient<Authed>,
     name: &str,
 ) -> Result<pb::ModelInfo, tonic::Status> {
     c.load_model(pb::LoadModelRequest {
@@ -322,7 +362,7 @@ async fn load(
 }
 
 async fn activate(
-    c: &mut ModelServiceClient<Channel>,
+    c: &mut ModelServiceClient<Authed>,
     name: &str,
     load_if_needed: bool,
 ) -> Result<pb::ActivateModelResponse, tonic::Status> {
@@ -608,7 +648,7 @@ async fn models_load_activate_swap_and_refusals_over_grpc() {
     drop(lp);
 }
 
-async fn status(c: &mut LoopServiceClient<Channel>) -> pb::Status {
+async fn status(c: &mut LoopServiceClient<Authed>) -> pb::Status {
     c.get_status(pb::GetStatusRequest {})
         .await
         .unwrap()
@@ -616,7 +656,7 @@ async fn status(c: &mut LoopServiceClient<Channel>) -> pb::Status {
 }
 
 async fn wait_status(
-    c: &mut LoopServiceClient<Channel>,
+    c: &mut LoopServiceClient<Authed>,
     what: &str,
     ok: impl Fn(&pb::Status) -> bool,
 ) -> pb::Status {
@@ -693,7 +733,7 @@ async fn status_experiments_and_telemetry_from_the_segment() {
         .await
         .unwrap_err();
     assert_eq!(e.code(), Code::NotFound);
-    let (line, body) = common::http_get(&server.http, "/api/status");
+    let (line, body) = common::http_get(&server.http, "/api/status", server.token.as_deref());
     assert!(line.contains("200"), "{line}");
     assert!(body.contains("\"alive\":false"), "{body}");
 
@@ -875,10 +915,27 @@ async fn sigterm_ends_open_streams_and_websockets_quickly() {
     let stepper = StepLoop::start(lp);
     stepper.wait_for(50);
 
-    // With a token, mutating calls need it; reads do not.
+    // Every call needs the token: mutating calls and reads alike.
     let mut c = server.models().await;
     let e = load(&mut c, "linear.onnx").await.unwrap_err();
     assert_eq!(e.code(), Code::Unauthenticated, "{e:?}");
+    let e = c.list_models(pb::ListModelsRequest {}).await.unwrap_err();
+    assert_eq!(
+        e.code(),
+        Code::Unauthenticated,
+        "a read without the token: {e:?}"
+    );
+    let e = server
+        .loop_client()
+        .await
+        .stream_telemetry(pb::StreamTelemetryRequest { decimation: 1 })
+        .await
+        .unwrap_err();
+    assert_eq!(
+        e.code(),
+        Code::Unauthenticated,
+        "telemetry without the token: {e:?}"
+    );
     let mut req = tonic::Request::new(pb::UnloadModelRequest {
         name: "linear.onnx".into(),
     });
@@ -890,11 +947,12 @@ async fn sigterm_ends_open_streams_and_websockets_quickly() {
         Code::FailedPrecondition,
         "authenticated, refused: {e:?}"
     );
+    let mut c = server.models_with(Some("s3cret".into())).await;
     assert_eq!(list(&mut c).await.len(), 1);
 
     // An open gRPC telemetry stream and an open WebSocket.
     let mut stream = server
-        .loop_client()
+        .loop_client_with(Some("s3cret".into()))
         .await
         .stream_telemetry(pb::StreamTelemetryRequest { decimation: 1 })
         .await
@@ -1133,6 +1191,7 @@ async fn a_python_grpc_client_uses_the_real_server_through_reflection() {
     assert_eq!(r["status"]["token_required"], true);
     assert_eq!(r["models"]["models"][0]["name"], "a.onnx");
     assert_eq!(r["activate_without_token"], "UNAUTHENTICATED");
+    assert_eq!(r["status_without_token"], "UNAUTHENTICATED");
     assert_eq!(r["activate"]["model"]["name"], "a.onnx");
     let eff: u64 = r["activate"]["effective_step"]
         .as_str()

@@ -14,7 +14,11 @@
 //! - [`layout`]: the haptics segment (its channels' message types, default config).
 //! - `grpc` (cargo feature `grpc`): the tonic/prost types of `proto/haptics/v1/haptics.proto`.
 
+#[cfg(feature = "args")]
+pub mod cli_parse;
 pub mod command;
+#[cfg(feature = "connection")]
+pub mod connection;
 pub mod experiment_args;
 pub mod features;
 #[cfg(feature = "grpc")]

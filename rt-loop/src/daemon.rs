@@ -58,6 +58,31 @@ pub fn experiment_config(base: &RunConfig, req: &StartRequest) -> RunConfig {
     c
 }
 
+/// What became of the run's recording, for its "ended" line: nothing when it was saved whole
+/// (or there was none), else "RECORDER ERROR" with the rows saved and where, so a run never
+/// reads "finished" with rows lost unsaid.
+fn recording_outcome(s: &crate::run::RunSummary) -> String {
+    let Some(r) = &s.recorder else {
+        return String::new();
+    };
+    let path = r
+        .path
+        .as_ref()
+        .map_or("-".to_string(), |p| p.display().to_string());
+    match &r.error {
+        Some(e) => format!(
+            " but RECORDER ERROR: {e}; {} of {} rows saved in {path} \
+             (docs/recording-format.md, \"A failed recording\")",
+            r.rows_written, r.rows_received
+        ),
+        None if s.drops > 0 || r.rows_written < r.rows_received => format!(
+            " but the recording lost rows: {} written of {} received, {} dropped ({path})",
+            r.rows_written, r.rows_received, s.drops
+        ),
+        None => String::new(),
+    }
+}
+
 fn unix_s() -> u64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -206,8 +231,9 @@ pub fn run(cfg: &DaemonConfig, shutdown: &Shutdown) -> Result<u64> {
                     _ => String::new(),
                 };
                 eprintln!(
-                    "rt-loop: run {run_id} ended: {}, {} steps, {:.2} s{}{}",
+                    "rt-loop: run {run_id} ended: {}{}, {} steps, {:.2} s{}{}",
                     s.stop,
+                    recording_outcome(&s),
                     s.steps,
                     s.loop_time_s,
                     s.model.map_or(String::new(), |m| format!(

@@ -2,12 +2,11 @@
 //! (SIGINT/SIGTERM: a run stops at its next step with 0 A and a complete recording). What the
 //! subcommands do is in the library ([`rt_loop::app`]), so tests can run them in-process.
 
-use clap::Parser;
 use rt_loop::cli::Cli;
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli: Cli = haptics_proto::cli_parse::parse();
     let result = shm_ring::os::shutdown::install_signal_handlers()
         .map_err(|e| anyhow::anyhow!("cannot install the SIGINT/SIGTERM handlers: {e}"))
         .and_then(|shutdown| rt_loop::app::run(&cli.cmd, &shutdown));

@@ -293,7 +293,8 @@ fn set_up_and_run(
 /// A recording is never overwritten unless asked (`--overwrite`).
 fn refuse_existing_recording(cfg: &RunConfig) -> Result<()> {
     if let Some(p) = &cfg.record {
-        if p.exists() && !cfg.overwrite {
+        // lstat: a dangling symlink is "something there" too (the recorder refuses it).
+        if std::fs::symlink_metadata(p).is_ok() && !cfg.overwrite {
             anyhow::bail!(
                 "{} already exists: choose another path or pass --overwrite",
                 p.display()

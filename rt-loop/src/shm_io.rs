@@ -6,6 +6,10 @@
 //! overwrite-ring push (never blocks, never fails), one atomic heartbeat store, and every
 //! [`COMMAND_POLL_EVERY`] steps one non-blocking mailbox poll.
 
+/// What the recorder's state starts with at a run's start after a failed recording: it begins
+/// with "failed" (what the control plane's `recorder_failed` looks for) until one succeeds.
+const FAILED_BEFORE: &str = "failed in the last run; now writing ";
+
 use crate::config::RunConfig;
 use crate::features::SCHEMA_NAMES;
 use crate::percentiles::quantiles;
@@ -160,6 +164,10 @@ pub struct LoopIo {
     status: LoopStatus,
     /// "writing PATH" of the current recording (the row count is appended at each publication).
     recorder_prefix: StatusText<RECORDER_BYTES>,
+    /// The last run's recording failed (a full disk, an I/O error): the next run's recorder
+    /// state says so until a recording succeeds, so a failure is never hidden by the next run's
+    /// "writing ..." (control plane: `recorder_failed`, `haptics_recorder_failed`).
+    last_recording_failed: bool,
     status_countdown: u32,
     last_status: Instant,
     /// Fresh endpoints when the segment is re-created after corruption (`shm_renew`).
@@ -188,6 +196,7 @@ impl LoopIo {
                 ..LoopStatus::default()
             },
             recorder_prefix: StatusText::default(),
+            last_recording_failed: false,
             status_countdown: STATUS_CHECK_EVERY,
             last_status: Instant::now(),
             renewal: None,
@@ -242,7 +251,12 @@ impl LoopIo {
             Some(p) => {
                 // Keep room for " rows N"; a long path loses its beginning, not its name.
                 let path = p.display().to_string();
-                let room = RECORDER_BYTES - "writing ".len() - 28;
+                let lead = if self.last_recording_failed {
+                    FAILED_BEFORE
+                } else {
+                    "writing "
+                };
+                let room = RECORDER_BYTES - lead.len() - 28;
                 let mut cut = path.len().saturating_sub(room);
                 while !path.is_char_boundary(cut) {
                     cut += 1;
@@ -252,7 +266,7 @@ impl LoopIo {
                 } else {
                     path
                 };
-                StatusText::new(&format!("writing {shown}"))
+                StatusText::new(&format!("{lead}{shown}"))
             }
             None => StatusText::default(),
         };
@@ -482,6 +496,7 @@ impl StepSink for LoopIo {
             self.status.board_fault.set(why);
         }
         if let Some(r) = recorder {
+            self.last_recording_failed = r.error.is_some();
             match (&r.error, &r.path) {
                 (Some(e), _) => self.set_recorder_text(&format!("failed: {e}")),
                 (None, Some(p)) => self.set_recorder_text(&format!(

@@ -268,10 +268,16 @@ pub fn instance(tag: &str) -> String {
     format!("systest-{tag}-{}", std::process::id())
 }
 
+/// The token [`start_infer_server`] gives infer-server (`HAPTICS_TOKEN`).
+pub const TEST_TOKEN: &str = "systest-token-4f1c2a9e7b3d";
+
 /// Starts `infer-server serve` on free ports and returns it with its gRPC address (read from
 /// the line it prints once both listeners are bound).
 pub fn start_infer_server(instance: &str, models: &Path, model: Option<&str>) -> (Proc, String) {
     let mut cmd = Command::new(bin("infer-server"));
+    // A known token (infer-server requires one on every call, on loopback too): the tests'
+    // clients send it; tests/tests/trust.rs covers the token infer-server creates itself.
+    cmd.env("HAPTICS_TOKEN", TEST_TOKEN);
     cmd.args(["serve", "--instance", instance, "--grpc", "127.0.0.1:0"])
         .args(["--http", "127.0.0.1:0", "--models"])
         .arg(models);
@@ -305,6 +311,7 @@ pub fn shm_entries(instance: &str) -> Vec<String> {
 /// `hapticctl --addr http://ADDR ARGS...`: whether it succeeded, and its stdout and stderr.
 pub fn ctl(addr: &str, args: &[&str]) -> (bool, String) {
     let o = Command::new(bin("hapticctl"))
+        .env("HAPTICS_TOKEN", TEST_TOKEN)
         .arg("--addr")
         .arg(format!("http://{addr}"))
         .args(args)
@@ -325,7 +332,11 @@ pub fn http_get(addr: &str, path: &str) -> String {
     use std::io::{Read, Write};
     let mut c = std::net::TcpStream::connect(addr).expect("connect HTTP");
     c.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-    write!(c, "GET {path} HTTP/1.0\r\nHost: {addr}\r\n\r\n").unwrap();
+    write!(
+        c,
+        "GET {path} HTTP/1.0\r\nHost: {addr}\r\nAuthorization: Bearer {TEST_TOKEN}\r\n\r\n"
+    )
+    .unwrap();
     let mut out = String::new();
     c.read_to_string(&mut out).expect("HTTP response");
     assert!(

@@ -16,7 +16,9 @@ use control_plane::pb::{
     ActivateModelRequest, GetActiveModelRequest, GetStatusRequest, LoadModelRequest,
     StartExperimentRequest, StopExperimentRequest,
 };
-use haptics_system_tests::{bin, instance, start_infer_server, temp_dir, write_linear_model, Proc};
+use haptics_system_tests::{
+    bin, instance, start_infer_server, temp_dir, write_linear_model, Proc, TEST_TOKEN,
+};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
@@ -28,7 +30,24 @@ const WINDOW: i64 = 50;
 const VALUE_A: f64 = 1.0;
 const VALUE_B: f64 = 2.0;
 
-type Models = ModelServiceClient<tonic::transport::Channel>;
+/// The server's token on every call (infer-server requires it on loopback too).
+type WithToken = fn(tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status>;
+type Authed = tonic::service::interceptor::InterceptedService<tonic::transport::Channel, WithToken>;
+type Models = ModelServiceClient<Authed>;
+
+fn with_token(mut r: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
+    let value = format!("Bearer {TEST_TOKEN}").parse().expect("ASCII token");
+    r.metadata_mut().insert("authorization", value);
+    Ok(r)
+}
+
+async fn channel(url: &str) -> tonic::transport::Channel {
+    tonic::transport::Endpoint::from_shared(url.to_string())
+        .expect("gRPC address")
+        .connect()
+        .await
+        .expect("connect gRPC")
+}
 
 /// ActivateModel over gRPC; the effective step it reports.
 fn activate(rt: &tokio::runtime::Runtime, models: &mut Models, name: &str) -> u64 {
@@ -86,8 +105,8 @@ fn hundred_swaps_under_the_realtime_loop_lose_nothing() {
         .unwrap();
     let (mut models, mut lps) = rt.block_on(async {
         (
-            ModelServiceClient::connect(url.clone()).await.unwrap(),
-            LoopServiceClient::connect(url.clone()).await.unwrap(),
+            ModelServiceClient::with_interceptor(channel(&url).await, with_token as WithToken),
+            LoopServiceClient::with_interceptor(channel(&url).await, with_token as WithToken),
         )
     });
     let end = Instant::now() + Duration::from_secs(20);

@@ -1,6 +1,8 @@
-// Calls to infer-server's HTTP API (docs/web-protocol.md), with the bearer token the server may
-// require for mutating calls. The token is asked for once (on a 401, or up front when the status
-// says one is required) and kept in sessionStorage, so it lives as long as the tab.
+// Calls to infer-server's HTTP API (docs/web-protocol.md), with the bearer token the server
+// requires (infer-server creates one at start). The page's address as infer-server and
+// scripts/up.sh print it carries the token in its fragment (`#token=...`, never sent to a server
+// nor written into its logs): it is kept in sessionStorage, so it lives as long as the tab, and
+// taken out of the address bar. Without it, the token is asked for once (on a 401).
 
 const TOKEN_KEY = "haptics.token";
 
@@ -31,6 +33,28 @@ export function setToken(token: string | null): void {
 }
 
 /**
+ * Takes `#token=<token>` from the page's address into the tab's storage and removes it from the
+ * address bar (and so from the history, bookmarks and screenshots). Other fragments are left.
+ * Runs when this module loads, before any call or socket.
+ */
+export function takeTokenFromFragment(): void {
+  try {
+    const hash = location.hash.replace(/^#/, "");
+    const parts = hash.split("&");
+    const i = parts.findIndex((p) => p.startsWith("token="));
+    if (i < 0) return;
+    const token = decodeURIComponent(parts[i].slice("token=".length));
+    if (token) setToken(token);
+    parts.splice(i, 1);
+    const rest = parts.join("&");
+    history.replaceState(history.state, "", location.pathname + location.search + (rest ? `#${rest}` : ""));
+  } catch {
+    /* no location or history (a unit test): nothing to take */
+  }
+}
+takeTokenFromFragment();
+
+/**
  * The WebSocket subprotocols that carry the token (a browser cannot set Authorization on a
  * WebSocket): `haptics.v1`, which the server selects, and `haptics-token.<hex of the token>`.
  */
@@ -59,7 +83,12 @@ async function readError(res: Response): Promise<string> {
   return text.trim() || `${res.status} ${res.statusText}`;
 }
 
-async function call(method: string, path: string, body?: unknown, retried = false): Promise<unknown> {
+/**
+ * One API call with the tab's token. A 401 on a change (`prompt`) asks for the token and
+ * retries once; a 401 on a read (status, models: polled, so asking each time would nag) throws,
+ * and the page lights its token button instead.
+ */
+async function call(method: string, path: string, body?: unknown, retried = false, prompt = true): Promise<unknown> {
   const headers: Record<string, string> = { Accept: "application/json" };
   const token = getToken();
   if (token) headers.Authorization = `Bearer ${token}`;
@@ -70,7 +99,7 @@ async function call(method: string, path: string, body?: unknown, retried = fals
   } catch (e) {
     throw new ApiError(0, `server unreachable (${(e as Error).message})`);
   }
-  if (res.status === 401 && !retried) {
+  if (res.status === 401 && !retried && prompt) {
     const t = await askToken(token ? "The server refused the token. Enter the right one." : "This server needs a token for that.");
     if (t === null) throw new ApiError(401, "a token is needed and none was given");
     setToken(t);
@@ -87,8 +116,8 @@ async function call(method: string, path: string, body?: unknown, retried = fals
 }
 
 export const api = {
-  status: () => call("GET", "/api/status"),
-  models: () => call("GET", "/api/models"),
+  status: () => call("GET", "/api/status", undefined, false, false),
+  models: () => call("GET", "/api/models", undefined, false, false),
   load: (name: string) => call("POST", `/api/models/${encodeURIComponent(name)}/load`),
   activate: (name: string) => call("POST", `/api/models/${encodeURIComponent(name)}/activate`),
   startExperiment: (req: ExperimentRequest) => call("POST", "/api/experiment/start", req),

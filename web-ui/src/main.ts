@@ -6,7 +6,7 @@
 // appends to the store, so pausing the plots never stops data reception.
 import "uplot/dist/uPlot.min.css";
 import "./style.css";
-import { api, getToken, setToken, setTokenPrompt, wsProtocols, type ExperimentRequest } from "./api";
+import { api, ApiError, getToken, setToken, setTokenPrompt, wsProtocols, type ExperimentRequest } from "./api";
 import { TelemetryConnection, type ConnState } from "./connection";
 import { ModelNames, modelRuns, type ModelRun } from "./modelruns";
 import { decodeFrame, normalizeModels, normalizeStatus, SERIES, type ModelInfo, type Status } from "./protocol";
@@ -486,6 +486,8 @@ function updateFigures(): void {
   const expDetail = s.mode && s.mode !== "idle" ? [s.experiment_cycle ? `cycle ${s.experiment_cycle}` : "", s.experiment_phase ?? ""].filter(Boolean).join(", ") : "";
   setText("f-mode", s.mode ? `${s.mode}${expDetail ? ` (${expDetail})` : ""}` : "–");
   setText("f-drops", fmtInt(s.telemetry_drops));
+  // A failed recording is said where the person looks, in red, with what was saved.
+  setText("f-recorder", s.recorder ? (s.recorder_failed ? `RECORDER ERROR: ${s.recorder}` : s.recorder) : "–", s.recorder_failed ? "bad" : "");
   const up = typeof s.uptime_s === "number" ? `up ${formatDuration(s.uptime_s)}` : "";
   setText("f-server", [s.server_version ? `v${s.server_version}` : "", up].filter(Boolean).join(", ") || "–");
 }
@@ -607,8 +609,10 @@ document.addEventListener("visibilitychange", () => {
 async function pollStatus(): Promise<void> {
   try {
     onStatus(await api.status());
-  } catch {
-    /* the WebSocket state says what is wrong */
+  } catch (e) {
+    // Refused for want of the token (the page was opened without `#token=...`): the token
+    // button asks for it. Anything else: the WebSocket state says what is wrong.
+    if (e instanceof ApiError && e.status === 401) $("token-btn").classList.add("primary");
   }
 }
 

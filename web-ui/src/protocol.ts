@@ -117,6 +117,8 @@ export interface Status {
   board?: string;
   scheduling?: string;
   recorder?: string;
+  /** The current (or last) run's recording failed: `recorder` says why and what was saved. */
+  recorder_failed?: boolean;
   telemetry_drops?: number;
   active_model?: ModelInfo | null;
   inference_latency?: Latency;
@@ -207,6 +209,7 @@ export function normalizeStatus(raw: unknown): Status {
     board_fault: str(loop?.board_fault),
     scheduling: str(loop?.scheduling),
     recorder: str(loop?.recorder),
+    recorder_failed: bool(loop?.recorder_failed),
     telemetry_drops: num(loop?.telemetry_drops),
     round_trip_latency: latency(loop?.latency_us),
     inference_latency: latency(server?.inference_latency_us),

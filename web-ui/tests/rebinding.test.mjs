@@ -31,18 +31,23 @@ const server = join(binDir, "infer-server");
 const python = join(repo, ".venv", "bin", "python");
 const makeModels = join(repo, "infer-server", "tests", "fixtures", "make_models.py");
 
-/** What the attacker's page does, run inside the page: every mutating call and the socket. */
-async function attack() {
+/**
+ * What the attacker's page does, run inside the page: every mutating call and the socket, with
+ * `token` when given (the attacker who somehow has it: the Host rule must refuse them anyway).
+ */
+async function attack(token) {
+  const auth = token ? { Authorization: `Bearer ${token}` } : {};
   const post = async (path, body) => {
     try {
-      const r = await fetch(path, { method: "POST", headers: body ? { "Content-Type": "application/json" } : {}, body: body ? JSON.stringify(body) : undefined });
+      const r = await fetch(path, { method: "POST", headers: { ...auth, ...(body ? { "Content-Type": "application/json" } : {}) }, body: body ? JSON.stringify(body) : undefined });
       return r.status;
     } catch (e) {
       return `network error: ${e.message}`;
     }
   };
   const socket = await new Promise((res) => {
-    const ws = new WebSocket(`ws://${location.host}/ws/telemetry?fps=5`);
+    const hex = token ? Array.from(new TextEncoder().encode(token), (b) => b.toString(16).padStart(2, "0")).join("") : "";
+    const ws = token ? new WebSocket(`ws://${location.host}/ws/telemetry?fps=5`, ["haptics.v1", `haptics-token.${hex}`]) : new WebSocket(`ws://${location.host}/ws/telemetry?fps=5`);
     const t = setTimeout(() => res("no answer"), 5000);
     ws.onopen = () => {
       clearTimeout(t);
@@ -60,7 +65,7 @@ async function attack() {
     start: await post("/api/experiment/start", { kind: "abstraction" }),
     stop: await post("/api/experiment/stop"),
     unload: await post("/api/models/linear.onnx/unload"),
-    status: await fetch("/api/status").then((r) => r.status, (e) => `network error: ${e.message}`),
+    status: await fetch("/api/status", { headers: auth }).then((r) => r.status, (e) => `network error: ${e.message}`),
     socket,
   };
 }
@@ -86,7 +91,10 @@ async function startServer(ctx, extra = []) {
   const grpc = await freePort();
   const args = ["serve", "--models", models, "--instance", `rebinding-${process.pid}-${ctx.port}`, "--grpc", `127.0.0.1:${grpc}`, "--http", `127.0.0.1:${ctx.port}`, "--wait", "park", "--stats-every", "0", ...extra];
   const env = { ...process.env };
-  delete env.HAPTICS_TOKEN;
+  // infer-server requires a token on every call, on loopback too: a known one for the test
+  // (`--token` in `extra` wins over it).
+  ctx.token = extra.includes("--token") ? extra[extra.indexOf("--token") + 1] : `rebinding-token-${process.pid}`;
+  env.HAPTICS_TOKEN = ctx.token;
   delete env.HAPTICS_ALLOWED_HOSTS;
   ctx.proc = spawn(server, args, { cwd: repo, env, stdio: ["ignore", "pipe", "pipe"] });
   ctx.out = "";
@@ -99,7 +107,7 @@ async function startServer(ctx, extra = []) {
   await waitFor(
     async () => {
       if (ctx.exited !== null) throw new Error(`infer-server exited (${ctx.exited}):\n${ctx.out}`);
-      return fetch(`${ctx.local}/api/status`).then((r) => r.ok, () => false);
+      return fetch(`${ctx.local}/api/status`, { headers: { Authorization: `Bearer ${ctx.token}` } }).then((r) => r.ok, () => false);
     },
     { timeoutMs: 20000, what: "infer-server answering" },
   );
@@ -139,19 +147,19 @@ describe("DNS rebinding: a page under a foreign name cannot drive the server", (
     });
 
   /** Opens `url` (its document from the interception, the rest from the network) and attacks. */
-  async function attackFrom(origin) {
+  async function attackFrom(origin, token) {
     const page = await ctx.b.context.newPage();
     try {
       await page.route(`${origin}/attacker.html`, (route) => route.fulfill({ status: 200, contentType: "text/html", body: ATTACKER_PAGE }));
       await page.goto(`${origin}/attacker.html`);
-      return await page.evaluate(attack);
+      return await page.evaluate(attack, token);
     } finally {
       await page.close();
     }
   }
 
   const modelState = async () => {
-    const list = await fetch(`${ctx.local}/api/models`).then((r) => r.json());
+    const list = await fetch(`${ctx.local}/api/models`, { headers: { Authorization: `Bearer ${ctx.token}` } }).then((r) => r.json());
     return list.find((m) => m.name === "linear.onnx")?.state;
   };
 
@@ -169,14 +177,22 @@ describe("DNS rebinding: a page under a foreign name cannot drive the server", (
   });
 
   it("under evil.test (re-bound to 127.0.0.1): every mutating call and the telemetry socket are refused", async () => {
-    const got = await attackFrom(ctx.evil);
+    // Even with the token: the name is refused before the token is looked at.
+    const got = await attackFrom(ctx.evil, ctx.token);
     console.log(`page under ${ctx.evil}: ${JSON.stringify(got)}`);
     assert.deepEqual(got, { load: 403, activate: 403, start: 403, stop: 403, unload: 403, status: 403, socket: "refused" });
     assert.equal(await modelState(), "available", "nothing was loaded");
   });
 
-  it("the same page under 127.0.0.1 calls them and opens the socket", async () => {
+  it("under 127.0.0.1 without the token (any other page on this machine): every call, read and the socket are refused", async () => {
     const got = await attackFrom(ctx.local);
+    console.log(`page under ${ctx.local} without the token: ${JSON.stringify(got)}`);
+    assert.deepEqual(got, { load: 401, activate: 401, start: 401, stop: 401, unload: 401, status: 401, socket: "refused" });
+    assert.equal(await modelState(), "available", "nothing was loaded");
+  });
+
+  it("the same page under 127.0.0.1 with the token calls them and opens the socket", async () => {
+    const got = await attackFrom(ctx.local, ctx.token);
     console.log(`page under ${ctx.local}: ${JSON.stringify(got)}`);
     // Reached the server: load and unload succeed; activation and experiments need a loop
     // (none runs here), so the server answers 412, not 403.
@@ -202,6 +218,20 @@ describe("with a token, the page's telemetry socket needs it and the page sends 
   after(async () => {
     await ctx.b?.close();
     await stopServer(ctx);
+  });
+
+  test("the address with #token= (as infer-server and up.sh print it) needs no typing; the token leaves the address bar", async (t) => {
+    if (skipWhy) return skipMissing(t, skipWhy);
+    const page = await ctx.b.context.newPage();
+    try {
+      await page.goto(`${ctx.local}/#token=s3cret`);
+      await waitFor(async () => (await hook.state(page)) === "loop-gone", { timeoutMs: 10000, what: "the socket open with the fragment's token" });
+      assert.equal(await page.evaluate(() => location.href), `${ctx.local}/`, "the fragment is taken out of the address");
+      assert.equal(await page.evaluate(() => sessionStorage.getItem("haptics.token")), "s3cret");
+      assert.equal(await page.isVisible("#token-dialog"), false, "no dialog");
+    } finally {
+      await page.close();
+    }
   });
 
   test("refused without the token, open once it is entered", async (t) => {

@@ -100,8 +100,18 @@ function modelsDir(tmp) {
   return join(repo, "models");
 }
 
+/** The connection file infer-server writes once it listens (docs/control-plane.md): the token. */
+let connection = null;
+async function readConnection(dir, instance) {
+  const { readFile } = await import("node:fs/promises");
+  connection = JSON.parse(await readFile(join(dir, "haptics", `${instance}.json`), "utf8"));
+  return connection;
+}
+
 async function getJson(url) {
-  const r = await fetch(url, { signal: AbortSignal.timeout(2000) });
+  // The server requires its token on every read too; the owner's tools take it from the file.
+  const headers = connection?.token ? { Authorization: `Bearer ${connection.token}` } : {};
+  const r = await fetch(url, { headers, signal: AbortSignal.timeout(2000) });
   if (!r.ok) throw new Error(`${url}: ${r.status}`);
   return r.json();
 }
@@ -129,13 +139,17 @@ describe("page against the real rt-loop and infer-server", () => {
     await sleep(500);
     ctx.serverArgs = fill(process.env.HAPTICS_INFER_SERVER_ARGS ?? INFER_SERVER_SERVE, vars);
     console.log(`system test: ${bin("rt-loop")} ${ctx.rtArgs.join(" ")}\nsystem test: ${bin("infer-server")} ${ctx.serverArgs.join(" ")}`);
-    ctx.server = start("infer-server", bin("infer-server"), ctx.serverArgs);
+    // The default set-up: no token given, infer-server makes one and writes it, with the page's
+    // address, into its connection file (here under a runtime directory of this test's own).
+    ctx.env = { XDG_RUNTIME_DIR: ctx.tmp, HAPTICS_TOKEN: "" };
+    ctx.server = start("infer-server", bin("infer-server"), ctx.serverArgs, ctx.env);
     ctx.url = `http://127.0.0.1:${ctx.http}`;
     try {
       await waitFor(
         async () => {
           if (ctx.server.exited) return "exited";
           try {
+            await readConnection(ctx.tmp, vars.instance);
             return (await getJson(`${ctx.url}/api/status`)) && "ok";
           } catch {
             return false;
@@ -150,7 +164,9 @@ describe("page against the real rt-loop and infer-server", () => {
     }
     ctx.b = await openBrowser({ width: 1440, height: 1080 });
     ctx.page = ctx.b.page;
-    await ctx.page.goto(ctx.url + "/");
+    // The page's address as infer-server (and scripts/up.sh) print it: `#token=...`.
+    assert.match(connection.page, /^http:\/\/127\.0\.0\.1:\d+\/#token=[0-9a-f]{32}$/);
+    await ctx.page.goto(connection.page);
     // rt-loop serve idles at 0 A (no steps, no telemetry) until an experiment starts: wait for
     // the status here, and start the ramp cycles from the page in the first test.
     await waitFor(async () => (await hook.status(ctx.page)).loop_alive === true, { timeoutMs: 15000, what: "the page sees the loop attached" });
@@ -239,7 +255,10 @@ describe("page against the real rt-loop and infer-server", () => {
     await waitFor(async () => (await page.textContent("#f-model")).startsWith(target.name), { what: "figures show the new model" });
     if (existsSync(bin("hapticctl"))) {
       const args = fill(process.env.HAPTICS_HAPTICCTL_ARGS ?? DEFAULT_HAPTICCTL_ARGS, ctx.vars);
-      const r = spawnSync(bin("hapticctl"), args, { encoding: "utf8", timeout: 10000 });
+      // The owner's hapticctl finds the token in the connection file: none given here.
+      const env = { ...process.env, ...ctx.env };
+      delete env.HAPTICS_TOKEN;
+      const r = spawnSync(bin("hapticctl"), args, { encoding: "utf8", timeout: 10000, env });
       assert.equal(r.status, 0, `hapticctl ${args.join(" ")}: ${r.stderr}`);
       let reported;
       try {

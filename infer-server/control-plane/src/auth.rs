@@ -1,5 +1,7 @@
-//! The bearer token of mutating calls, the same for gRPC (`authorization` metadata) and HTTP
-//! (`Authorization` header).
+//! The bearer token, the same for gRPC (`authorization` metadata) and HTTP (`Authorization`
+//! header). With a token, every call that changes something or shows live data or provenance
+//! needs it (docs/control-plane.md, "Threat model"); infer-server always has one unless told
+//! otherwise, so the control plane is authenticated on loopback too.
 use std::sync::Arc;
 
 use crate::error::ControlError;
@@ -27,16 +29,17 @@ impl Auth {
         self.token.is_some()
     }
 
-    /// Checks an `authorization` value ("Bearer <token>") for a mutating call. Without a
-    /// configured token every call passes.
+    /// Checks an `authorization` value ("Bearer <token>") for a call that changes something or
+    /// reads live data. Without a configured token every call passes.
     pub fn check(&self, header: Option<&str>) -> Result<(), ControlError> {
         let Some(expected) = &self.token else {
             return Ok(());
         };
         let Some(header) = header else {
             return Err(ControlError::Unauthenticated(
-                "this call changes the server and needs a token: pass `authorization: Bearer \
-                 <token>` (hapticctl --token or HAPTICS_TOKEN)"
+                "this server needs its token for this call: pass `authorization: Bearer \
+                 <token>` (hapticctl reads it from the connection file of the server's owner, \
+                 or --token / HAPTICS_TOKEN)"
                     .into(),
             ));
         };
@@ -92,6 +95,32 @@ impl Auth {
     }
 }
 
+/// The longest token accepted: a header line carries it, and a longer one protects nothing more.
+pub const MAX_TOKEN_LEN: usize = 256;
+
+/// Checks a configured token: 1 to [`MAX_TOKEN_LEN`] visible ASCII characters (no space, tab,
+/// newline or control character). A token with a trailing newline (`$(cat file)` keeps none,
+/// `--token "$(echo x; echo)"` does) or of spaces could never be matched: HTTP and gRPC
+/// clients trim header values and hapticctl refuses characters a header cannot carry.
+pub fn check_token(token: &str) -> Result<(), String> {
+    if token.is_empty() {
+        return Err("the token is empty: give a non-empty token or none".into());
+    }
+    if token.len() > MAX_TOKEN_LEN {
+        return Err(format!(
+            "the token is {} bytes long; at most {MAX_TOKEN_LEN}",
+            token.len()
+        ));
+    }
+    if let Some((i, c)) = token.char_indices().find(|(_, c)| !c.is_ascii_graphic()) {
+        return Err(format!(
+            "the token has {c:?} at byte {i}: only visible ASCII characters (no spaces, tabs, \
+             newlines), or no client could ever send it"
+        ));
+    }
+    Ok(())
+}
+
 /// `hex` to the string it encodes; None when it is not hex of UTF-8.
 fn decode_hex(hex: &str) -> Option<String> {
     let bytes: Option<Vec<u8>> = hex
@@ -138,6 +167,18 @@ mod tests {
                 "{bad:?}"
             );
         }
+    }
+
+    #[test]
+    fn configured_tokens_are_checked() {
+        assert!(check_token("s3cret").is_ok());
+        assert!(check_token(&"a".repeat(MAX_TOKEN_LEN)).is_ok());
+        for bad in [
+            "", "   ", "s3cret\n", " s3cret", "s3 cret", "s3cret\t", "sécret",
+        ] {
+            assert!(check_token(bad).is_err(), "{bad:?} accepted");
+        }
+        assert!(check_token(&"a".repeat(MAX_TOKEN_LEN + 1)).is_err());
     }
 
     #[test]

@@ -222,6 +222,14 @@ pub struct LoopStatus {
     pub period_jitter: Latency,
 }
 
+impl LoopStatus {
+    /// Whether the current (or last) run's recording failed: rt-loop's recorder text then
+    /// starts with "failed" (`rt-loop/src/shm_io.rs`, the recorder's status words).
+    pub fn recorder_failed(&self) -> bool {
+        self.recorder.starts_with("failed")
+    }
+}
+
 /// The server side of the status.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ServerStatus {

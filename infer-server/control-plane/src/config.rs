@@ -8,8 +8,14 @@ pub struct Config {
     pub grpc_addr: SocketAddr,
     /// HTTP address (page, /api, /ws/telemetry, /metrics); 127.0.0.1:8080 by default.
     pub http_addr: SocketAddr,
-    /// When set, mutating calls need `authorization: Bearer <token>`.
+    /// When set, every call that changes something or reads live data or provenance needs
+    /// `authorization: Bearer <token>` (HTTP: all of `/api/*`, the WebSocket and `/metrics`
+    /// unless `metrics_open`; gRPC: every `haptics.v1` method). The page's own files, gRPC
+    /// health and reflection stay open.
     pub token: Option<String>,
+    /// Serve `/metrics` without the token (a Prometheus that cannot send one). Off by default:
+    /// the metrics name the active model and the loop's state.
+    pub metrics_open: bool,
     /// Listening on a non-loopback address without a token is refused unless this is set.
     pub allow_public_without_token: bool,
     /// Largest model upload accepted, in bytes (64 MiB by default).
@@ -19,6 +25,9 @@ pub struct Config {
     /// read, so at most `max_uploads_in_flight_bytes / max_upload_bytes` uploads are received at
     /// once; one more is refused with RESOURCE_EXHAUSTED / 413 without being read.
     pub max_uploads_in_flight_bytes: usize,
+    /// How long an HTTP upload may send nothing before it is given up (its bytes and its share
+    /// of the cap on uploads in flight released); 10 s by default.
+    pub upload_idle_timeout: Duration,
     /// Names (besides the loopback names and the bound addresses) that HTTP requests may carry
     /// in `Host`; any other name is refused with 403 (DNS rebinding; see `host_policy`).
     pub allowed_hosts: Vec<String>,
@@ -42,9 +51,11 @@ impl Default for Config {
             grpc_addr: SocketAddr::from(([127, 0, 0, 1], 50051)),
             http_addr: SocketAddr::from(([127, 0, 0, 1], 8080)),
             token: None,
+            metrics_open: false,
             allow_public_without_token: false,
             max_upload_bytes: 64 << 20,
             max_uploads_in_flight_bytes: 256 << 20,
+            upload_idle_timeout: Duration::from_secs(10),
             allowed_hosts: Vec::new(),
             ws_bucket_steps: 10,
             ws_max_buckets_per_frame: 400,
@@ -59,8 +70,8 @@ impl Default for Config {
 impl Config {
     /// Refuses a configuration that would expose mutating calls to the network.
     pub fn check(&self) -> Result<(), String> {
-        if self.token.as_deref() == Some("") {
-            return Err("the token is empty: give a non-empty token or none".into());
+        if let Some(token) = &self.token {
+            crate::auth::check_token(token)?;
         }
         if self.token.is_none() && !self.allow_public_without_token {
             for (what, addr) in [("gRPC", self.grpc_addr), ("HTTP", self.http_addr)] {
@@ -102,6 +113,13 @@ impl Config {
             return Err(format!(
                 "worker_threads is {}; it must be between 1 and 64",
                 self.worker_threads
+            ));
+        }
+        if self.upload_idle_timeout.is_zero() || self.upload_idle_timeout > Duration::from_secs(600)
+        {
+            return Err(format!(
+                "upload_idle_timeout is {:?}; it must be more than 0 and at most 600 s",
+                self.upload_idle_timeout
             ));
         }
         if self.shutdown_grace > Duration::from_secs(60) {
@@ -157,6 +175,10 @@ mod tests {
             },
             Config {
                 ws_max_buckets_per_frame: 0,
+                ..Config::default()
+            },
+            Config {
+                upload_idle_timeout: Duration::ZERO,
                 ..Config::default()
             },
             Config {

@@ -38,8 +38,9 @@ impl LoopSvc {
 impl pb::model_service_server::ModelService for ModelSvc {
     async fn list_models(
         &self,
-        _request: Request<pb::ListModelsRequest>,
+        request: Request<pb::ListModelsRequest>,
     ) -> Result<Response<pb::ListModelsResponse>, Status> {
+        self.core.auth.check_grpc(&request)?;
         let models = self.core.list_models().await?;
         Ok(Response::new(pb::ListModelsResponse {
             models: models.iter().map(model_to_pb).collect(),
@@ -83,8 +84,9 @@ impl pb::model_service_server::ModelService for ModelSvc {
 
     async fn get_active_model(
         &self,
-        _request: Request<pb::GetActiveModelRequest>,
+        request: Request<pb::GetActiveModelRequest>,
     ) -> Result<Response<pb::ModelInfo>, Status> {
+        self.core.auth.check_grpc(&request)?;
         match self.core.active_model().await? {
             Some(m) => Ok(Response::new(model_to_pb(&m))),
             None => Err(Status::not_found(
@@ -101,8 +103,9 @@ type SampleStream =
 impl pb::loop_service_server::LoopService for LoopSvc {
     async fn get_status(
         &self,
-        _request: Request<pb::GetStatusRequest>,
+        request: Request<pb::GetStatusRequest>,
     ) -> Result<Response<pb::Status>, Status> {
+        self.core.auth.check_grpc(&request)?;
         let s = self.core.status().await?;
         Ok(Response::new(status_to_pb(
             &s,
@@ -138,6 +141,7 @@ impl pb::loop_service_server::LoopService for LoopSvc {
         &self,
         request: Request<pb::StreamTelemetryRequest>,
     ) -> Result<Response<Self::StreamTelemetryStream>, Status> {
+        self.core.auth.check_grpc(&request)?;
         let decimation = match request.into_inner().decimation {
             0 => DEFAULT_DECIMATION,
             d => d,
@@ -269,6 +273,7 @@ pub fn status_to_pb(
         deadline_misses: l.deadline_misses,
         scheduling: l.scheduling.clone(),
         recorder: l.recorder.clone(),
+        recorder_failed: l.recorder_failed(),
         telemetry_drops: l.telemetry_drops,
         board: l.board.clone(),
         experiment: Some(pb::ExperimentStatus {

@@ -1,4 +1,4 @@
-//! The token check of mutating gRPC calls as a tower layer in front of every service: it sees the
+//! The token check of `haptics.v1` gRPC calls (mutating and reads) as a tower layer in front of every service: it sees the
 //! method path and the headers before the request body is read, so an unauthenticated 64 MiB
 //! upload is refused without being received and decoded. The handlers check again (the same
 //! `Auth`), so a mutating call never depends on this layer alone.
@@ -17,14 +17,11 @@ use crate::uploads::UploadBudget;
 /// The method whose request carries an upload.
 pub const LOAD_MODEL: &str = "/haptics.v1.ModelService/LoadModel";
 
-/// The gRPC methods that change the server or the loop.
-pub const MUTATING_METHODS: [&str; 5] = [
-    "/haptics.v1.ModelService/LoadModel",
-    "/haptics.v1.ModelService/ActivateModel",
-    "/haptics.v1.ModelService/UnloadModel",
-    "/haptics.v1.LoopService/StartExperiment",
-    "/haptics.v1.LoopService/StopExperiment",
-];
+/// The prefix of every method of this product's services (`haptics.v1.ModelService`,
+/// `haptics.v1.LoopService`): with a token, all of them need it, the reads too (status,
+/// models and telemetry show live forces, positions and the models' provenance). Health and
+/// reflection (`grpc.health.v1`, `grpc.reflection.*`) stay open: they show neither.
+pub const GUARDED_PREFIX: &str = "/haptics.v1.";
 
 #[derive(Debug, Clone)]
 pub struct AuthLayer {
@@ -82,7 +79,7 @@ where
     }
 
     fn call(&mut self, request: http::Request<B>) -> Self::Future {
-        if self.auth.required() && MUTATING_METHODS.contains(&request.uri().path()) {
+        if self.auth.required() && request.uri().path().starts_with(GUARDED_PREFIX) {
             let header = request
                 .headers()
                 .get(http::header::AUTHORIZATION)

@@ -41,23 +41,21 @@ impl HostPolicy {
     /// names this server. The port is not compared: an ssh tunnel or a published container port
     /// changes it, and a rebinding page cannot choose the name whatever the port.
     pub fn allows(&self, host: &str) -> bool {
-        let name = normalise(strip_port(host));
-        if name.is_empty() {
+        let Some(host) = parse_host(host) else {
             return false;
-        }
-        if name == "localhost" || self.names.contains(&name) {
-            return true;
-        }
-        let literal = name.trim_start_matches('[').trim_end_matches(']');
-        match literal.parse::<IpAddr>() {
-            Ok(ip) => {
+        };
+        match host {
+            Host::Name(name) => {
+                let name = normalise(name);
+                !name.is_empty() && (name == "localhost" || self.names.contains(&name))
+            }
+            Host::Ip(ip) => {
                 ip.is_loopback()
                     || self
                         .bound
                         .iter()
                         .any(|b| b.is_unspecified() || *b == ip || same_v4(*b, ip))
             }
-            Err(_) => false,
         }
     }
 
@@ -89,17 +87,45 @@ fn normalise(name: &str) -> String {
     name.trim().trim_end_matches('.').to_ascii_lowercase()
 }
 
-/// `name:port` to `name`; `[v6]:port` to `[v6]`; a bare IPv6 literal is left whole.
-fn strip_port(host: &str) -> &str {
-    if let Some(end) = host.find(']') {
-        return &host[..=end];
-    }
-    match host.rsplit_once(':') {
-        Some((name, port)) if !name.contains(':') && port.chars().all(|c| c.is_ascii_digit()) => {
-            name
+/// What a `Host` value names, once its port is taken off.
+#[derive(Debug, PartialEq, Eq)]
+enum Host<'a> {
+    Name(&'a str),
+    Ip(IpAddr),
+}
+
+/// Parses a `Host` value strictly (RFC 9110's `uri-host [ ":" port ]`): `name`, `name:port`,
+/// `1.2.3.4[:port]`, `[v6][:port]` (a bare IPv6 literal is taken whole too). Anything else
+/// (`[::1]evil.test`, `localhost:`, `name:80x`, a byte outside letters, digits, `.`, `-`, `_`)
+/// is `None`: refused, never read leniently as a name it merely starts with.
+fn parse_host(host: &str) -> Option<Host<'_>> {
+    let port_ok = |p: &str| !p.is_empty() && p.len() <= 5 && p.bytes().all(|b| b.is_ascii_digit());
+    if let Some(rest) = host.strip_prefix('[') {
+        let (inner, after) = rest.split_once(']')?;
+        if !(after.is_empty() || after.strip_prefix(':').is_some_and(port_ok)) {
+            return None;
         }
-        _ => host,
+        return inner
+            .parse::<std::net::Ipv6Addr>()
+            .ok()
+            .map(|v6| Host::Ip(v6.into()));
     }
+    if let Ok(ip) = host.parse::<IpAddr>() {
+        return Some(Host::Ip(ip));
+    }
+    let name = match host.rsplit_once(':') {
+        Some((name, port)) if port_ok(port) => name,
+        Some(_) => return None,
+        None => host,
+    };
+    if let Ok(ip) = name.parse::<std::net::Ipv4Addr>() {
+        return Some(Host::Ip(ip.into()));
+    }
+    let valid = !name.is_empty()
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'-' | b'_'));
+    valid.then_some(Host::Name(name))
 }
 
 #[cfg(test)]
@@ -137,6 +163,15 @@ mod tests {
             ":8080",
             "[::2]:8080",
             "0.0.0.0:8080",
+            "[::1]evil.test",
+            "[::1]evil.test:8080",
+            "[::1]:80x",
+            "localhost:",
+            "localhost:8080:8080",
+            "[127.0.0.1]:8080",
+            "127.0.0.1 .evil.test",
+            "localhost\u{e9}",
+            "[::1",
         ] {
             assert!(!p.allows(bad), "{bad}");
         }

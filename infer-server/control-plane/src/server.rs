@@ -78,8 +78,10 @@ impl Bound {
         // the limit gets our explanation, and a far larger one tonic's RESOURCE_EXHAUSTED.
         let model_svc =
             pb::model_service_server::ModelServiceServer::new(ModelSvc::new(core.clone()))
-                .max_decoding_message_size(limit.saturating_add(64 << 10));
-        let loop_svc = pb::loop_service_server::LoopServiceServer::new(LoopSvc::new(core.clone()));
+                .max_decoding_message_size(limit.saturating_add(64 << 10))
+                .max_encoding_message_size(pb::MAX_MESSAGE_BYTES);
+        let loop_svc = pb::loop_service_server::LoopServiceServer::new(LoopSvc::new(core.clone()))
+            .max_encoding_message_size(pb::MAX_MESSAGE_BYTES);
 
         let grpc_shutdown = shutdown.clone();
         let health_on_shutdown = health.clone();

@@ -373,10 +373,54 @@ async fn mutating_calls_need_the_token_when_one_is_set() {
     assert_eq!(err.code(), Code::Unauthenticated, "{err:?}");
     assert!(s.backend.swaps().is_empty(), "nothing reached the backend");
     assert!(s.backend.last_experiment().is_none());
-    // Reading needs no token.
-    models.list_models(pb::ListModelsRequest {}).await.unwrap();
+    // Reading live data or provenance needs the token too (issue 21): status, models, the
+    // active model, telemetry.
+    for token in [None, Some("wrong")] {
+        let codes = [
+            (
+                "list",
+                models
+                    .list_models(with(pb::ListModelsRequest {}, token))
+                    .await
+                    .unwrap_err()
+                    .code(),
+            ),
+            (
+                "active",
+                models
+                    .get_active_model(with(pb::GetActiveModelRequest {}, token))
+                    .await
+                    .unwrap_err()
+                    .code(),
+            ),
+            (
+                "status",
+                looper
+                    .get_status(with(pb::GetStatusRequest {}, token))
+                    .await
+                    .unwrap_err()
+                    .code(),
+            ),
+            (
+                "telemetry",
+                looper
+                    .stream_telemetry(with(pb::StreamTelemetryRequest { decimation: 10 }, token))
+                    .await
+                    .map(|_| ())
+                    .unwrap_err()
+                    .code(),
+            ),
+        ];
+        for (what, code) in codes {
+            assert_eq!(code, Code::Unauthenticated, "{what} with {token:?}");
+        }
+    }
+    models
+        .list_models(with(pb::ListModelsRequest {}, Some("s3cret")))
+        .await
+        .unwrap();
     let st = looper
-        .get_status(pb::GetStatusRequest {})
+        .get_status(with(pb::GetStatusRequest {}, Some("s3cret")))
         .await
         .unwrap()
         .into_inner();

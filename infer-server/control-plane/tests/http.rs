@@ -180,11 +180,26 @@ async fn token_origin_and_upload_limit() {
     .await;
     assert_eq!(code, 401);
     assert!(s.backend.swaps().is_empty() && s.backend.last_experiment().is_none());
-    let (_, st) = http_json(&s, "GET", "/api/status", &[], vec![]).await;
+    // Reads that show live data or provenance need the token too; /metrics unless opened.
+    for path in [
+        "/api/status",
+        "/api/models",
+        "/api/models/active",
+        "/metrics",
+    ] {
+        for h in [&[][..], &[("authorization", "Bearer nope")]] {
+            let (code, e) = http_json(&s, "GET", path, h, vec![]).await;
+            assert_eq!(code, 401, "GET {path} {h:?}: {e}");
+        }
+    }
+    let auth = ("authorization", "Bearer tok");
+    let (_, st) = http_json(&s, "GET", "/api/status", &[auth], vec![]).await;
     assert_eq!(st["server"]["token_required"], true);
     assert_eq!(st["server"]["max_upload_bytes"], 1000);
+    // The page's own files stay open (it must load to read its token).
+    let (code, _, _) = http(&s, "GET", "/", &[], vec![]).await;
+    assert_ne!(code, 401);
 
-    let auth = ("authorization", "Bearer tok");
     let (code, e) = http_json(
         &s,
         "POST",
@@ -227,6 +242,21 @@ async fn token_origin_and_upload_limit() {
     )
     .await;
     assert_eq!(code, 413, "{e}");
+    s.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn metrics_open_with_the_flag_only() {
+    let config = Config {
+        token: Some("tok".into()),
+        metrics_open: true,
+        ..test_config()
+    };
+    let s = start_with(config, SimBackend::with_two_models(RATE_HZ)).await;
+    let (code, _, _) = http(&s, "GET", "/metrics", &[], vec![]).await;
+    assert_eq!(code, 200, "--open-metrics");
+    let (code, _) = http_json(&s, "GET", "/api/status", &[], vec![]).await;
+    assert_eq!(code, 401, "the rest stays closed");
     s.stop().await;
 }
 

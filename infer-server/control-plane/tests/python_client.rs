@@ -68,6 +68,7 @@ async fn grpcio_lists_services_by_reflection_and_calls_status() {
     assert!(st["step"].as_str().unwrap().parse::<u64>().unwrap() > 0);
     assert_eq!(r["models"]["models"].as_array().unwrap().len(), 2);
     assert_eq!(r["activate_without_token"], "UNAUTHENTICATED");
+    assert_eq!(r["status_without_token"], "UNAUTHENTICATED");
     assert_eq!(r["activate"]["model"]["name"], "a.onnx");
     let eff: u64 = r["activate"]["effective_step"]
         .as_str()

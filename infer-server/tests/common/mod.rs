@@ -106,14 +106,15 @@ macro_rules! model_or_skip {
 }
 
 /// A raw HTTP/1.1 GET: (status line, body).
-pub fn http_get(addr: &str, path: &str) -> (String, String) {
+pub fn http_get(addr: &str, path: &str, token: Option<&str>) -> (String, String) {
     use std::io::{Read, Write};
     let mut s = std::net::TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(std::time::Duration::from_secs(5)))
         .unwrap();
     write!(
         s,
-        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n{}\r\n",
+        token.map_or(String::new(), |t| format!("Authorization: Bearer {t}\r\n"))
     )
     .unwrap();
     let mut text = String::new();

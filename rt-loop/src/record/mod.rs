@@ -9,9 +9,11 @@
 //!   it ([`RecorderHandle::push_or_drop`]). In lockstep mode the loop waits for room
 //!   ([`RecorderHandle::push_wait`]) so nothing is lost.
 
+pub mod file_safety;
 pub mod mcap_format;
 pub mod read;
 pub mod row;
+mod salvage;
 mod writer;
 
 pub use row::{Row, COLUMNS};
@@ -80,10 +82,13 @@ impl RecorderHandle {
                 if path.as_os_str().is_empty() {
                     anyhow::bail!("empty record path");
                 }
+                // Only a regular file (or nothing) may be replaced, checked before the run.
+                file_safety::check_replaceable(&path, "recording")?;
+                if format == Format::Csv {
+                    file_safety::check_replaceable(&sidecar_path(&path), "sidecar")?;
+                }
                 let tmp = partial_path(&path);
-                let file = std::fs::File::create(&tmp).map_err(|e| {
-                    anyhow::anyhow!("cannot create recording {}: {e}", tmp.display())
-                })?;
+                let file = file_safety::create_new(&tmp, "recording")?;
                 let sink = Sink::new(format, Box::new(file), &metadata_json)?;
                 (Some(path), sink)
             }
@@ -210,7 +215,16 @@ fn drain(
         }
         chunk.commit_all();
     }
-    if error.is_none() {
+    // The row groups complete in the file: what a failed recording is closed over (salvage).
+    let flushed = sink.flushed_row_groups();
+    let mcap_rows = match &sink {
+        Sink::Mcap(_) => sink.rows_flushed(),
+        _ => 0,
+    };
+    if error.is_some() {
+        // Closed before the salvage touches the file (a CSV buffer flushes on drop).
+        drop(sink);
+    } else {
         match sink.finish() {
             Ok(bytes) => {
                 report.rows_written = report.rows_received;
@@ -228,16 +242,18 @@ fn drain(
     if let Some(path) = final_path {
         let tmp = partial_path(&path);
         if error.is_none() {
-            let renamed = (|| -> std::io::Result<()> {
+            let renamed = (|| -> anyhow::Result<()> {
+                use std::io::Write as _;
                 if format == Format::Csv {
                     let side = sidecar_path(&path);
                     let side_tmp = partial_path(&side);
-                    std::fs::write(&side_tmp, pretty(&metadata_json))?;
-                    std::fs::File::open(&side_tmp)?.sync_all()?;
-                    std::fs::rename(&side_tmp, &side)?;
+                    let mut f = file_safety::create_new(&side_tmp, "sidecar")?;
+                    f.write_all(pretty(&metadata_json).as_bytes())?;
+                    f.sync_all()?;
+                    file_safety::replace(&side_tmp, &side, "sidecar")?;
                 }
                 std::fs::File::open(&tmp)?.sync_all()?;
-                std::fs::rename(&tmp, &path)
+                file_safety::replace(&tmp, &path, "recording")
             })();
             match renamed {
                 Ok(()) => report.path = Some(path),
@@ -247,6 +263,38 @@ fn drain(
                 }
             }
         } else {
+            // Keep what reached the file readable: a valid file of the rows written before the
+            // error, still under its `.partial` name (it is not the whole run).
+            match salvage::salvage(&tmp, format, &flushed, mcap_rows, &metadata_json) {
+                Ok(rows) => {
+                    report.rows_written = rows;
+                    if let Some(e) = &mut error {
+                        e.push_str(&format!(
+                            "; the {rows} rows written before it are readable in {}",
+                            tmp.display()
+                        ));
+                    }
+                }
+                Err(e2) => {
+                    // Not even a footer fits: an empty file holds no row, so it is not kept.
+                    let empty = std::fs::symlink_metadata(&tmp).is_ok_and(|m| m.len() == 0);
+                    if empty {
+                        let _ = std::fs::remove_file(&tmp);
+                    }
+                    if let Some(e) = &mut error {
+                        e.push_str(&format!(
+                            "; closing {} failed too ({e2}){}",
+                            tmp.display(),
+                            if empty {
+                                ": no row reached the disk, the empty file was removed"
+                            } else {
+                                ""
+                            }
+                        ));
+                    }
+                    report.rows_written = 0;
+                }
+            }
             report.path = Some(tmp);
         }
     }

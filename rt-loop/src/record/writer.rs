@@ -129,7 +129,7 @@ pub(super) fn batch(rows: &[Row]) -> Result<RecordBatch, arrow_schema::ArrowErro
     RecordBatch::try_new(schema(), cols)
 }
 
-fn properties(metadata_json: &str) -> WriterProperties {
+pub(super) fn properties(metadata_json: &str) -> WriterProperties {
     let mut b = WriterProperties::builder()
         .set_compression(Compression::ZSTD(
             ZstdLevel::try_new(3).expect("valid level"),
@@ -244,6 +244,15 @@ impl Sink {
             Sink::Parquet { .. } => 0,
             Sink::Csv { rows_flushed, .. } => *rows_flushed,
             Sink::Mcap(m) => m.rows_flushed(),
+        }
+    }
+
+    /// The Parquet row groups already complete in the file (none for CSV): what a failed
+    /// recording can still be closed over (`super::salvage`).
+    pub fn flushed_row_groups(&self) -> Vec<parquet::file::metadata::RowGroupMetaData> {
+        match self {
+            Sink::Parquet { writer, .. } => writer.flushed_row_groups().to_vec(),
+            Sink::Csv { .. } | Sink::Mcap(_) => Vec::new(),
         }
     }
 

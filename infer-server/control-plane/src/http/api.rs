@@ -38,26 +38,53 @@ fn authorize(core: &Core, headers: &HeaderMap) -> Result<(), ControlError> {
     core.auth.check(auth)
 }
 
+/// The token check of a read that shows live data or provenance (`/api/status`, `/api/models`,
+/// `/metrics`): the router's middleware has checked the host already, and a read changes
+/// nothing, so no `Origin` check (another site's page cannot read the answer anyway).
+pub fn authorize_read(core: &Core, headers: &HeaderMap) -> Result<(), ControlError> {
+    let auth = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok());
+    core.auth.check(auth)
+}
+
 /// Refuses a mutating request that a browser sent from another site (a page elsewhere posting to
 /// 127.0.0.1:8080 without a token). Same-origin requests and loopback origins (a dev server on
 /// another port) pass; clients that are not browsers send no Origin. "Same origin" is only
 /// meaningful once `Host` is known to name this server (a DNS-rebound page sends an Origin equal
 /// to its Host): callers check the host first.
 pub fn check_origin(headers: &HeaderMap) -> Result<(), ControlError> {
-    let Some(origin) = headers.get(header::ORIGIN).and_then(|v| v.to_str().ok()) else {
+    let Some(origin) = headers.get(header::ORIGIN) else {
         return Ok(());
+    };
+    // Present but not visible ASCII: refused, never read as "no Origin" (which passes).
+    let Some(origin) = origin
+        .to_str()
+        .ok()
+        .filter(|o| !o.is_empty() && o.bytes().all(|b| b.is_ascii_graphic()))
+    else {
+        return Err(ControlError::Forbidden(
+            "the Origin header is not a visible-ASCII origin: refused".into(),
+        ));
     };
     let host = headers
         .get(header::HOST)
         .and_then(|v| v.to_str().ok())
         .unwrap_or("");
+    // `scheme://host[:port]` and nothing else (no path, no user info); `null` (a sandboxed or
+    // opaque origin) and malformed values are cross-site.
     let origin_host = origin
-        .split_once("://")
-        .map(|(_, rest)| rest)
-        .unwrap_or(origin);
+        .strip_prefix("http://")
+        .or_else(|| origin.strip_prefix("https://"))
+        .filter(|rest| !rest.is_empty() && !rest.contains(['/', '@', '?', '#']));
+    let Some(origin_host) = origin_host else {
+        return Err(ControlError::Forbidden(format!(
+            "cross-origin request from {origin} refused"
+        )));
+    };
     let origin_name = origin_host
         .rsplit_once(':')
-        .filter(|(_, port)| port.chars().all(|c| c.is_ascii_digit()))
+        .filter(|(_, port)| !port.is_empty() && port.bytes().all(|b| b.is_ascii_digit()))
         .map(|(h, _)| h)
         .unwrap_or(origin_host);
     let loopback = matches!(origin_name, "localhost" | "127.0.0.1" | "[::1]");
@@ -70,7 +97,51 @@ pub fn check_origin(headers: &HeaderMap) -> Result<(), ControlError> {
     }
 }
 
-pub async fn status(State(core): State<Core>) -> ApiResult {
+#[cfg(test)]
+mod origin_tests {
+    use super::*;
+
+    fn headers(origin: &[u8]) -> HeaderMap {
+        let mut h = HeaderMap::new();
+        h.insert(header::HOST, "127.0.0.1:8080".parse().unwrap());
+        h.insert(
+            header::ORIGIN,
+            axum::http::HeaderValue::from_bytes(origin).unwrap(),
+        );
+        h
+    }
+
+    #[test]
+    fn origin_is_parsed_strictly() {
+        assert!(check_origin(&HeaderMap::new()).is_ok());
+        for ok in [
+            &b"http://127.0.0.1:8080"[..],
+            b"http://localhost:5173",
+            b"http://[::1]:8080",
+        ] {
+            assert!(check_origin(&headers(ok)).is_ok(), "{ok:?}");
+        }
+        for bad in [
+            &b"http://evil.test:8080"[..],
+            b"http://127.0.0.1:8080\xff",
+            b"http://localhost\xe9:8080",
+            b"null",
+            b"127.0.0.1:8080",
+            b"http://127.0.0.1:8080/path",
+            b"http://evil@127.0.0.1:8080",
+            b"ftp://127.0.0.1:8080",
+        ] {
+            assert!(
+                matches!(check_origin(&headers(bad)), Err(ControlError::Forbidden(_))),
+                "{:?}",
+                String::from_utf8_lossy(bad)
+            );
+        }
+    }
+}
+
+pub async fn status(State(core): State<Core>, headers: HeaderMap) -> ApiResult {
+    authorize_read(&core, &headers)?;
     let s = core.status().await?;
     Ok(Json(StatusJson::new(
         &s,
@@ -81,13 +152,15 @@ pub async fn status(State(core): State<Core>) -> ApiResult {
     .into_response())
 }
 
-pub async fn list_models(State(core): State<Core>) -> ApiResult {
+pub async fn list_models(State(core): State<Core>, headers: HeaderMap) -> ApiResult {
+    authorize_read(&core, &headers)?;
     let models = core.list_models().await?;
     let models: Vec<ModelJson> = models.iter().map(ModelJson::from).collect();
     Ok(Json(models).into_response())
 }
 
-pub async fn active_model(State(core): State<Core>) -> ApiResult {
+pub async fn active_model(State(core): State<Core>, headers: HeaderMap) -> ApiResult {
+    authorize_read(&core, &headers)?;
     match core.active_model().await? {
         Some(m) => Ok(Json(ModelJson::from(&m)).into_response()),
         None => Ok(Json(serde_json::Value::Null).into_response()),
@@ -119,17 +192,48 @@ pub async fn load_model(
     } else {
         None
     };
-    let bytes = match to_bytes(body, limit + 1).await {
-        Ok(b) => b,
-        Err(_) => {
-            // Over the limit (or a broken body): say which limit.
-            core.check_upload_size(limit + 1)?;
-            unreachable!("check_upload_size refuses limit + 1");
-        }
-    };
-    let upload = (!bytes.is_empty()).then(|| bytes.to_vec());
+    let bytes = read_upload(&core, body, limit).await?;
+    let upload = (!bytes.is_empty()).then_some(bytes);
     let model = core.load_model(name, upload).await?;
     Ok(Json(ModelJson::from(&model)).into_response())
+}
+
+/// Reads an upload's body, at most `limit` bytes, giving up when the client sends nothing for
+/// `Config::upload_idle_timeout` (a stalled upload would otherwise hold its share of the cap on
+/// uploads in flight for as long as the connection stays open). Whatever was read is dropped
+/// with the error, and the caller's reservation with it.
+async fn read_upload(core: &Core, body: Body, limit: usize) -> Result<Vec<u8>, ControlError> {
+    use http_body_util::BodyExt;
+    let idle = core.config.upload_idle_timeout;
+    let mut body = body;
+    let mut bytes = Vec::new();
+    loop {
+        let frame = match tokio::time::timeout(idle, body.frame()).await {
+            Err(_) => {
+                return Err(ControlError::InvalidArgument(format!(
+                    "the upload stalled: nothing received for {} s after {} bytes (the \
+                     server's upload read timeout)",
+                    idle.as_secs_f64(),
+                    bytes.len()
+                )))
+            }
+            Ok(None) => return Ok(bytes),
+            Ok(Some(Err(e))) => {
+                return Err(ControlError::InvalidArgument(format!(
+                    "the upload broke off after {} bytes: {e}",
+                    bytes.len()
+                )))
+            }
+            Ok(Some(Ok(frame))) => frame,
+        };
+        if let Ok(data) = frame.into_data() {
+            if bytes.len() + data.len() > limit {
+                // Over the limit: say which limit.
+                core.check_upload_size(limit + 1)?;
+            }
+            bytes.extend_from_slice(&data);
+        }
+    }
 }
 
 #[derive(Debug, Deserialize)]

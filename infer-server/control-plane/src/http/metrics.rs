@@ -10,7 +10,13 @@ use crate::core::Core;
 use crate::error::ControlError;
 use crate::stats::Stats;
 
-pub async fn metrics(State(core): State<Core>) -> Result<Response, ControlError> {
+pub async fn metrics(
+    State(core): State<Core>,
+    headers: axum::http::HeaderMap,
+) -> Result<Response, ControlError> {
+    if !core.config.metrics_open {
+        super::api::authorize_read(&core, &headers)?;
+    }
     let status = core.status().await?;
     let models = core.list_models().await.unwrap_or_default();
     let mut m = Metrics::default();
@@ -20,6 +26,12 @@ pub async fn metrics(State(core): State<Core>) -> Result<Response, ControlError>
         "1 when an rt-loop is attached and its heartbeat is fresh",
         &[],
         bool_f(l.alive),
+    );
+    m.gauge(
+        "haptics_recorder_failed",
+        "1 when the current or last run's recording failed (rows lost; /api/status says why)",
+        &[],
+        bool_f(l.recorder_failed()),
     );
     m.counter(
         "haptics_loop_steps_total",

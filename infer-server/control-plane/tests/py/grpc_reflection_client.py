@@ -5,7 +5,8 @@ from the descriptors the server reflects, calls haptics.v1.LoopService/GetStatus
 ListModels, checks the token rule on ActivateModel, and calls grpc.health.v1 Check. It prints
 one JSON object for the Rust test that started the server (infer-server/control-plane/tests/python_client.rs).
 
-Usage: grpc_reflection_client.py HOST:PORT TOKEN
+Usage: grpc_reflection_client.py HOST:PORT TOKEN (every haptics.v1 call needs the token; health
+and reflection do not)
 """
 
 from __future__ import annotations
@@ -70,8 +71,15 @@ def main() -> int:
         out["services_v1"] = list_services(channel, "v1")
         out["services_v1alpha"] = list_services(channel, "v1alpha")
         api = Reflected(channel)
-        out["status"] = api.call("haptics.v1.LoopService", "GetStatus")
-        out["models"] = api.call("haptics.v1.ModelService", "ListModels")
+        auth = (("authorization", f"Bearer {token}"),)
+        # Reads need the token too (status and models show live data and provenance).
+        try:
+            api.call("haptics.v1.LoopService", "GetStatus")
+            out["status_without_token"] = "OK"
+        except grpc.RpcError as e:
+            out["status_without_token"] = e.code().name
+        out["status"] = api.call("haptics.v1.LoopService", "GetStatus", metadata=auth)
+        out["models"] = api.call("haptics.v1.ModelService", "ListModels", metadata=auth)
         try:
             api.call("haptics.v1.ModelService", "ActivateModel", {"name": "a.onnx"})
             out["activate_without_token"] = "OK"
