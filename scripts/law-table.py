@@ -68,12 +68,12 @@ def main(argv: list[str]) -> int:
         laws[law] = law_rows(Path(d))
     L = [
         "# Measured on every law (issue 23)\n",
-        "Written by `scripts/law-table.py` from the runs' JSON. Felt force: the study's hand "
+        ("Written by `scripts/law-table.py` from the runs' JSON. Felt force: the study's hand "
         "(three presses, lockstep, no friction compensation) against the object itself, RMSE "
         "in N; fast: the same presses 2.5x faster; free run: the model's free-run RMSE on the "
         "held-out test recording (2.1 N/s ramps) against the recorded RFOB force. The "
         "recommendation is chosen on the validation recording and re-ranked with the felt "
-        "force of the study's ranking runs (another hand and seed), never on these.\n",
+        "force of the study's ranking runs (another hand and seed), never on these.\n"),
         "| law | model | felt | fast | free run | validation free run | flags |",
         "|---|---|---|---|---|---|---|",
     ]
