@@ -95,7 +95,8 @@ def dahl(path: np.ndarray, length: float, reset: np.ndarray | None = None) -> np
 def permanent_set(x: np.ndarray, dt: float, max_m: float, h: dict) -> np.ndarray:
     """The compression set along x (m): grows toward max_m (largest depth / reference)^2 while
     the probe is loaded (deeper than a fraction of the largest depth, in contact), recovers
-    toward a kept fraction of it otherwise (rt-loop's sponge law, SPEC section 7)."""
+    toward a kept fraction of it otherwise (rt-loop's sponge law, docs/physics.md, "The
+    simulated sponge bench")."""
     out = np.zeros(len(x))
     if max_m <= 0.0:
         return out
