@@ -2,9 +2,11 @@
 # The conditions users create, measured against this machine's own floor (issue 14):
 #   floor     two threads pass a message every 100 us through a shared-memory ring, spinning, on
 #             the CPUs the product uses: misses per million at 50 us (tests/benches/machine_floor.rs)
-#   in-process  ONNX Runtime's call of the default model, p50 (same bench)
-#   the product: infer-server with its automatic profile, rt-loop on the simulated bench, the default
-#   model (rf_six) rendering in reproduction with the simulated hand, realtime 10 kHz:
+#   in-process  ONNX Runtime's call of the bench's model, p50 (same bench)
+#   the product: infer-server with its automatic profile, rt-loop on the simulated bench, the
+#   bench's model (HAPTICS_MODEL, default rf_six: the thesis's random forest on six features,
+#   trained if missing; not the model scripts/up.sh serves) rendering in reproduction with the
+#   simulated hand, realtime 10 kHz:
 #     idle      nothing else running
 #     page      the page open in headless Chromium (web-ui/bench/page-cpu.mjs --hold)
 #     hog       stress-ng on the CPU that is not the loop's

@@ -29,7 +29,7 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --material) material=${2:?--material needs a file}; shift 2 ;;
     --out) out=${2:?--out needs a folder}; shift 2 ;;
-    -h|--help) sed -n 2,23p "$0"; exit 0 ;;
+    -h|--help) sed -n '2,/^set -euo/{/^set -euo/d;s/^# \{0,1\}//;p}' "$0"; exit 0 ;;
     *) break ;;
   esac
 done

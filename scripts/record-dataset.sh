@@ -1,19 +1,19 @@
 #!/usr/bin/env bash
-# Records the training and test dataset on the simulated sponge bench (SPEC section 4):
-# ramp rates 0.8, 1.8, 3.9, 6.2 N/s (train) and 2.1 N/s (test), 14 cycles each, F_max from
-# 1 N in 1 N steps up to 14 N, lockstep clock at 10 kHz, seed 1 (test: seed 2); and a
-# validation recording at 5.0 N/s (seed 3).
+# Records the training and test dataset on the simulated sponge bench (docs/physics.md, "The
+# experiments"): ramp rates 0.8, 1.8, 3.9, 6.2 N/s (train) and 2.1 N/s (test), 14 cycles each,
+# F_max from 1 N in 1 N steps up to 14 N, lockstep clock at 10 kHz, seed 1 (test: seed 2); and
+# a validation recording at 5.0 N/s (seed 3).
 #
 # Usage: scripts/record-dataset.sh [--material FILE] [--bench FILE] [OUTDIR=data/dataset]
 #        --material: the simulated object (default materials/sponge.toml; e.g. materials/foam-b.toml)
 #        --bench: bench file of `rt-loop identify-friction` (the RFOB subtracts its friction model;
 #        default none, as the thesis code); both are written into each recording's metadata.
-# Env:   DECIMATE (default 1: every step, lossless, ~460 MB for the five files; 2 halves that:
-#        5 kHz rows, ~240 MB; the loop and its online features always run at 10 kHz),
+# Env:   DECIMATE (default 1: every step, lossless, ~530 MB for the six files; 2 halves that:
+#        5 kHz rows, ~265 MB; the loop and its online features always run at 10 kHz),
 #        SEED (default 1; the test recording uses SEED + 1).
 # Existing files are kept (delete one to record it again).
 set -euo pipefail
-who=record-dataset help_lines=2,14
+who=record-dataset
 # shellcheck source=scripts/record-lib.sh
 source "$(dirname "$0")/record-lib.sh"
 record_setup data/dataset "$@"

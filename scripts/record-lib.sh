@@ -1,8 +1,8 @@
 # Sourced by the recording scripts (record-dataset.sh, record-ood.sh): their shared options and
 # the one way a recording is made, so the two cannot drift apart.
 #
-# Before sourcing, the script sets `who` (its name in messages) and `help_lines` (the lines of
-# its header comment that --help prints); it calls `record_setup DEFAULT_OUT "$@"`, then uses:
+# Before sourcing, the script sets `who` (its name in messages); --help prints its header
+# comment (up to `set -euo pipefail`). It calls `record_setup DEFAULT_OUT "$@"`, then uses:
 #   material, bench_args    the simulated object and the bench file (--material, --bench)
 #   out                     the output folder (the first remaining argument, else DEFAULT_OUT)
 #   record_run NAME SEED ARGS...   records $out/NAME.parquet with `rt-loop run ARGS` on the
@@ -18,7 +18,7 @@ record_options() {
     case "$1" in
       --material) material=${2:?--material needs a file}; shift 2 ;;
       --bench) bench_args=(--bench "${2:?--bench needs a file}"); shift 2 ;;
-      -h|--help) sed -n "${help_lines}p" "$0"; exit 0 ;;
+      -h|--help) sed -n "2,/^set -euo/{/^set -euo/d;s/^# \{0,1\}//;p}" "$0"; exit 0 ;;
       -*) echo "$who: unknown option $1" >&2; exit 2 ;;
       *) break ;;
     esac

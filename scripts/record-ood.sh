@@ -15,7 +15,7 @@
 # Usage: scripts/record-ood.sh [--material FILE] [--bench FILE] [OUTDIR=data/ood]
 # Env:   DECIMATE (default 1). Existing files are kept (delete one to record it again).
 set -euo pipefail
-who=record-ood help_lines=2,16
+who=record-ood
 # shellcheck source=scripts/record-lib.sh
 source "$(dirname "$0")/record-lib.sh"
 record_setup data/ood "$@"

@@ -5,24 +5,37 @@
 #   3. records the default dataset (data/dataset) if missing; trains, evaluates and exports the
 #      candidate models (models/) if there is no recommendation yet
 #   4. starts rt-loop (realtime, 10 kHz) and infer-server, and prints the page's address
-# Ctrl-C stops both cleanly (current to zero, shared-memory segment removed).
+# Ctrl-C stops both cleanly (current to zero, shared-memory segment removed) and says "stopped".
 #
-# Settings (environment): HAPTICS_MODEL (default: the model haptics-train recommends,
-# models/recommendation.json: the best free run on the validation recording), HAPTICS_CANDIDATES
-# (the specs trained when there is no recommendation; default sd_poly2,rf:memory,structured),
-# HAPTICS_AUTOSTART (default shadow:
-# the simulated hand presses the simulated sponge while the model predicts alongside; or
-# abstraction, reproduction, none), HAPTICS_HTTP (127.0.0.1:8080), HAPTICS_GRPC
-# (127.0.0.1:50051), HAPTICS_INSTANCE (default), HAPTICS_TOKEN (unset: infer-server creates one and writes it into
-# its connection file, which hapticctl reads; the page's address below carries it), HAPTICS_PROFILE
-# (infer-server's wait profile: auto, chosen from the machine and printed at start; or dedicated,
-# period, shared), HAPTICS_BOARD (sim, default; or s826[:N], a Sensoray 826: docs/lab.md),
-# HAPTICS_S826_LIB (the 826 library; unset and none installed: the C-ABI double
-# target/release/libs826_double.so, which simulates the rig), HAPTICS_S826_WATCHDOG_US (the
-# card's watchdog; default five periods, 100000 on the double: this is no real-time host),
-# HAPTICS_RIG (the rig file of `rt-loop board calibrate`).
+# Settings (environment; README.md, "scripts/up.sh's settings", lists them too):
+#   HAPTICS_MODEL       the model to serve (default: the one haptics-train recommends,
+#                       models/recommendation.json: the best free run on the validation recording)
+#   HAPTICS_CANDIDATES  the specs trained when there is no recommendation
+#                       (default sd_poly2,rf:memory,structured)
+#   HAPTICS_AUTOSTART   the experiment started with the loop (default shadow: the simulated hand
+#                       presses the simulated sponge while the model predicts alongside; or
+#                       abstraction, reproduction, none)
+#   HAPTICS_HTTP        the page's address (default 127.0.0.1:8080)
+#   HAPTICS_GRPC        the gRPC address hapticctl talks to (default 127.0.0.1:50051)
+#   HAPTICS_INSTANCE    the shared-memory segment's instance name (default default)
+#   HAPTICS_TOKEN       the control plane's token (default: unset, infer-server creates one and
+#                       writes it into its connection file, which hapticctl reads; the page's
+#                       address printed below carries it)
+#   HAPTICS_PROFILE     infer-server's wait profile (default auto: chosen from the machine and
+#                       printed at start; or dedicated, period, shared)
+#   HAPTICS_BOARD       sim (default), or s826[:N], a Sensoray 826 (docs/lab.md)
+#   HAPTICS_S826_LIB    the 826 library (unset and none installed: the C-ABI double
+#                       target/release/libs826_double.so, which simulates the rig)
+#   HAPTICS_S826_WATCHDOG_US  the card's watchdog (default five periods; 100000 on the double:
+#                       this is no real-time host)
+#   HAPTICS_RIG         the rig file of `rt-loop board calibrate`
 set -euo pipefail
 cd "$(dirname "$0")/.."
+case "${1:-}" in
+  -h|--help) sed -n '2,/^set -euo/{/^set -euo/d;s/^# \{0,1\}//;p}' "$0"; exit 0 ;;
+  "") ;;
+  *) echo "up: no arguments (the settings are environment variables: scripts/up.sh --help)" >&2; exit 2 ;;
+esac
 
 model=${HAPTICS_MODEL:-}
 candidates=${HAPTICS_CANDIDATES:-sd_poly2,rf:memory,structured}
@@ -87,9 +100,16 @@ stop() {
   fi
   if ls /dev/shm/haptics-"$instance"* >/dev/null 2>&1; then
     echo "up: warning: a segment is left in /dev/shm: $(ls /dev/shm/haptics-"$instance"*)" >&2
+    return 1
   fi
 }
-trap stop INT TERM EXIT
+# Ctrl-C (or a TERM) is the normal way to end: both processes stop, and that is said plainly.
+interrupted() {
+  if stop; then echo "up: stopped"; exit 0; fi
+  exit 1
+}
+trap interrupted INT TERM
+trap stop EXIT
 
 loop_args=(serve --clock realtime --instance "$instance" --board "$board")
 bench="simulated bench"
@@ -145,13 +165,17 @@ for _ in $(seq 1 50); do
   fi
   sleep 0.1
 done
+# The hapticctl line works as printed: the address is given when it is not hapticctl's default.
+ctl=target/release/hapticctl
+[ "$grpc" = 127.0.0.1:50051 ] || ctl+=" --addr http://$grpc"
 cat <<EOF
 
   The system is up on the $bench.
     page:      $page
-    gRPC:      $grpc   (target/release/hapticctl status --watch)
+    gRPC:      $grpc   ($ctl status --watch)
     model:     $model (models/), experiment: $autostart
   Ctrl-C stops both.
 EOF
 wait -n "${pids[@]}" || true
-echo "up: a process ended; stopping the other" >&2
+echo "up: a process ended on its own (see its lines above); stopping the other" >&2
+exit 1

@@ -17,7 +17,7 @@ use client::{connect, explain, CliError, Client, EXIT_USAGE};
     name = "hapticctl",
     version,
     about = "Control infer-server: models, hot swap, experiments, status and telemetry",
-    after_help = "Examples:\n  hapticctl models\n  hapticctl swap rf6.onnx\n  hapticctl swap ./new/lstm.onnx      (uploads a local file, then swaps)\n  hapticctl status --watch\n  hapticctl experiment start abstraction --ramp-rate 2.1 --cycles 10\n  hapticctl telemetry --decimation 1000"
+    after_help = "Examples:\n  hapticctl models\n  hapticctl swap rf_memory            (a model in the server's directory; scripts/up.sh trains it)\n  hapticctl swap ./new/lstm.onnx      (uploads a local file, then swaps)\n  hapticctl status --watch\n  hapticctl experiment start abstraction --ramp-rate 2.1 --cycles 10\n  hapticctl telemetry --decimation 1000"
 )]
 struct Cli {
     /// gRPC address of infer-server. Default: $HAPTICS_ADDR, else the address in the
@@ -179,7 +179,11 @@ async fn run(cli: Cli) -> Result<(), CliError> {
                     &serde_json::json!({ "model": output::model_json(&model), "effective_step": step }),
                 );
             } else {
-                println!("{} is active from step {step}", model.name);
+                println!(
+                    "{} is active from feature message {step} (the segment's count since the \
+                     loop started serving; status's step counts the current run)",
+                    model.name
+                );
             }
         }
         Command::Unload { name } => {
@@ -201,7 +205,7 @@ async fn run(cli: Cli) -> Result<(), CliError> {
                         print_json(&output::model_json(&m));
                     } else {
                         println!(
-                            "{} (since step {})",
+                            "{} (since feature message {})",
                             output::model_line(&m),
                             m.active_since_step
                         );
@@ -274,6 +278,9 @@ async fn run(cli: Cli) -> Result<(), CliError> {
                     .stop_experiment(pb::StopExperimentRequest {})
                     .await
                     .map_err(fail("StopExperiment"))?;
+                // The loop reads its mailbox every few steps: wait until the status says it has
+                // stopped, so that an `experiment start` right after this one is not refused.
+                wait_idle(&mut c).await?;
                 if cli.json {
                     print_json(&serde_json::json!({ "stopped": true }));
                 } else {
@@ -292,6 +299,7 @@ async fn run(cli: Cli) -> Result<(), CliError> {
                 println!("{}", output::SAMPLE_HEADER);
             }
             let mut n = 0u64;
+            let mut nan_said = false;
             while count.is_none_or(|c| n < c) {
                 let next = tokio::select! {
                     next = stream.message() => next,
@@ -305,6 +313,10 @@ async fn run(cli: Cli) -> Result<(), CliError> {
                     print_json(&output::sample_json(&x));
                 } else {
                     println!("{}", output::sample_line(&x));
+                    if x.f_pred.is_nan() && !nan_said {
+                        nan_said = true;
+                        eprintln!("hapticctl: {}", output::F_PRED_NAN);
+                    }
                 }
                 n += 1;
             }
@@ -312,6 +324,36 @@ async fn run(cli: Cli) -> Result<(), CliError> {
     }
     Ok(())
 }
+
+/// Polls the status until no experiment runs (at most [`STOP_WAIT`]); a loop that does not stop
+/// in that time is said so, not waited for.
+async fn wait_idle(c: &mut Client) -> Result<(), CliError> {
+    let end = tokio::time::Instant::now() + STOP_WAIT;
+    loop {
+        let s = c
+            .looper
+            .get_status(pb::GetStatusRequest {})
+            .await
+            .map_err(|s| explain("GetStatus", &s, &c.addr))?
+            .into_inner();
+        if !s.experiment.is_some_and(|e| e.running) {
+            return Ok(());
+        }
+        if tokio::time::Instant::now() >= end {
+            return Err(CliError::new(
+                format!(
+                    "asked the loop to stop, but it still runs its experiment after {} s",
+                    STOP_WAIT.as_secs()
+                ),
+                client::EXIT_SERVER,
+            ));
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+/// How long `experiment stop` waits for the loop to say it has stopped.
+const STOP_WAIT: Duration = Duration::from_secs(5);
 
 async fn load(
     c: &mut Client,

@@ -56,7 +56,10 @@ pub fn models_table(models: &[pb::ModelInfo]) -> String {
             },
         );
         if m.state() == pb::ModelState::Active {
-            line.push_str(&format!("  (since step {})", m.active_since_step));
+            line.push_str(&format!(
+                "  (since feature message {})",
+                m.active_since_step
+            ));
         }
         if !m.error.is_empty() {
             line.push_str(&format!("  error: {}", m.error));
@@ -152,7 +155,7 @@ pub fn status_text(s: &pb::Status) -> String {
     };
     if s.loop_alive {
         out.push_str(&format!(
-            "loop:        running, {} clock, {} board, {:.1} Hz, step {}\n",
+            "loop:        running, {} clock, {} board, {:.1} Hz, step {} of the run\n",
             s.clock, s.board, s.rate_hz, s.step
         ));
     } else {
@@ -266,6 +269,11 @@ pub fn sample_json(x: &pb::TelemetrySample) -> Value {
         "max": x.max.iter().map(|v| num(*v)).collect::<Vec<_>>(),
     })
 }
+
+/// Said once under the first sample whose F_pred is NaN: no model predicts in that run.
+pub const F_PRED_NAN: &str = "F_pred is NaN while no model predicts: abstraction and \
+    position-replay runs measure the object (F_res) without asking the model; shadow and \
+    reproduction runs show its prediction";
 
 pub const SAMPLE_HEADER: &str =
     "      step    time_s     F_ref  F_res[min      max]    F_pred   x [mm]  v [mm/s]  fallbacks";

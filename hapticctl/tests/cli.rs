@@ -98,7 +98,10 @@ async fn models_swap_unload_and_active() {
     let step = s.backend.swaps()[0];
     assert_eq!(
         o.stdout.trim(),
-        format!("b.onnx is active from step {step}")
+        format!(
+            "b.onnx is active from feature message {step} (the segment's count since the loop \
+             started serving; status's step counts the current run)"
+        )
     );
 
     let o = ctl(&s, &["--json", "models"]).await;
@@ -156,7 +159,8 @@ async fn uploads_from_local_files_and_clear_refusals() {
     let o = ctl(&s, &["swap", good.to_str().unwrap()]).await;
     assert_eq!(o.code, 0, "{}", o.stderr);
     assert!(
-        o.stdout.starts_with("mine.onnx is active from step"),
+        o.stdout
+            .starts_with("mine.onnx is active from feature message"),
         "{}",
         o.stdout
     );

@@ -59,6 +59,7 @@ pub enum Command {
     Serve(ServeArgs),
     /// Print which ONNX Runtime library would be loaded, and its version.
     Runtime {
+        /// Print one JSON object instead of text.
         #[arg(long)]
         json: bool,
     },

@@ -1,4 +1,4 @@
-//! The model contract (DESIGN.md "Models", docs/model-contract.md): what an `.onnx` file must
+//! The model contract (docs/model-contract.md): what an `.onnx` file must
 //! say about itself and look like to be served.
 
 use std::fmt;

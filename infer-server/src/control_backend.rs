@@ -334,9 +334,16 @@ impl Backend for ControlBackend {
         }
         let current = self.experiment(attachment, true);
         if current.running {
+            // The name the status shows: the loop's own (a shadow run's rows look like a
+            // reproduction's), as `apply_loop_block` does.
+            let kind = match self.loop_block(attachment) {
+                Some(b) if b.running && !b.experiment.is_empty() => {
+                    b.experiment.as_str().to_string()
+                }
+                _ => current.kind,
+            };
             return Err(ControlError::FailedPrecondition(format!(
-                "an experiment is already running ({}): stop it first",
-                current.kind
+                "an experiment is already running ({kind}): stop it first (hapticctl experiment stop)"
             )));
         }
         let id = self.next_command_id.fetch_add(1, Ordering::Relaxed);

@@ -152,10 +152,12 @@ impl BoardArgs {
 
 #[derive(Args)]
 pub struct IdentifyArgs {
+    /// A TOML file of settings (rt-loop/config.example.toml): the bench it identifies.
     #[arg(long)]
     pub config: Option<PathBuf>,
     #[command(flatten)]
     pub board: BoardArgs,
+    /// Seed of the simulated bench's noise (default 1).
     #[arg(long)]
     pub seed: Option<u64>,
     /// Bench file to write (TOML, `[friction]`).
@@ -268,14 +270,18 @@ impl ShmArgs {
 /// The settings `run` and `serve` share, each overriding the `--config` file.
 #[derive(Args)]
 pub struct CommonArgs {
+    /// A TOML file of settings (rt-loop/config.example.toml); the flags override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// Loop rate, Hz (default 10000, the thesis's bench).
     #[arg(long)]
     pub rate_hz: Option<f64>,
     #[command(flatten)]
     pub board: BoardArgs,
+    /// Seed of the simulated bench's noise (default 1): the same seed gives the same run.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// The simulated object (default materials/sponge.toml).
     #[arg(long)]
     pub material: Option<PathBuf>,
     /// Bench file (`rt-loop identify-friction`): the RFOB subtracts its friction model in
@@ -316,6 +322,8 @@ impl CommonArgs {
 pub struct ServeArgs {
     #[command(flatten)]
     pub common: CommonArgs,
+    /// realtime: wall clock, fixed period, a deadline per step; lockstep: virtual time, as fast
+    /// as possible, every step waits for its answer (deterministic).
     #[arg(long, value_enum, default_value = "realtime")]
     pub clock: ClockKind,
     /// Start this experiment at once and again whenever it finishes, until a stop command.
@@ -369,8 +377,11 @@ impl ServeArgs {
 pub struct RunArgs {
     #[command(flatten)]
     pub common: CommonArgs,
+    /// The experiment (default abstraction; docs/physics.md, "The experiments").
     #[arg(long, value_enum)]
     pub experiment: Option<ExperimentKind>,
+    /// realtime (wall clock, fixed period) or lockstep (virtual time, as fast as possible,
+    /// deterministic; the default).
     #[arg(long, value_enum)]
     pub clock: Option<ClockKind>,
     /// Recording the replay board plays back.
@@ -386,6 +397,7 @@ pub struct RunArgs {
     /// Fraction of F_max a partial unload takes off (0..1).
     #[arg(long)]
     pub minor_depth: Option<f64>,
+    /// F_max never exceeds this, N (default 14; at most 15, the motor's continuous force).
     #[arg(long)]
     pub f_max_limit: Option<f64>,
     /// Hold at 0 N before each ramp, s.
@@ -397,6 +409,7 @@ pub struct RunArgs {
     /// Record to this file (.parquet, .csv or .mcap).
     #[arg(long)]
     pub record: Option<PathBuf>,
+    /// The recording's format (default: from the --record file's extension).
     #[arg(long, value_enum)]
     pub format: Option<FormatArg>,
     /// Record every N-th step only.
@@ -417,6 +430,7 @@ pub struct RunArgs {
     /// Write the summary as JSON here as well.
     #[arg(long)]
     pub summary_json: Option<PathBuf>,
+    /// No progress line on the terminal.
     #[arg(long)]
     pub no_progress: bool,
     /// Reproduction/shadow model: the built-in spring-damper, or infer-server over shared memory.
@@ -496,13 +510,16 @@ pub enum FormatArg {
 
 #[derive(Args)]
 pub struct FeaturesArgs {
+    /// The series to import (.csv or .parquet): time, position and force columns.
     #[arg(long)]
     pub input: PathBuf,
     /// Column name; `t` also finds a header `t [ms]` (and takes its unit).
     #[arg(long)]
     pub time_col: String,
+    /// Displacement column (into the object), as --time-col.
     #[arg(long)]
     pub position_col: String,
+    /// Force column, as --time-col.
     #[arg(long)]
     pub force_col: String,
     /// Default: the header's unit (`t [ms]`), else s. Refused if it contradicts the header.
@@ -539,8 +556,10 @@ pub struct FeaturesArgs {
 
 #[derive(Args)]
 pub struct FitArgs {
+    /// The recording to fit (.parquet or .csv).
     #[arg(long)]
     pub input: PathBuf,
+    /// The force column the law is fitted to.
     #[arg(long, default_value = "rtob_force")]
     pub force_col: String,
 }

@@ -178,14 +178,19 @@ pub fn run(cfg: &DaemonConfig, shutdown: &Shutdown) -> Result<u64> {
             _ => None,
         };
         let before = counters.as_ref().map(|c| c.snapshot());
+        // Only abstraction runs the ramp cycles: the other runs are not logged with settings
+        // they do not use (a shadow or reproduction run follows the hand's programme).
+        let ramp = match rc.experiment {
+            ExperimentKind::Abstraction => format!(
+                ", ramp {} N/s, {} cycles, F_max {} + {} N",
+                rc.ramp.ramp_rate, rc.ramp.cycles, rc.ramp.f_max_start, rc.ramp.f_max_step
+            ),
+            _ => String::new(),
+        };
         eprintln!(
-            "rt-loop: run {run_id}: {:?} (command {}), ramp {} N/s, {} cycles, F_max {} + {} N{}",
+            "rt-loop: run {run_id}: {:?} (command {}){ramp}{}",
             rc.experiment,
             req.id,
-            rc.ramp.ramp_rate,
-            rc.ramp.cycles,
-            rc.ramp.f_max_start,
-            rc.ramp.f_max_step,
             rc.record
                 .as_ref()
                 .map_or(String::new(), |p| format!(", recording {}", p.display()))

@@ -1,4 +1,4 @@
-//! The experiments of SPEC section 4: abstraction ramp cycles, position-control replay of a
+//! The experiments of docs/physics.md, "The experiments": abstraction ramp cycles, position-control replay of a
 //! recorded trajectory, reproduction against a simulated hand (and its shadow variant).
 //! Schedules are built before the run; looking them up in the step allocates nothing.
 

@@ -1,4 +1,4 @@
-//! The nine features of SPEC section 5 (thesis Table 3.1), computed the same way online (one
+//! The nine features of docs/features.md (thesis Table 3.1), computed the same way online (one
 //! call pair per loop step, no allocation) and offline (over a recording or an imported series,
 //! by the very same code).
 //!

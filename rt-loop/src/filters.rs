@@ -1,4 +1,4 @@
-//! The discrete filters of SPEC section 3, exactly as the thesis code runs them (forward Euler
+//! The discrete filters of docs/physics.md, "The loop step", exactly as the thesis code runs them (forward Euler
 //! with the measured period `dt`): the pseudo-derivative and the DOB/RFOB low-pass observers.
 //! All are plain structs of f64: updating them allocates nothing and locks nothing.
 //!

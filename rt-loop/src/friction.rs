@@ -1,4 +1,4 @@
-//! The bench's friction: the model the RFOB subtracts (SPEC section 3, `F_friction_model`) and
+//! The bench's friction: the model the RFOB subtracts (docs/physics.md, "The loop step", `F_friction_model`) and
 //! its identification from slow constant-velocity sweeps in free air under position control.
 //!
 //! Why: the RFOB's estimate is both the recorded target (abstraction) and the rendered force's

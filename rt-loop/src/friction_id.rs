@@ -224,7 +224,7 @@ pub fn bench_toml(id: &Identification, command: &str) -> Result<String> {
          # ({} sweep segments, {:.1} s of loop time, fit RMS residual {:.4} N).\n\
          # Units: N as the loop measures force (K_fn times current), m/s, N s/m.\n\
          # Read by `rt-loop run --bench FILE` / `rt-loop serve --bench FILE` into the RFOB's\n\
-         # friction model (SPEC section 3, F_friction_model).\n{body}",
+         # friction model (F_friction_model of docs/physics.md, The loop step).\n{body}",
         id.fit.points.len(),
         id.loop_time_s,
         id.fit.rms_residual_n

@@ -1,4 +1,4 @@
-//! The simulated operator (SPEC section 7): a hand with its own impedance (stiffness and
+//! The simulated operator (docs/physics.md, "The simulated sponge bench"): a hand with its own impedance (stiffness and
 //! damping toward a moving set-point) following a press-hold-release trajectory. The hand
 //! only pushes (it rests against the shaft, it does not grip it).
 

@@ -1,5 +1,5 @@
-//! The degradation ladder of reproduction (issue 14, DESIGN.md "never jumps"): what the loop
-//! renders when the served model's answer to this step is not there in time.
+//! The degradation ladder of reproduction (issue 14; docs/physics.md, "The loop step": it
+//! never jumps): what the loop renders when the served model's answer to this step is not there in time.
 //!
 //! Before, every late answer switched the rendered force from the model to the spring-damper
 //! fallback (about 1 N away) and back at the next step: force steps a hand feels as buzzing.
@@ -20,7 +20,7 @@
 //!
 //! Unilateral rendering (issue 11 item 7): the rendered object only pushes. Every rung's force
 //! is clamped to `[0, max_force_n]`, and it is 0 out of contact (x <= 0). With F_cmd = -F_pred
-//! (SPEC section 4) a non-negative F_pred can only push the probe back out of the object.
+//! (docs/physics.md, "The experiments") a non-negative F_pred can only push the probe back out of the object.
 //!
 //! Saturation (issue 23 item 5): a finite answer above `max_force_n` is rendered AT the limit
 //! and counted as `saturated` (a count beside the rungs: such a step is still rendered by its

@@ -1,4 +1,4 @@
-//! The real-time haptics loop (SPEC sections 2-7): board abstraction with a physics-simulated
+//! The real-time haptics loop (docs/physics.md): board abstraction with a physics-simulated
 //! sponge bench and a replay board, the DOB/RFOB force-control loop, the experiments, the nine
 //! online features, the lossless recorder and the two clocks.
 //!

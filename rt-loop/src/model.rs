@@ -1,9 +1,9 @@
-//! The force model hook of reproduction (SPEC section 4): each step the loop asks a
+//! The force model hook of reproduction (docs/physics.md, "The experiments"): each step the loop asks a
 //! [`ForceModel`] for F_pred from the step's features and renders `F_cmd = -F_pred`.
 //!
 //! The built-in model is a fitted second-order spring-damper law ([`SpringDamper`]), which is
 //! also the fallback the loop uses whenever a served prediction is missing, late, NaN/Inf or
-//! out of range (DESIGN.md: "the loop never trusts the server").
+//! out of range (docs/physics.md, "The loop step": the loop never trusts the server).
 //!
 //! Plugging in the inference server (issue 4): implement `ForceModel` for a shared-memory
 //! client that, in `predict`, writes `features.as_array()` with the step number into the

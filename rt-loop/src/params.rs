@@ -1,4 +1,4 @@
-//! The loop's parameters (SPEC section 2, thesis Tables 5.1-5.6 and its C code).
+//! The loop's parameters (docs/physics.md, "Bench parameters", thesis Tables 5.1-5.6 and its C code).
 //! Every value defaults to the thesis's and can be overridden from the config file.
 
 use crate::invalid::{first_refused, InvalidSetting};

@@ -1,4 +1,4 @@
-//! The loop step of SPEC section 3, exactly as the thesis code runs it, plus the experiment's
+//! The loop step of docs/physics.md, "The loop step", exactly as the thesis code runs it, plus the experiment's
 //! command, the online features and the safety checks.
 //!
 //! REAL-TIME PATH: [`Rig::step`] allocates nothing, takes no lock and does no I/O (beyond the
@@ -59,7 +59,7 @@ pub struct Rig<B: Board> {
     time: f64,
     i_motor: f64,
     started: bool,
-    /// Nominal period, s ([`Rig::set_period`]; the SPEC's 10 kHz until set).
+    /// Nominal period, s ([`Rig::set_period`]; the bench's 10 kHz until set).
     period: f64,
     long_steps: u64,
     max_dt: f64,

@@ -144,6 +144,7 @@ def _import(tmp_path, rt_loop, cols, **kw):
     src = tmp_path / "in.csv"
     pacsv.write_csv(pa.table(cols), src)
     names = list(cols)
+    kw.setdefault("overwrite", True)  # several imports per test into the same scratch file
     return import_series(src, tmp_path / "out.parquet", *names, rt_loop=str(rt_loop), **kw)
 
 
@@ -200,7 +201,8 @@ def test_given_gains_and_thresholds_are_used(tmp_path, rt_loop):
     assert run["filters"]["g_a_from"] == "given"
     assert contact_thresholds(rec) == (0.3, 0.2)
     with pytest.raises(RuntimeError, match="contact_off_n must be below"):
-        _import(tmp_path, rt_loop, {"t": c["time"], "x": c["displacement"], "f": c["force"]},
+        _import(tmp_path, rt_loop, {"t": c["time"], "x [mm]": c["displacement"],
+                                    "f": c["force"]},
                 contact_on_n=0.1, contact_off_n=0.2)  # fmt: skip
 
 
@@ -303,3 +305,53 @@ def test_cli_import_honours_force_unit_and_writes_a_manifest(tmp_path, rt_loop, 
     assert [r.name for r in ds.train] == ["train"] and [r.name for r in ds.test] == ["test"]
     assert ds.validation[0].notes == "the validation copy" and ds.train[0].origin == "fixture"
     np.testing.assert_allclose(ds.train[0].column("rtob_force"), c["force"], rtol=1e-12)
+
+
+def test_bare_csv_in_mn_and_mm_is_refused_naming_the_option(tmp_path, rt_loop):
+    """A plain `time,displacement,force` file in mN and mm is never taken as N and m silently:
+    the force reaches 14 000 'N', over the 1 kN a bench gives, and the error names the option."""
+    c = cycle()
+    cols = {"time": c["time"], "displacement": c["displacement"], "force": 1e3 * c["force"]}
+    with pytest.raises(DataError, match="names no unit.*--force-unit"):
+        _import(tmp_path, rt_loop, cols)
+    cols = {"time": c["time"], "displacement": 1e3 * c["displacement"], "force": c["force"]}
+    with pytest.raises(DataError, match="over 1 m.*--position-unit"):
+        _import(tmp_path, rt_loop, cols)
+    assert not (tmp_path / "out.parquet").exists()
+
+
+def test_cli_says_which_units_were_assumed_and_refuses_to_overwrite(tmp_path, rt_loop, capsys):
+    from haptics_train.cli import main
+
+    c = cycle()
+    src = tmp_path / "in.csv"
+    pacsv.write_csv(pa.table({"time": c["time"], "displacement": c["displacement"],
+                              "force": c["force"]}), src)  # fmt: skip
+    out = tmp_path / "o.parquet"
+    args = ["import", "--input", str(src), "--out", str(out), "--time-col", "time",
+            "--position-col", "displacement", "--force-col", "force", "--position-unit", "mm",
+            "--rt-loop", str(rt_loop)]  # fmt: skip
+    main(args)
+    err = capsys.readouterr().err
+    assert "no unit for time (column 'time') in its header or --time-unit: taken as s" in err
+    assert "no unit for force" in err and "position" not in err
+    before = out.stat().st_mtime_ns
+    with pytest.raises(SystemExit):
+        main(args)
+    assert "exists: give --overwrite to replace it" in capsys.readouterr().err
+    assert out.stat().st_mtime_ns == before
+    main([*args, "--overwrite"])
+
+
+def test_cli_errors_are_one_line_and_debug_shows_the_traceback(tmp_path, capsys):
+    from haptics_train.cli import main
+
+    garbage = tmp_path / "garbage.onnx"
+    garbage.write_bytes(b"\x0f\xff this is not protobuf \x00\x01" * 7)
+    with pytest.raises(SystemExit) as e:
+        main(["validate", str(garbage)])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1, err
+    assert err.startswith("haptics-train validate: error: ") and "not an ONNX model" in err
+    with pytest.raises(Exception, match="not an ONNX model"):
+        main(["--debug", "validate", str(garbage)])

@@ -208,3 +208,21 @@ def test_thesis_presets_train_and_export(synth, algo):
         lin = [mod for mod in m.net_.body if isinstance(mod, torch.nn.Linear)]
         assert [lin_.out_features for lin_ in lin] == [150, 25, 1]
         assert isinstance(m.net_.body[-1], torch.nn.Sigmoid)
+
+
+def test_forest_grown_with_progress_equals_one_fit():
+    """The progress bar grows the forest in chunks (warm start); the trees are the same."""
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(400, 3))
+    y = X[:, 0] * 2 + np.sin(X[:, 1]) + 0.1 * rng.normal(size=400)
+    a = make_model("rf", "x_v", hyper={"n_estimators": 25, "max_depth": 5})
+    b = make_model("rf", "x_v", hyper={"n_estimators": 25, "max_depth": 5})
+    a.progress, b.progress = False, True
+    a.fit(X[:, :2], y)
+    b.fit(X[:, :2], y)
+    assert len(b.estimator_.estimators_) == 25 and not b.estimator_.warm_start
+    for ta, tb in zip(a.estimator_.estimators_, b.estimator_.estimators_, strict=True):
+        np.testing.assert_array_equal(ta.tree_.threshold, tb.tree_.threshold)
+        np.testing.assert_array_equal(ta.tree_.value, tb.tree_.value)
+    # the mean over the trees is summed in another order: equal to rounding
+    np.testing.assert_allclose(a.predict(X[:, :2]), b.predict(X[:, :2]), rtol=1e-12, atol=1e-12)

@@ -1,4 +1,4 @@
-//! The simulated test bench (SPEC section 7): a linear motor whose true mass and force constant
+//! The simulated test bench (docs/physics.md, "The simulated sponge bench"): a linear motor whose true mass and force constant
 //! differ from the nominal ones, with Coulomb/Stribeck friction, pressing a simulated sponge
 //! and/or pushed by a simulated hand; measured as the real board measures it (5 um encoder
 //! counts, 1 us wrapping timestamps, 16-bit DAC, period jitter, seeded noise).

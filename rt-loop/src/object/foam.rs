@@ -1,4 +1,4 @@
-//! The foam law (`law = "foam"`), the simulated sponge of SPEC section 7: nonlinear foam
+//! The foam law (`law = "foam"`), the simulated sponge (docs/physics.md, "The simulated sponge bench"): nonlinear foam
 //! stiffness (plateau, then densification), generalized Maxwell viscoelastic branches, a
 //! rate-independent Dahl hysteresis element, a permanent set that grows with the largest
 //! compression seen and slowly partly recovers, and unilateral contact (it pushes, never

@@ -69,7 +69,7 @@ def _train_opts(p: argparse.ArgumentParser) -> None:
         "--preset",
         choices=("default", "thesis"),
         default="default",
-        help="thesis = the thesis's hyperparameters (SPEC section 6)",
+        help="thesis = the thesis's hyperparameters (docs/physics.md, 'What the thesis reports')",
     )
     _rows_opts(p)
     p.add_argument("--seed", type=int, default=0)
@@ -230,7 +230,7 @@ def cmd_report(a: argparse.Namespace) -> None:
 
 def cmd_import(a: argparse.Namespace) -> None:
     from .data import write_manifest_entry
-    from .importer import describe_import, import_series
+    from .importer import describe_import, import_series, unit_notes
 
     if a.role and not a.manifest:
         raise DataError("--role needs --manifest (the manifest the recording is added to)")
@@ -251,7 +251,10 @@ def cmd_import(a: argparse.Namespace) -> None:
         resample_hz=a.resample_hz,
         repair=a.repair,
         max_gap_factor=a.max_gap_factor,
+        overwrite=a.overwrite,
     )
+    for note in unit_notes(rec):
+        print(f"haptics-train import: warning: {note}", file=sys.stderr)
     print(f"{a.out}: {describe_import(rec)}")
     if a.manifest:
         name = a.name or Path(a.out).stem
@@ -326,6 +329,8 @@ def cmd_study(a: argparse.Namespace) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="haptics-train", description=__doc__)
+    p.add_argument("--debug", action="store_true",
+                   help="show the Python traceback of an error (anywhere on the line)")  # fmt: skip
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("analyze", help="dataset statistics as the thesis did (Markdown + PNG)")
@@ -374,16 +379,22 @@ def build_parser() -> argparse.ArgumentParser:
         "import", help="a series measured elsewhere -> a recording (rt-loop features)"
     )
     s.add_argument("--input", required=True, help="CSV or Parquet file")
-    s.add_argument("--out", required=True, help="recording to write (.parquet)")
+    s.add_argument("--out", required=True,
+                   help="recording to write (.parquet; an existing one needs --overwrite)")
+    s.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     s.add_argument("--time-col", required=True, help="name, or name of a 'name [unit]' header")
-    s.add_argument("--position-col", required=True)
-    s.add_argument("--force-col", required=True)
+    s.add_argument("--position-col", required=True,
+                   help="displacement column (into the object), as --time-col")
+    s.add_argument("--force-col", required=True, help="force column, as --time-col")
     s.add_argument("--time-unit", choices=tuple(TIME_UNITS),
-                   help="default: the header's unit ('t [ms]'), else s")  # fmt: skip
+                   help="default: the header's unit ('t [ms]'), else s (said in the "
+                   "output)")  # fmt: skip
     s.add_argument("--position-unit", choices=tuple(POSITION_UNITS),
-                   help="default: the header's unit, else m")  # fmt: skip
+                   help="default: the header's unit, else m (said in the output; values over "
+                   "1 m are then refused)")  # fmt: skip
     s.add_argument("--force-unit", choices=tuple(FORCE_UNITS),
-                   help="default: the header's unit, else N")  # fmt: skip
+                   help="default: the header's unit, else N (said in the output; values over "
+                   "1 kN are then refused)")  # fmt: skip
     s.add_argument("--g-v", type=float,
                    help="velocity filter gain, rad/s (default: the loop's 30 capped at g dt 0.2)")
     s.add_argument("--g-a", type=float,
@@ -474,15 +485,33 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> None:
-    a = build_parser().parse_args(argv)
+    args = sys.argv[1:] if argv is None else list(argv)
+    # --debug is accepted anywhere on the line (before or after the subcommand).
+    debug = "--debug" in args
+    a = build_parser().parse_args([x for x in args if x != "--debug"])
     torch.set_num_threads(getattr(a, "threads", 1) or 1)
     try:
         a.fn(a)
-    except (DataError, FileNotFoundError, ValueError, RuntimeError) as e:
-        print(f"haptics-train {a.command}: error: {e}", file=sys.stderr)
-        raise SystemExit(2) from None
     except KeyboardInterrupt:
         raise SystemExit(130) from None
+    except Exception as e:  # noqa: BLE001 - every error is one line unless --debug
+        if debug:
+            raise
+        print(f"haptics-train {a.command}: error: {one_line(e)}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+#: The errors a user's input or files cause; anything else is a fault of ours, said so.
+USER_ERRORS = (DataError, FileNotFoundError, ValueError, RuntimeError, OSError)
+
+
+def one_line(e: BaseException) -> str:
+    """The error as one line: its message for a user error, else its type too and where to see
+    the traceback (a multi-line message, e.g. a child's stderr, is joined with "; ")."""
+    msg = "; ".join(ln.strip() for ln in str(e).splitlines() if ln.strip()) or type(e).__name__
+    if isinstance(e, USER_ERRORS):
+        return msg
+    return f"{type(e).__name__}: {msg} (an internal error; --debug shows the traceback)"
 
 
 if __name__ == "__main__":

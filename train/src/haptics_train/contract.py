@@ -39,11 +39,23 @@ def _check_io(
             return
 
 
+def load_onnx(path: str | Path) -> onnx.ModelProto:
+    """The file as an ONNX model, or a ContractError in one line (a file that is not ONNX makes
+    protobuf raise its own DecodeError, which is no user's business)."""
+    p = Path(path)
+    if not p.is_file():
+        raise ContractError(f"{p}: no such file")
+    try:
+        return onnx.load(str(p))
+    except Exception as e:  # noqa: BLE001 - protobuf's errors have no common public base
+        raise ContractError(f"{p}: not an ONNX model ({type(e).__name__}: {e})") from e
+
+
 def validate_model(
     model: str | Path | onnx.ModelProto, schema: list[str] | None = None
 ) -> dict[str, str]:
     """Raises ContractError listing every problem; returns the haptics.* metadata if valid."""
-    m = model if isinstance(model, onnx.ModelProto) else onnx.load(str(model))
+    m = model if isinstance(model, onnx.ModelProto) else load_onnx(model)
     meta = {p.key: p.value for p in m.metadata_props}
     problems: list[str] = []
     for key in ("haptics.features", "haptics.kind", "haptics.units", "haptics.provenance"):

@@ -1,4 +1,4 @@
-"""Feature names and named feature sets (SPEC section 5, thesis Table 3.1 and Table 6.10).
+"""Feature names and named feature sets (docs/features.md, thesis Table 3.1 and Table 6.10).
 
 "Previous force" everywhere in this package means the force response of the *previous control
 step* of the loop (t-1 at the loop rate, 10 kHz on the simulated board), exactly as rt-loop

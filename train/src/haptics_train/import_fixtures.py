@@ -180,7 +180,8 @@ def run_case(case: Case, folder: Path, rt_loop: str | None = None) -> tuple[str,
     kw = dict(case.kwargs)
     try:
         rec = import_series(src, folder / "out.parquet", kw.pop("time_col"),
-                            kw.pop("position_col"), kw.pop("force_col"), rt_loop=rt_loop, **kw)
+                            kw.pop("position_col"), kw.pop("force_col"), rt_loop=rt_loop,
+                            overwrite=True, **kw)
     except (DataError, RuntimeError) as e:  # fmt: skip
         return "refused", str(e)
     return "ok", rec
@@ -203,10 +204,32 @@ def table(rt_loop: str | None = None) -> str:
     return "\n".join(lines)
 
 
+#: The README's import example (docs/examples/): one SYNTHETIC cycle of the elastomer at two
+#: rates, as a testing machine exports it: plain headers, displacement in mm, force in mN.
+EXAMPLES: dict[str, float] = {"sample_a_0.5mm_s.csv": 0.5, "sample_a_2mm_s.csv": 2.0}
+
+
+def write_examples(folder: Path) -> list[Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    out = []
+    for name, rate in EXAMPLES.items():
+        c = cycle(rate_mm_s=rate)
+        series = zip(c["time"], c["displacement"], c["force"], strict=True)
+        rows = [[f"{t:.2f}", f"{x:.4f}", f"{1e3 * f:.2f}"] for t, x, f in series]
+        out.append(_write_text(folder / name, ["time", "displacement", "force"], rows))
+    return out
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description="prints the import fixture table")
     p.add_argument("--rt-loop")
-    print(table(p.parse_args().rt_loop))
+    p.add_argument("--examples", help="write the README's example CSVs into this folder instead")
+    a = p.parse_args()
+    if a.examples:
+        for path in write_examples(Path(a.examples)):
+            print(path)
+        return
+    print(table(a.rt_loop))
 
 
 if __name__ == "__main__":

@@ -5,7 +5,9 @@ Such files come at any rate and in any unit, with holes and glitches. Nothing is
 silently here:
 
 - units come from the options, else from the column headers (`force [mN]`,
-  `displacement (mm)`), else SI; an option that contradicts its header is refused;
+  `displacement (mm)`), else SI, which the output then says (`unit_notes`); a series left in
+  SI that way whose magnitudes no bench gives in SI (over 1 kN, over 1 m) is refused, naming the
+  unit option; an option that contradicts its header is refused;
 - non-finite values, time that does not increase and gaps are refused with the row number
   (data rows counted from 1), or, with `repair=True`, interpolated (or dropped) and counted;
 - `resample_hz` puts the series on a uniform grid (a window average when it lowers the rate);
@@ -45,6 +47,10 @@ _ALIASES: dict[str, str] = {
     "μs": "us", "usec": "us", "µm": "um", "μm": "um", "inch": "in",
 }  # fmt: skip
 DEFAULT_MAX_GAP_FACTOR = 1.5
+#: Largest magnitudes a bench measures in SI, for a series whose unit nobody stated: a force
+#: over 1 kN or a displacement over 1 m is a series in mN or mm read as N or m (a factor of 1000
+#: off), so it is refused, naming the option that says the unit.
+PLAUSIBLE_SI: dict[str, tuple[float, str]] = {"force": (1000.0, "N"), "position": (1.0, "m")}
 
 _HEADER_UNIT = re.compile(r"^(?P<base>.*?)\s*(?:\[(?P<u1>[^\]]+)\]|\((?P<u2>[^)]+)\))\s*$")
 
@@ -88,6 +94,37 @@ def resolve_unit(
     if parsed is not None:
         return parsed, "header"
     return next(iter(table)), "default"
+
+
+def check_plausible_si(
+    series: dict[str, np.ndarray], units: dict[str, tuple[str, str]], cols: dict[str, str]
+) -> None:
+    """Refuses a series taken as SI by default (no header unit, no option) whose magnitude no
+    bench gives in SI: it is in a smaller unit, and reading it as SI would be 1000x off."""
+    for what, (limit, si) in PLAUSIBLE_SI.items():
+        if units[what][1] != "default":
+            continue
+        v = series[what]
+        finite = v[np.isfinite(v)]
+        peak = float(np.max(np.abs(finite))) if finite.size else 0.0
+        if peak > limit:
+            table = FORCE_UNITS if what == "force" else POSITION_UNITS
+            raise DataError(
+                f"column {cols[what]!r} names no unit (neither its header nor --{what}-unit) and "
+                f"reaches {peak:.4g}: over {limit:g} {si}, implausible for a bench in {si}; give "
+                f"--{what}-unit (one of {tuple(table)}) or a header like '{what} [unit]'"
+            )
+
+
+def unit_notes(rec: Recording) -> list[str]:
+    """One line per series whose unit neither a header nor an option gave (taken as SI)."""
+    units = (rec.meta.get("haptics.run") or {}).get("units") or {}
+    return [
+        f"no unit for {k} (column {v.get('column')!r}) in its header or --{k}-unit: taken as "
+        f"{v.get('unit')}"
+        for k, v in units.items()
+        if v.get("from") == "default"
+    ]
 
 
 def find_column(headers: list[str], name: str) -> str:
@@ -330,10 +367,12 @@ def import_series(
     resample_hz: float | None = None,
     repair: bool = False,
     max_gap_factor: float = DEFAULT_MAX_GAP_FACTOR,
+    overwrite: bool = False,
     timeout_s: float = 600.0,
 ) -> Recording:
     """Every option is keyword-only: a positional call cannot shift a unit into another slot.
-    A unit left None is taken from the column header, else SI (s, m, N)."""
+    A unit left None is taken from the column header, else SI (s, m, N). An existing `out` is
+    refused unless `overwrite` (as `rt-loop run --overwrite`)."""
     src = Path(input_path)
     dst = Path(out)
     if not src.is_file():
@@ -344,6 +383,8 @@ def import_series(
         raise DataError(f"output {dst} must end in .parquet")
     if dst.exists() and dst.resolve() == src.resolve():
         raise DataError("refusing to overwrite the input with the output")
+    if dst.exists() and not overwrite:
+        raise DataError(f"{dst} exists: give --overwrite to replace it")
     if resample_hz is not None and not (np.isfinite(resample_hz) and resample_hz > 0):
         raise DataError(f"--resample-hz must be a positive rate, not {resample_hz}")
     if not max_gap_factor > 1:
@@ -365,6 +406,7 @@ def import_series(
         t = _as_float(table, cols["time"]) * TIME_UNITS[units["time"][0]]
         x = _as_float(table, cols["position"]) * POSITION_UNITS[units["position"][0]]
         f = _as_float(table, cols["force"]) * FORCE_UNITS[units["force"][0]]
+        check_plausible_si({"position": x, "force": f}, units, cols)
         rows_in = len(t)
         t, x, f, rep = check_or_repair(t, x, f, repair, max_gap_factor)
     except DataError as e:

@@ -324,5 +324,9 @@ def export_models(
             )
         else:
             print(f"[export] {path}", flush=True)
+        if not metrics:
+            print(f"[export] {model.name} is not evaluated: its file carries no metrics and it "
+                  f"is not in the recommendation (haptics-train evaluate --names {model.name} "
+                  "scores it)", flush=True)  # fmt: skip
         _save_results(folder, results)
     return results

@@ -15,7 +15,8 @@ from .analysis import DPI, md_table  # noqa: E402
 from .data import Dataset  # noqa: E402
 from .evaluate import ranking  # noqa: E402
 
-#: Test-set figures the thesis reports (SPEC section 6): model name -> (table, RMSE, R2).
+#: Test-set figures the thesis reports (docs/physics.md, "What the thesis reports"): model name
+#: -> (table, RMSE, R2).
 THESIS: dict[str, tuple[str, float, float | None]] = {
     "sd_const": ("6.2", 3.67, 0.46),
     "sd_poly1": ("6.2", 2.11, 0.82),

@@ -35,7 +35,7 @@ pub async fn metrics(
     );
     m.counter(
         "haptics_loop_steps_total",
-        "Loop steps since the loop started",
+        "Steps of the loop's current (or last) run; it restarts at 0 with every run",
         l.step as f64,
     );
     m.gauge(

@@ -36,7 +36,8 @@ __all__ = [
 def make_model(
     algo: str, fset: str = "six", preset: str = "default", hyper: dict | None = None
 ) -> ForceModel:
-    """`preset="thesis"` takes the thesis's hyperparameters (SPEC section 6); `hyper` overrides."""
+    """`preset="thesis"` takes the thesis's hyperparameters (docs/physics.md, "What the thesis
+    reports"); `hyper` overrides."""
     if preset not in ("default", "thesis"):
         raise ValueError(f"unknown preset {preset!r} (default|thesis)")
     thesis = preset == "thesis"

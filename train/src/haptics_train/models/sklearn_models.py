@@ -13,6 +13,7 @@ from sklearn.linear_model import LinearRegression
 from sklearn.pipeline import Pipeline, make_pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVR
+from tqdm.auto import tqdm
 
 from .base import ForceModel, check_rows
 
@@ -40,6 +41,10 @@ class SklearnModel(ForceModel):
     def _make(self) -> Pipeline | RandomForestRegressor:
         raise NotImplementedError
 
+    def _fit_estimator(self, est: Pipeline | RandomForestRegressor, x: np.ndarray,
+                       y: np.ndarray) -> None:  # fmt: skip
+        est.fit(x, y)
+
     def fit(self, X: np.ndarray, y: np.ndarray) -> SklearnModel:
         x, y = check_rows(X, y, len(self.features))
         n_all = len(y)
@@ -53,7 +58,7 @@ class SklearnModel(ForceModel):
             x = x.astype(np.float32)
         est = self._make()
         t0 = time.perf_counter()
-        est.fit(x, y)
+        self._fit_estimator(est, x, y)
         self.estimator_ = est
         self.n_features_in_ = x.shape[1]
         self.train_info_ = {
@@ -124,3 +129,24 @@ class ForestModel(SklearnModel):
             n_jobs=2,
             random_state=self.seed,
         )
+
+    #: trees grown per step of the progress bar
+    PROGRESS_CHUNK = 10
+
+    def _fit_estimator(self, est: Pipeline | RandomForestRegressor, x: np.ndarray,
+                       y: np.ndarray) -> None:  # fmt: skip
+        """Grows the forest in chunks of trees with a progress bar (the default forest takes
+        about a minute on two cores). scikit-learn's warm start draws each added tree's seed
+        from the same random_state sequence, so the forest equals the one a single fit grows."""
+        assert isinstance(est, RandomForestRegressor)
+        total = est.n_estimators
+        if not self.progress or total <= self.PROGRESS_CHUNK:
+            est.fit(x, y)
+            return
+        est.set_params(warm_start=True)
+        with tqdm(total=total, desc=f"{self.name} trees") as bar:
+            for n in range(self.PROGRESS_CHUNK, total + self.PROGRESS_CHUNK, self.PROGRESS_CHUNK):
+                est.set_params(n_estimators=min(n, total))
+                est.fit(x, y)
+                bar.update(len(est.estimators_) - bar.n)
+        est.set_params(warm_start=False)

@@ -131,8 +131,9 @@ def dahl(path: np.ndarray, length: float, reset: np.ndarray | None = None) -> np
 def permanent_set(x: np.ndarray, dt: float, max_m: float, h: dict) -> np.ndarray:
     """The compression set along x (m): grows toward max_m (largest depth / reference)^k while
     the probe is loaded (deeper than a fraction of the largest depth, in contact), recovers
-    toward a kept fraction of it otherwise (a compression-set law of the kind of SPEC section
-    7's; its shape `h` is the fitted `set_law_`, never a material's)."""
+    toward a kept fraction of it otherwise (a compression-set law of the kind of rt-loop's
+    sponge, docs/physics.md, "The simulated sponge bench"; its shape `h` is the fitted
+    `set_law_`, never a material's)."""
     out = np.zeros(len(x))
     if max_m <= 0.0:
         return out
