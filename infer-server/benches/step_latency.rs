@@ -159,8 +159,12 @@ fn main() {
             continue;
         }
         let path = dir.join(format!("{name}.onnx"));
-        let mut engine = StepEngine::load(rt, &path, &schema, &SessionConfig::default())
-            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let run = SessionConfig {
+            io_binding: false,
+            ..SessionConfig::default()
+        };
+        let mut engine =
+            StepEngine::load(rt, &path, &schema, &run).unwrap_or_else(|e| panic!("{name}: {e}"));
         let (p, a) = bench_engine(&mut engine, steps, &mut samples);
         print_row(&format!("{label} (StepEngine Run)"), &p, a);
         drop(engine);
