@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # What each model family costs as infer-server serves it (issue 25): trains one model of each
 # family the product can train (spring-damper, linear, SVR, forests, DNN, LSTM, the feedback
-# networks, prony, structured, lstm_slow; small and fast: the cost of a call depends on the
-# graph, not on how long it trained), exports each with haptics-train (parity with `predict`
+# networks, prony, structured, lstm_slow, lawfree; small and fast: the cost of a call depends on
+# the graph, not on how long it trained), exports each with haptics-train (parity with `predict`
 # checked, 1e-4 N), adds the one-node `identity` graph (the floor of calling ONNX Runtime at
 # all), then serves each through infer-server's own inference thread in process over a real
 # shared-memory segment at 10 kHz (benches/model_families.rs) and prints a table (nodes,

@@ -31,9 +31,9 @@ from haptics_train.vocab import FEATURE_NAMES as SCHEMA_NAMES
 from onnx import TensorProto, helper
 
 #: one model per family (the spring-dampers, linear, SVR, forests, networks, feedback networks,
-#: the structured stateful models)
+#: the structured and law-free stateful models)
 SPECS = ("sd_poly2", "lr:six", "svr:six", "rf:six", "rf:memory", "dnn:six", "lstm:six",
-         "dnn_fb:six", "lstm_fb:six", "prony", "structured", "lstm_slow")  # fmt: skip
+         "dnn_fb:six", "lstm_fb:six", "prony", "structured", "lstm_slow", "lawfree")  # fmt: skip
 
 #: small and fast; the graphs keep their served shapes (the thesis's layer sizes are the
 #: defaults and are not changed here, only how long they train)
