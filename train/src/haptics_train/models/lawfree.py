@@ -16,14 +16,15 @@ hysteresis of the Preisach/Prandtl-Ishlinskii class by a superposition of play o
     s_k(t) = d_k s_k(t - dt) + (1 - d_k) u(t)            fading memory, d_k = exp(-dt / tau_k)
     p_r(t) = min(u + r, max(u - r, p_r(t - dt)))         play operators of half-width r (path)
     q      = [u, v/V, u - s_k, u - p_r]                  inputs: now and the memory terms
-    object = max(0, sum_j q_j (w1_j + w2_j u + w3_j u^2)) x (x > 0)
+    object = max(0, sum_j q_j (w1_j + w2_j w + w3_j w^2)) x (x > 0),  w = min(u, 1)
     bench  = sum_l c_l z_l                               the bench's friction (not rendered),
                                                          c_l >= 0: it dissipates
 
 tau_k 0.01..100 s half a decade apart and r 0.005..0.4 of D are grids of the time and path
 scales, not of any material; D (the largest compression) and V (the 99th percentile of |v|)
-are measured on the training data. Every input enters times 1, u and u^2, so a memory's weight
-may grow with the depth as a relaxing or hysteretic force does in soft materials (a small MLP
+are measured on the training data. Every input enters times 1, w and w^2, so a memory's weight
+may grow with the depth as a relaxing or hysteretic force does in soft materials, up to the
+deepest training press (beyond it the force goes on linearly in u; a small MLP
 readout was tried first and extrapolated badly to rates it was not fitted on). The readout
 and the bench's friction (Dahl states of x, the Coulomb part of what `structured` identifies)
 are fitted together by bounded ridge least squares on the rows where the probe slides, in
@@ -87,11 +88,14 @@ def plays(u: np.ndarray, widths: np.ndarray) -> np.ndarray:
 
 def _readout_columns(z: np.ndarray) -> np.ndarray:
     """[n, 3 q] the readout's terms from its inputs q = [u, v/V, m_1..m_M] (m: the memory
-    terms u - s_k, u - p_r): every input times 1, u and u^2 (so the compression's powers u,
-    u^2, u^3, and a memory whose weight grows with the depth, as a relaxing or hysteretic
-    force does in soft materials): a polynomial readout of a filter bank (Boyd & Chua 1985)."""
-    u = z[:, :1]
-    return np.column_stack([z, u * z, u * u * z])
+    terms u - s_k, u - p_r): every input times 1, w and w^2 with w = min(u, 1) (so the
+    compression's powers u, u^2, u^3, and a memory whose weight grows with the depth, as a
+    relaxing or hysteretic force does in soft materials): a polynomial readout of a filter bank
+    (Boyd & Chua 1985). Past the deepest training press (u > 1) the weights stop growing and
+    the force continues linearly in u: a cubic fitted up to D would run away beyond it (the
+    study's hand presses deeper than the force-controlled recordings)."""
+    w = np.minimum(z[:, :1], 1.0)
+    return np.column_stack([z, w * z, w * w * z])
 
 
 class LawFreeModel(ForceModel):

@@ -10,8 +10,9 @@ state [s (K filters), p (P plays)] at once, so no node slices it:
 - the state in one pass: lin = st A + u B (A = [d_k, 1], B = [1 - d_k, 0]: the filters step,
   the plays keep their value), then clamped to [u - R, u + R] (R = [1e30, r]: the filters are
   never clamped, each play stays within its half-width r of u);
-- the readout sum_j q_j (w1_j + w2_j u + w3_j u^2) as [q] W (one MatMul, W = [w1 w2 w3]) times
-  [1, u, u^2] (one Pow of u by [0, 1, 2], one MatMul), q = [u, v/V, u - state];
+- the readout sum_j q_j (w1_j + w2_j w + w3_j w^2), w = min(u, 1), as [q] W (one MatMul,
+  W = [w1 w2 w3]) times [1, w, w^2] (one Pow of w by [0, 1, 2], one MatMul), q = [u, v/V,
+  u - state];
 - relu, times contact. `c` is passed through.
 """
 
@@ -55,7 +56,9 @@ def lawfree_graph(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
 
     q = g.op("Concat", uv, g.op("Sub", u, state), axis=2)  # [1, 1, 2 + K + P]
     c = g.op("MatMul", q, g.const(w))  # [1, 1, 3]: q.w1, q.w2, q.w3
-    powers = g.op("Pow", u, g.const(np.array([0.0, 1.0, 2.0]).reshape(3, 1)))  # [1, 3, 1]
+    # [1, w, w^2], w = min(u, 1): the weights stop growing past the deepest training press
+    wu = g.op("Min", u, g.const(1.0))
+    powers = g.op("Pow", wu, g.const(np.array([0.0, 1.0, 2.0]).reshape(3, 1)))  # [1, 3, 1]
     f = g.op("MatMul", c, powers)  # [1, 1, 1]
     force = g.op("Mul", g.op("Relu", f), contact)
     return stateful_model(g, len(m.features), k + p, force, state)
