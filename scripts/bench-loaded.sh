@@ -11,7 +11,8 @@
 #     hog       stress-ng on the CPU that is not the loop's
 #     swap      100 hot swaps (hapticctl swap, two copies of the model alternately)
 #     page:FAMILY  the page open again, one run per model family of scripts/bench-models.sh
-#               (target/bench-models/families; FAMILY_SECONDS each, swapped in with hapticctl)
+#               (target/bench-models/families; FAMILY_SECONDS each, swapped in with hapticctl
+#               1 s after the run starts: that second, on the previous model, counts too)
 #   per condition: round trip p50/p99/p99.9, misses per million at 50 us, the steps of every
 #   degradation level, the largest rendered-force change caused by a level change, and the
 #   felt-force RMSE against the same hand programme rendered in lockstep.
@@ -183,9 +184,14 @@ if [ -s "$work/families.txt" ]; then
   page=$!
   pids+=($page)
   while read -r fam; do
+    # A swap needs an attached loop: the run starts on the previous model and swaps after 1 s
+    # (that second is in the row's counts too).
+    run_loop "page_$fam" realtime "$((family_secs + 1))" &
+    loop=$!
+    sleep 1
     target/release/hapticctl swap --addr "http://$grpc" --json "family_$fam" >/dev/null ||
-      { echo "bench-loaded: could not swap to the family $fam" >&2; continue; }
-    run_loop "page_$fam" realtime "$family_secs"
+      echo "bench-loaded: could not swap to the family $fam" >&2
+    wait "$loop" || true
   done <"$work/families.txt"
   kill -USR2 "$page" 2>/dev/null || true
   wait "$page" || true

@@ -9,8 +9,8 @@
 # p50/p99/p99.9/max per call in us, allocations per call) and as its LAST line one JSON object:
 #   {"families": {NAME: {"p50_us", "p99_us", "p999_us", ...}}, "identity_p50_us": ..}
 #
-# Usage: scripts/bench-models.sh [--retrain]   (about 3-6 minutes on 2 cores the first time;
-#        later runs re-export the models already trained and take about a minute)
+# Usage: scripts/bench-models.sh [--retrain]   (the first run trains: minutes on 2 cores, see
+#        docs/infer-server.md; later runs re-export the models already trained)
 # Env:   BENCH_DATASET (default data/dataset when it holds a test recording, else a small
 #        dataset recorded once into BENCH_DIR/dataset with rt-loop run), BENCH_DIR (default
 #        target/bench-models), BENCH_STEPS (measured steps per model, default 20000).
