@@ -2,15 +2,17 @@
 # The conditions users create, measured against this machine's own floor (issue 14):
 #   floor     two threads pass a message every 100 us through a shared-memory ring, spinning, on
 #             the CPUs the product uses: misses per million at 50 us (tests/benches/machine_floor.rs)
-#   in-process  ONNX Runtime's call of the bench's model, p50 (same bench)
-#   the product: infer-server with its automatic profile, rt-loop on the simulated bench, the
-#   bench's model (HAPTICS_MODEL, default rf_six: the thesis's random forest on six features,
-#   trained if missing; not the model scripts/up.sh serves) rendering in reproduction with the
-#   simulated hand, realtime 10 kHz:
+#   in-process  ONNX Runtime's call of the default model, p50 (same bench)
+#   the product: infer-server with its automatic profile, rt-loop on the simulated bench, the model
+#   users get (the one models/recommendation.json names, as scripts/up.sh serves it; printed)
+#   rendering in reproduction with the simulated hand, realtime 10 kHz:
 #     idle      nothing else running
 #     page      the page open in headless Chromium (web-ui/bench/page-cpu.mjs --hold)
 #     hog       stress-ng on the CPU that is not the loop's
 #     swap      100 hot swaps (hapticctl swap, two copies of the model alternately)
+#     page:FAMILY  the page open again, one run per model family of scripts/bench-models.sh
+#               (target/bench-models/families; FAMILY_SECONDS each, swapped in with hapticctl
+#               1 s after the run starts: that second, on the previous model, counts too)
 #   per condition: round trip p50/p99/p99.9, misses per million at 50 us, the steps of every
 #   degradation level, the largest rendered-force change caused by a level change, and the
 #   felt-force RMSE against the same hand programme rendered in lockstep.
@@ -18,7 +20,10 @@
 #
 # Usage: scripts/bench-loaded.sh            (a few minutes; builds what it needs)
 # Env:   BENCH_SECONDS (per condition, default 20), FLOOR_SECONDS (default 20), SWAPS (100),
-#        BENCH_DIR (default target/bench-loaded), HAPTICS_MODEL (default rf_six),
+#        BENCH_DIR (default target/bench-loaded), HAPTICS_MODEL (default: the model
+#        models/recommendation.json recommends, else rf_six), FAMILIES_DIR (default
+#        target/bench-models/families: the page:FAMILY rows; none when it is missing or empty),
+#        FAMILY_SECONDS (default 10),
 #        HAPTICS_BOARD (the realtime runs' board: sim, default; or s826, on HAPTICS_S826_LIB, by
 #        default the C-ABI double target/release/libs826_double.so simulating the same hand, its
 #        watchdog HAPTICS_S826_WATCHDOG_US, default 100000; the lockstep references stay on sim;
@@ -30,8 +35,19 @@ cd "$(dirname "$0")/.."
 root=$PWD
 secs=${BENCH_SECONDS:-20}
 swaps=${SWAPS:-100}
-model=${HAPTICS_MODEL:-rf_six}
 say() { printf '==> %s\n' "$*" >&2; }
+# The model users get: the recommendation (scripts/up.sh serves the same), else rf_six.
+recommended=$(.venv/bin/python -c 'import json; print(json.load(open("models/recommendation.json"))["recommended"])' 2>/dev/null || true)
+model=${HAPTICS_MODEL:-${recommended:-rf_six}}
+if [ -n "${HAPTICS_MODEL:-}" ]; then
+  say "model: $model (HAPTICS_MODEL)"
+elif [ -n "$recommended" ]; then
+  say "model: $model (the one models/recommendation.json recommends; HAPTICS_MODEL overrides)"
+else
+  say "model: $model (no models/recommendation.json; HAPTICS_MODEL overrides)"
+fi
+families_dir=${FAMILIES_DIR:-target/bench-models/families}
+family_secs=${FAMILY_SECONDS:-10}
 
 # ---- tools ---------------------------------------------------------------------------------
 if ! command -v stress-ng >/dev/null || ! command -v cyclictest >/dev/null; then
@@ -52,7 +68,10 @@ cargo bench -p haptics-system-tests --bench machine_floor --no-run >&2
 if [ ! -f "models/$model.onnx" ]; then
   say "no models/$model.onnx: recording the dataset and training it (as scripts/up.sh does)"
   [ -f data/dataset/test_2.1.parquet ] || bash scripts/record-dataset.sh data/dataset >&2
-  spec="${model%_*}:${model##*_}"
+  case "$model" in
+    sd_*|prony|structured|lstm_slow) spec=$model ;;
+    *) spec="${model%_*}:${model##*_}" ;; # rf_six -> rf:six, dnn_fb_six -> dnn_fb:six
+  esac
   .venv/bin/haptics-train train --models "$spec" >&2
   .venv/bin/haptics-train export --names "$model" >&2
 fi
@@ -61,6 +80,17 @@ work=${BENCH_DIR:-target/bench-loaded}/run-$(date +%Y%m%d-%H%M%S)
 mkdir -p "$work/models"
 cp "models/$model.onnx" "$work/models/$model.onnx"
 cp "models/$model.onnx" "$work/models/${model}_b.onnx" # the same model under a second name: swaps
+: >"$work/families.txt"
+if [ -d "$families_dir" ]; then
+  for f in "$families_dir"/*.onnx; do
+    [ -e "$f" ] || continue
+    fam=$(basename "$f" .onnx)
+    [ "$fam" = identity ] && continue
+    cp "$f" "$work/models/family_$fam.onnx"
+    echo "$fam" >>"$work/families.txt"
+  done
+fi
+[ -s "$work/families.txt" ] || say "no model families in $families_dir (scripts/bench-models.sh makes them): no page:FAMILY rows"
 instance="bench-loaded-$$"
 pids=()
 cleanup() {
@@ -163,8 +193,27 @@ sleep 0.5
 pkill -INT -P "$loop" 2>/dev/null || true
 wait "$loop" || true
 
+if [ -s "$work/families.txt" ]; then
+  say "page open, one run per model family ($family_secs s each)"
+  (cd web-ui && exec node bench/page-cpu.mjs --url "$http" --hold) >"$work/page-cpu-families.out" 2>&1 &
+  page=$!
+  pids+=($page)
+  while read -r fam; do
+    # A swap needs an attached loop: the run starts on the previous model and swaps after 1 s
+    # (that second is in the row's counts too).
+    run_loop "page_$fam" realtime "$((family_secs + 1))" &
+    loop=$!
+    sleep 1
+    target/release/hapticctl swap --addr "http://$grpc" --json "family_$fam" >/dev/null ||
+      echo "bench-loaded: could not swap to the family $fam" >&2
+    wait "$loop" || true
+  done <"$work/families.txt"
+  kill -USR2 "$page" 2>/dev/null || true
+  wait "$page" || true
+fi
+
 # ---- figures ------------------------------------------------------------------------------
-.venv/bin/python - "$work" "$swaps" <<'PY'
+.venv/bin/python - "$work" "$swaps" "$model" <<'PY'
 """Reads the runs' summaries and recordings; prints the table and the JSON line."""
 import json
 import math
@@ -177,6 +226,8 @@ import pyarrow.parquet as pq
 
 work = Path(sys.argv[1])
 n_swaps = int(sys.argv[2])
+served = sys.argv[3]
+families = [f for f in (work / "families.txt").read_text().split() if (work / f"page_{f}.json").exists()]
 floor = json.loads((work / "floor.json").read_text())
 
 
@@ -199,7 +250,7 @@ def rmse(run: dict[str, np.ndarray], ref: dict[str, np.ndarray]) -> float:
 
 lock_vs_shadow = rmse(lock, shadow)
 rows = {}
-for name in ["idle", "page", "hog", "swap"]:
+for name in ["idle", "page", "hog", "swap", *(f"page_{f}" for f in families)]:
     s = json.loads((work / f"{name}.json").read_text())
     rec = cols(name, ["step", "time", "F_true", "fallback"])
     steps = s["steps"]
@@ -260,14 +311,14 @@ def f(x, d=2):
     return "n/a" if x is None else (f"{x:.{d}f}" if isinstance(x, float) else str(x))
 
 
-print(f"bench-loaded ({work}); load average now {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+print(f"bench-loaded ({work}); model {served}; load average now {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
 print(f"machine floor: {floor['floor_round_trips']} round trips, p50 {floor['floor_p50_us']:.2f} us p99.9 {floor['floor_p999_us']:.2f} us, misses {floor['floor_miss_pm']:.0f} per million")
 print(f"in-process ONNX Runtime call: p50 {floor['inprocess_p50_us']:.2f} us")
 print(f"lockstep reference vs shadow (the model's own felt-force error): {lock_vs_shadow:.4f} N RMS")
 hdr = ["condition", "steps", "rtt p50", "p99", "p99.9 us", "miss/M", "on_time", "late_one", "held", "fallback", "late frac", "max step N", "felt vs lockstep N", "felt vs shadow N"]
 print(" | ".join(hdr))
 for name, r in rows.items():
-    print(" | ".join([name, str(r["steps"]), f(r["p50"]), f(r["p99"]), f(r["p999"]), f(r["miss_pm"], 0),
+    print(" | ".join([name.replace("page_", "page:", 1), str(r["steps"]), f(r["p50"]), f(r["p99"]), f(r["p999"]), f(r["miss_pm"], 0),
                       f(r["on_time"]), f(r["late_one"]), f(r["held"]), f(r["fallback"]), f(r["late_fraction"], 5),
                       f(r["max_step_n"], 4), f(r["felt_vs_lockstep"], 4), f(r["felt_vs_shadow"], 4)]))
 sw = rows["swap"]
@@ -286,6 +337,9 @@ out = {
     "felt_rmse_page_over_lockstep": rows["page"]["felt_vs_shadow"] / lock_vs_shadow if lock_vs_shadow > 0 else None,
     "swap_lost_steps": sw["lost"],
     "swap_miss_ratio": sw["swap_miss_ratio"] if math.isfinite(sw["swap_miss_ratio"]) else None,
+    "model": served,
+    "idle_late_fraction": rows["idle"]["late_fraction"],
+    "family_page_late_fraction": {f: rows[f"page_{f}"]["late_fraction"] for f in families},
 }
 print(json.dumps(out))
 PY

@@ -24,7 +24,25 @@ pub fn model_json(m: &pb::ModelInfo) -> Value {
         "model_id": m.model_id,
         "active_since_step": (m.state() == pb::ModelState::Active).then_some(m.active_since_step),
         "provenance": serde_json::from_str::<Value>(&m.provenance_json).unwrap_or(Value::Null),
+        "cost": serde_json::from_str::<Value>(&m.cost_json).unwrap_or(Value::Null),
     })
+}
+
+/// What one call costs, in a few characters: the export's p50/p99 (measured on the exporting
+/// machine, `haptics.cost`) and this server's warm-up median, us; `-` for what is unknown
+/// (a model not loaded, or exported without the measurement).
+pub fn cost_cell(m: &pb::ModelInfo) -> String {
+    let cost = serde_json::from_str::<Value>(&m.cost_json).unwrap_or(Value::Null);
+    let us = |part: &str, key: &str| cost[part][key].as_f64().map(|v| format!("{v:.1}"));
+    let export = match (us("export", "p50_us"), us("export", "p99_us")) {
+        (Some(a), Some(b)) => format!("{a}/{b}"),
+        _ => "-".into(),
+    };
+    match us("warmup", "p50_us") {
+        Some(w) => format!("{export} (here {w})"),
+        None if export == "-" => "-".into(),
+        None => export,
+    }
 }
 
 pub fn models_table(models: &[pb::ModelInfo]) -> String {
@@ -39,16 +57,17 @@ pub fn models_table(models: &[pb::ModelInfo]) -> String {
         .unwrap_or(4)
         .max(4);
     let mut out = format!(
-        "{:<width$}  {:<9}  {:<9}  {:>9}  FEATURES\n",
-        "NAME", "STATE", "KIND", "SIZE"
+        "{:<width$}  {:<9}  {:<9}  {:>9}  {:<22}  FEATURES\n",
+        "NAME", "STATE", "KIND", "SIZE", "COST us p50/p99"
     );
     for m in models {
         let mut line = format!(
-            "{:<width$}  {:<9}  {:<9}  {:>9}  {}",
+            "{:<width$}  {:<9}  {:<9}  {:>9}  {:<22}  {}",
             m.name,
             state_name(m),
             if m.kind.is_empty() { "-" } else { &m.kind },
             human_bytes(m.size_bytes),
+            cost_cell(m),
             if m.features.is_empty() {
                 "-".to_string()
             } else {
@@ -291,4 +310,30 @@ pub fn sample_line(x: &pb::TelemetrySample) -> String {
         x.velocity * 1e3,
         x.fallbacks
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn with_cost(cost: &str) -> pb::ModelInfo {
+        pb::ModelInfo {
+            name: "m".into(),
+            cost_json: cost.into(),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn cost_cell_shows_the_export_and_the_warm_up() {
+        let both = r#"{"export":{"p50_us":3.14,"p99_us":9.0},"warmup":{"p50_us":2.5}}"#;
+        assert_eq!(cost_cell(&with_cost(both)), "3.1/9.0 (here 2.5)");
+        let warm_only = r#"{"export":null,"warmup":{"p50_us":2.5}}"#;
+        assert_eq!(cost_cell(&with_cost(warm_only)), "- (here 2.5)");
+        assert_eq!(cost_cell(&with_cost("")), "-");
+        assert_eq!(
+            model_json(&with_cost(both))["cost"]["export"]["p99_us"],
+            9.0
+        );
+    }
 }

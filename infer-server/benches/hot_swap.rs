@@ -143,15 +143,7 @@ fn main() {
     let mut seq = 0u64;
     let mut next = Instant::now() + period;
     while !done.load(Ordering::Relaxed) {
-        if wait != WaitStrategy::Spin {
-            let now = Instant::now();
-            if next > now + Duration::from_micros(30) {
-                std::thread::sleep(next - now - Duration::from_micros(30));
-            }
-        }
-        while Instant::now() < next {
-            std::hint::spin_loop();
-        }
+        common::pace_until(next, wait != WaitStrategy::Spin);
         next += period;
         seq += 1;
         msg.seq = seq;

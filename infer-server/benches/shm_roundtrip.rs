@@ -193,15 +193,7 @@ fn main() {
         let mut misses = 0u64;
         let mut next = Instant::now() + period;
         for _ in 0..steps {
-            if wait != WaitStrategy::Spin {
-                let now = Instant::now();
-                if next > now + Duration::from_micros(30) {
-                    std::thread::sleep(next - now - Duration::from_micros(30));
-                }
-            }
-            while Instant::now() < next {
-                std::hint::spin_loop();
-            }
+            common::pace_until(next, wait != WaitStrategy::Spin);
             next += period;
             let took = one(&mut msg, &mut seq).as_nanos() as u64;
             if took > deadline {

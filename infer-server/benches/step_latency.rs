@@ -7,81 +7,15 @@
 //! Models are generated with the project's venv (benches/make_bench_models.py: scikit-learn +
 //! skl2onnx random forest 100 x depth 9, torch dense 9-150-25-1, torch LSTM 100 units).
 
-// The interposers below are `unsafe extern "C"` with the libc contracts; no per-function docs.
-#![allow(clippy::missing_safety_doc)]
-
 mod common;
+#[path = "common/malloc_count.rs"]
+mod malloc_count;
 
 use common::bench_models;
-use std::ffi::c_void;
 use std::path::Path;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Instant;
 
 use infer_server::{FeatureSchema, Runtime, SessionConfig, StepEngine};
-
-// ---- malloc interposer: counts allocations while COUNTING is on -------------------------------
-// SAFETY (all six): same contracts as the libc functions they replace, which they call.
-// Symbols defined in the executable take precedence over glibc's for every shared library in
-// the process, libonnxruntime.so included. Each forwards to glibc's real implementation.
-
-static COUNTING: AtomicBool = AtomicBool::new(false);
-static C_ALLOCS: AtomicU64 = AtomicU64::new(0);
-
-extern "C" {
-    fn __libc_malloc(size: usize) -> *mut c_void;
-    fn __libc_calloc(n: usize, size: usize) -> *mut c_void;
-    fn __libc_realloc(p: *mut c_void, size: usize) -> *mut c_void;
-    fn __libc_memalign(align: usize, size: usize) -> *mut c_void;
-}
-
-#[inline(always)]
-fn count() {
-    if COUNTING.load(Ordering::Relaxed) {
-        C_ALLOCS.fetch_add(1, Ordering::Relaxed);
-    }
-}
-
-#[no_mangle]
-pub unsafe extern "C" fn malloc(size: usize) -> *mut c_void {
-    count();
-    unsafe { __libc_malloc(size) }
-}
-
-#[no_mangle]
-pub unsafe extern "C" fn calloc(n: usize, size: usize) -> *mut c_void {
-    count();
-    unsafe { __libc_calloc(n, size) }
-}
-
-#[no_mangle]
-pub unsafe extern "C" fn realloc(p: *mut c_void, size: usize) -> *mut c_void {
-    count();
-    unsafe { __libc_realloc(p, size) }
-}
-
-#[no_mangle]
-pub unsafe extern "C" fn posix_memalign(out: *mut *mut c_void, align: usize, size: usize) -> i32 {
-    count();
-    let p = unsafe { __libc_memalign(align, size) };
-    if p.is_null() {
-        return libc::ENOMEM;
-    }
-    unsafe { *out = p };
-    0
-}
-
-#[no_mangle]
-pub unsafe extern "C" fn aligned_alloc(align: usize, size: usize) -> *mut c_void {
-    count();
-    unsafe { __libc_memalign(align, size) }
-}
-
-#[no_mangle]
-pub unsafe extern "C" fn memalign(align: usize, size: usize) -> *mut c_void {
-    count();
-    unsafe { __libc_memalign(align, size) }
-}
 
 // ---- benchmark ------------------------------------------------------------------------------
 
@@ -134,16 +68,14 @@ fn bench_engine(
         sink += engine.step(&v).unwrap();
     }
     samples.clear();
-    C_ALLOCS.store(0, Ordering::Relaxed);
-    COUNTING.store(true, Ordering::Relaxed);
+    malloc_count::start();
     for t in 0..steps {
         input_at(t, &mut v);
         let t0 = Instant::now();
         sink += engine.step(&v).unwrap();
         samples.push(t0.elapsed().as_nanos() as u64);
     }
-    COUNTING.store(false, Ordering::Relaxed);
-    let allocs = C_ALLOCS.load(Ordering::Relaxed) as f64 / steps as f64;
+    let allocs = malloc_count::stop() as f64 / steps as f64;
     std::hint::black_box(sink);
     (percentiles(samples), allocs)
 }
@@ -177,15 +109,13 @@ fn bench_safe_run(path: &Path, steps: usize, samples: &mut Vec<u64>) -> (Percent
         sink += run(t);
     }
     samples.clear();
-    C_ALLOCS.store(0, Ordering::Relaxed);
-    COUNTING.store(true, Ordering::Relaxed);
+    malloc_count::start();
     for t in 0..steps {
         let t0 = Instant::now();
         sink += run(t);
         samples.push(t0.elapsed().as_nanos() as u64);
     }
-    COUNTING.store(false, Ordering::Relaxed);
-    let allocs = C_ALLOCS.load(Ordering::Relaxed) as f64 / steps as f64;
+    let allocs = malloc_count::stop() as f64 / steps as f64;
     std::hint::black_box(sink);
     (percentiles(samples), allocs)
 }
@@ -229,8 +159,12 @@ fn main() {
             continue;
         }
         let path = dir.join(format!("{name}.onnx"));
-        let mut engine = StepEngine::load(rt, &path, &schema, &SessionConfig::default())
-            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let run = SessionConfig {
+            io_binding: false,
+            ..SessionConfig::default()
+        };
+        let mut engine =
+            StepEngine::load(rt, &path, &schema, &run).unwrap_or_else(|e| panic!("{name}: {e}"));
         let (p, a) = bench_engine(&mut engine, steps, &mut samples);
         print_row(&format!("{label} (StepEngine Run)"), &p, a);
         drop(engine);

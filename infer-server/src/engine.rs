@@ -3,9 +3,11 @@
 //!
 //! Hot path ([`StepEngine::step`]): gather the model's features from the schema-ordered vector
 //! into the preallocated input buffer, call ONNX Runtime's C `Run` with the input and output
-//! values created at load time, read the force from the preallocated output, and (stateful
-//! models) copy `h_out`/`c_out` into `h_in`/`c_in`. The Rust side allocates nothing and takes no
-//! lock: the name and value pointer arrays are built once here, and `ort`'s safe `run`
+//! values created at load time, read the force from the preallocated output. A stateful model's
+//! state lives in two pairs of tensors that swap roles every step (ping-pong): the step's
+//! `h_out`/`c_out` are written straight into the tensors the next step binds as `h_in`/`c_in`,
+//! so the state is never copied. The Rust side allocates nothing and takes no lock: the name
+//! and value pointer arrays (one set per phase) are built once here, and `ort`'s safe `run`
 //! (which builds `SmallVec`s, C strings and a `SessionOutputs` map on every call) is bypassed.
 //! What ONNX Runtime does inside `Run` is its own business; `benches/step_latency.rs` counts the
 //! `malloc` calls it makes per step (see docs/infer-server.md for the figures).
@@ -111,12 +113,11 @@ impl ErrorText {
     }
 }
 
-/// Raw pointers into the recurrent-state tensors owned by the engine.
+/// Raw pointers into the recurrent-state tensors owned by the engine: two pairs, `h[p]`/`c[p]`
+/// holding the current state in phase `p`, the other pair receiving the next.
 struct StateBuffers {
-    h_in: *mut f32,
-    c_in: *mut f32,
-    h_out: *const f32,
-    c_out: *const f32,
+    h: [*mut f32; 2],
+    c: [*mut f32; 2],
     len: usize,
 }
 
@@ -131,12 +132,15 @@ pub struct StepEngine {
     _outputs: Vec<Tensor<f32>>,
     _names: Vec<CString>,
     in_names: Box<[*const c_char]>,
-    in_values: Box<[*const OrtValue]>,
+    /// Per phase (see [`StateBuffers`]; a stateless model uses phase 0 only).
+    in_values: [Box<[*const OrtValue]>; 2],
     out_names: Box<[*const c_char]>,
-    out_values: Box<[*mut OrtValue]>,
+    out_values: [Box<[*mut OrtValue]>; 2],
     features: *mut f32,
     force: *const f32,
     state: Option<StateBuffers>,
+    /// Which pair holds the current state (always 0 for a stateless model).
+    phase: usize,
     input_map: Box<[usize]>,
     schema_len: usize,
     last_error: ErrorText,
@@ -145,8 +149,9 @@ pub struct StepEngine {
     /// stop a load that ran out of time in the middle of a run.
     _run_options_owner: Arc<RunOptions>,
     run_options: *mut OrtRunOptions,
-    /// With `SessionConfig::io_binding`: inputs and outputs bound once, `RunWithBinding` per step.
-    binding: *mut OrtIoBinding,
+    /// With `SessionConfig::io_binding`: inputs and outputs bound once per phase,
+    /// `RunWithBinding` per step.
+    binding: [*mut OrtIoBinding; 2],
 }
 
 impl Drop for StepEngine {
@@ -156,8 +161,10 @@ impl Drop for StepEngine {
         // SAFETY: created in `load` by ONNX Runtime, released exactly once here (the run
         // options are `_run_options_owner`'s, released when the last `Arc` goes).
         unsafe {
-            if !self.binding.is_null() {
-                (api.ReleaseIoBinding)(self.binding);
+            for b in self.binding {
+                if !b.is_null() {
+                    (api.ReleaseIoBinding)(b);
+                }
             }
         }
     }
@@ -258,6 +265,7 @@ impl StepEngine {
             features_shape: sig.features_shape.clone(),
             state_shape: sig.state_shape.clone(),
             force_shape: Vec::new(),
+            cost: Box::new(serde_json::json!({ "export": model::read_cost(&session) })),
         };
 
         // Inputs, in the contract's order.
@@ -320,15 +328,36 @@ impl StepEngine {
             .iter()
             .map(|c| c.as_ptr())
             .collect();
-        let in_values: Box<[*const OrtValue]> = inputs.iter().map(|t| t.ptr()).collect();
-        let out_values: Box<[*mut OrtValue]> = outputs.iter_mut().map(|t| t.ptr_mut()).collect();
+        // Phase 0: the state pairs as allocated (inputs[1..] in, outputs[1..] out); phase 1:
+        // the same tensors with their roles swapped. A stateless model has no state pairs:
+        // both phases are the same.
+        let phases = [0usize, 1].map(|phase| {
+            let (ins, outs): (Vec<*const OrtValue>, Vec<*mut OrtValue>) = if phase == 0 {
+                (
+                    inputs
+                        .iter_mut()
+                        .map(|t| t.ptr_mut().cast_const())
+                        .collect(),
+                    outputs.iter_mut().map(|t| t.ptr_mut()).collect(),
+                )
+            } else {
+                (
+                    std::iter::once(inputs[0].ptr_mut().cast_const())
+                        .chain(outputs[1..].iter_mut().map(|t| t.ptr_mut().cast_const()))
+                        .collect(),
+                    std::iter::once(outputs[0].ptr_mut())
+                        .chain(inputs[1..].iter_mut().map(|t| t.ptr_mut()))
+                        .collect(),
+                )
+            };
+            (ins.into_boxed_slice(), outs.into_boxed_slice())
+        });
+        let [(in0, out0), (in1, out1)] = phases;
         let features = data_mut(&mut inputs[0]);
         let force = data_mut(&mut outputs[0]).cast_const();
         let state = sig.state_shape.as_ref().map(|s| StateBuffers {
-            h_in: data_mut(&mut inputs[1]),
-            c_in: data_mut(&mut inputs[2]),
-            h_out: data_mut(&mut outputs[1]).cast_const(),
-            c_out: data_mut(&mut outputs[2]).cast_const(),
+            h: [data_mut(&mut inputs[1]), data_mut(&mut outputs[1])],
+            c: [data_mut(&mut inputs[2]), data_mut(&mut outputs[2])],
             // Checked by `zeros` above, which allocated these buffers.
             len: checked_elements(s).unwrap_or(0),
         });
@@ -342,42 +371,68 @@ impl StepEngine {
             _outputs: outputs,
             _names: names,
             in_names,
-            in_values,
+            in_values: [in0, in1],
             out_names,
-            out_values,
+            out_values: [out0, out1],
             features,
             force,
             state,
+            phase: 0,
             last_error: ErrorText {
                 buf: [0; 256],
                 len: 0,
             },
             run_options: run_options.ptr().cast_mut(),
             _run_options_owner: run_options,
-            binding: ptr::null_mut(),
+            binding: [ptr::null_mut(); 2],
         };
         let api = ort::api();
         // SAFETY: plain ONNX Runtime C calls; every pointer passed is owned by `engine` and
         // outlives the objects created (released in Drop before the session and tensors).
         unsafe {
             if cfg.io_binding {
-                setup_status(
-                    "CreateIoBinding",
-                    (api.CreateIoBinding)(engine.session.ptr().cast_mut(), &mut engine.binding),
-                )?;
-                for (name, value) in engine.in_names.iter().zip(engine.in_values.iter()) {
-                    setup_status("BindInput", (api.BindInput)(engine.binding, *name, *value))?;
-                }
-                for (name, value) in engine.out_names.iter().zip(engine.out_values.iter()) {
+                let phases = if engine.state.is_some() { 2 } else { 1 };
+                for p in 0..phases {
+                    let mut binding = ptr::null_mut();
                     setup_status(
-                        "BindOutput",
-                        (api.BindOutput)(engine.binding, *name, *value),
+                        "CreateIoBinding",
+                        (api.CreateIoBinding)(engine.session.ptr().cast_mut(), &mut binding),
                     )?;
+                    engine.binding[p] = binding;
+                    for (name, value) in engine.in_names.iter().zip(engine.in_values[p].iter()) {
+                        setup_status("BindInput", (api.BindInput)(binding, *name, *value))?;
+                    }
+                    for (name, value) in engine.out_names.iter().zip(engine.out_values[p].iter()) {
+                        setup_status("BindOutput", (api.BindOutput)(binding, *name, *value))?;
+                    }
                 }
             }
         }
-        engine.warm_up(cfg.warmup_runs.max(1))?;
+        let times = engine.warm_up(cfg.warmup_runs.max(1))?;
+        engine.info.cost["warmup"] = warmup_cost(&times);
         Ok(engine)
+    }
+
+    /// Why this model may not answer within the loop's deadline on this machine, from its
+    /// warm-up (and its export's measurement); `None` when nothing says so. Printed by the
+    /// server when it loads the model.
+    pub fn cost_warning(&self) -> Option<String> {
+        let us = |v: &serde_json::Value, k: &str| v.get(k).and_then(|x| x.as_f64());
+        let warm = us(&self.info.cost["warmup"], "p50_us");
+        let export = us(&self.info.cost["export"], "p99_us");
+        let deadline = model::LOOP_DEADLINE_US;
+        match (warm, export) {
+            (Some(p50), _) if p50 > deadline => Some(format!(
+                "its warm-up steps took {p50:.1} us (median) on this machine, over the loop's \
+                 {deadline:.0} us deadline: it cannot answer in time here (the loop renders \
+                 its steps late or held)"
+            )),
+            (_, Some(p99)) if p99 > deadline => Some(format!(
+                "its export measured {p99:.1} us per call at p99, over the loop's {deadline:.0} \
+                 us deadline: some steps will be answered late"
+            )),
+            _ => None,
+        }
     }
 
     pub fn info(&self) -> &ModelInfo {
@@ -415,12 +470,9 @@ impl StepEngine {
         self.run_raw()?;
         // SAFETY: `force` points at the one float of the preallocated force output.
         let force = unsafe { *self.force };
-        if let Some(s) = &self.state {
-            // SAFETY: the four state buffers hold `len` floats each and never overlap.
-            unsafe {
-                ptr::copy_nonoverlapping(s.h_out, s.h_in, s.len);
-                ptr::copy_nonoverlapping(s.c_out, s.c_in, s.len);
-            }
+        if self.state.is_some() {
+            // The state just written is the next step's input: swap roles, copy nothing.
+            self.phase ^= 1;
         }
         Ok(force)
     }
@@ -433,10 +485,10 @@ impl StepEngine {
     /// Zeroes the recurrent state (a new run starts). No-op for stateless models.
     pub fn reset(&mut self) {
         if let Some(s) = &self.state {
-            // SAFETY: see `step`.
+            // SAFETY: each state buffer holds `len` floats owned by self.
             unsafe {
-                ptr::write_bytes(s.h_in, 0, s.len);
-                ptr::write_bytes(s.c_in, 0, s.len);
+                ptr::write_bytes(s.h[self.phase], 0, s.len);
+                ptr::write_bytes(s.c[self.phase], 0, s.len);
             }
         }
     }
@@ -444,21 +496,22 @@ impl StepEngine {
     /// The current hidden state `h` (empty for stateless models). For tests and diagnostics.
     pub fn hidden_state(&self) -> &[f32] {
         match &self.state {
-            // SAFETY: `h_in` holds `len` floats owned by self; the borrow ties them to &self.
-            Some(s) => unsafe { std::slice::from_raw_parts(s.h_in, s.len) },
+            // SAFETY: `h[phase]` holds `len` floats owned by self; the borrow ties them to &self.
+            Some(s) => unsafe { std::slice::from_raw_parts(s.h[self.phase], s.len) },
             None => &[],
         }
     }
 
     #[inline]
     fn run_raw(&mut self) -> Result<(), StepError> {
-        if !self.binding.is_null() {
+        let binding = self.binding[self.phase];
+        if !binding.is_null() {
             // SAFETY: as below; the binding holds our input and output values, bound at load.
             let status = unsafe {
                 (ort::api().RunWithBinding)(
                     self.session.ptr().cast_mut(),
                     self.run_options,
-                    self.binding,
+                    binding,
                 )
             };
             return if status.0.is_null() {
@@ -475,11 +528,11 @@ impl StepEngine {
                 self.session.ptr().cast_mut(),
                 self.run_options,
                 self.in_names.as_ptr(),
-                self.in_values.as_ptr(),
-                self.in_values.len(),
+                self.in_values[self.phase].as_ptr(),
+                self.in_values[self.phase].len(),
                 self.out_names.as_ptr(),
                 self.out_names.len(),
-                self.out_values.as_mut_ptr(),
+                self.out_values[self.phase].as_mut_ptr(),
             )
         };
         if status.0.is_null() {
@@ -500,9 +553,11 @@ impl StepEngine {
         self.reset();
     }
 
-    fn warm_up(&mut self, runs: usize) -> Result<(), ModelError> {
+    /// Returns each step's time (ns; off the hot path: it allocates).
+    fn warm_up(&mut self, runs: usize) -> Result<Vec<u64>, ModelError> {
         let n = self.input_map.len();
         let mut input = vec![0f32; self.schema_len];
+        let mut times = Vec::with_capacity(runs);
         for r in 0..runs {
             // zeros, ones, then a deterministic spread of small and unit-scale values.
             for (j, v) in input.iter_mut().enumerate() {
@@ -512,7 +567,10 @@ impl StepEngine {
                     _ => (((r * 7 + j * 13) % 17) as f32 - 8.0) / 8.0,
                 };
             }
-            let force = self.step(&input).map_err(|e| ModelError::RunFailed {
+            let t0 = std::time::Instant::now();
+            let step = self.step(&input);
+            times.push(t0.elapsed().as_nanos() as u64);
+            let force = step.map_err(|e| ModelError::RunFailed {
                 reason: format!("{e}: {}", self.last_error_message()),
             })?;
             let model_input: Vec<f32> = self.input_map.iter().map(|&i| input[i]).collect();
@@ -524,11 +582,11 @@ impl StepEngine {
                 });
             }
             if let Some(s) = &self.state {
-                // SAFETY: see `step`; h_in/c_in now hold the copied h_out/c_out.
+                // SAFETY: the current pair holds the state the step just wrote, `len` floats each.
                 let (h, c) = unsafe {
                     (
-                        std::slice::from_raw_parts(s.h_in, s.len),
-                        std::slice::from_raw_parts(s.c_in, s.len),
+                        std::slice::from_raw_parts(s.h[self.phase], s.len),
+                        std::slice::from_raw_parts(s.c[self.phase], s.len),
                     )
                 };
                 for (name, buf) in [(OUTPUT_H, h), (OUTPUT_C, c)] {
@@ -544,8 +602,26 @@ impl StepEngine {
             debug_assert_eq!(model_input.len(), n);
         }
         self.reset();
-        Ok(())
+        Ok(times)
     }
+}
+
+/// The warm-up's cost, leaving out its first steps (ONNX Runtime's first runs plan memory and
+/// fault pages in: not what a served step costs).
+fn warmup_cost(times_ns: &[u64]) -> serde_json::Value {
+    let skip = (times_ns.len() / 4).min(8);
+    let mut t: Vec<u64> = times_ns[skip..].to_vec();
+    if t.is_empty() {
+        return serde_json::Value::Null;
+    }
+    t.sort_unstable();
+    let us = |ns: u64| (ns as f64 / 10.0).round() / 100.0;
+    serde_json::json!({
+        "p50_us": us(t[(t.len() - 1) / 2]),
+        "max_us": us(*t.last().unwrap_or(&0)),
+        "steps": t.len(),
+        "deadline_us": model::LOOP_DEADLINE_US,
+    })
 }
 
 /// An output's shape and values.

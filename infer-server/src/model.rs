@@ -28,8 +28,10 @@ pub struct SessionConfig {
     pub spinning: bool,
     /// Warm-up runs before a model is accepted (at least 1: the finite-output check).
     pub warmup_runs: usize,
-    /// Bind inputs and outputs once (`OrtIoBinding`) and step with `RunWithBinding` instead
-    /// of `Run` with preallocated outputs. Both write into the same preallocated buffers.
+    /// Bind inputs and outputs once (`OrtIoBinding`, one binding per state phase) and step with
+    /// `RunWithBinding` instead of `Run` with preallocated outputs. Both write into the same
+    /// preallocated buffers; the binding makes ONNX Runtime allocate 1-4 fewer times per call
+    /// at the same speed (`scripts/bench-models.sh`), so it is the default.
     pub io_binding: bool,
     /// How long the server's registry lets a load (session, checks, warm-up) take before it
     /// stops it ([`crate::engine::load_bounded`]); 10 s by default.
@@ -46,7 +48,7 @@ impl Default for SessionConfig {
             intra_threads: 1,
             spinning: false,
             warmup_runs: 32,
-            io_binding: false,
+            io_binding: true,
             load_timeout: std::time::Duration::from_secs(10),
             memory_limit: None,
         }
@@ -74,6 +76,25 @@ pub struct ModelInfo {
     pub state_shape: Option<Vec<i64>>,
     /// Shape of the `force` output as the model produces it for one sample.
     pub force_shape: Vec<i64>,
+    /// What one call costs: `{"export": the `haptics.cost` metadata (null without it),
+    /// "warmup": this load's warm-up on this machine}` (docs/model-contract.md, "Cost").
+    /// Boxed: the info travels inside enums whose variants should stay small.
+    pub cost: Box<serde_json::Value>,
+}
+
+/// rt-loop's default per-step deadline for the server's answer (`--deadline-us`), us: a model
+/// whose warm-up steps take longer cannot answer in time on this machine.
+pub const LOOP_DEADLINE_US: f64 = 50.0;
+
+/// The model's `haptics.cost` metadata (what its export measured), parsed; null without it
+/// (older models) or when it is not JSON.
+pub fn read_cost(session: &Session) -> serde_json::Value {
+    session
+        .metadata()
+        .ok()
+        .and_then(|m| m.custom("haptics.cost"))
+        .and_then(|s| serde_json::from_str(&s).ok())
+        .unwrap_or(serde_json::Value::Null)
 }
 
 /// Opens `path` as a single-threaded session configured by `cfg`. The file is read first so a

@@ -242,6 +242,7 @@ impl Registry {
             m.features = i.features.clone();
             m.units = i.units.clone();
             m.provenance_json = i.provenance.to_string();
+            m.cost_json = i.cost.to_string();
         }
         if e.state == ModelState::Active {
             m.active_since_step = self.server.effective_step(e.generation).or(e.since_step);
@@ -355,13 +356,17 @@ impl Registry {
 
     /// Builds the engine within the load time limit.
     fn build(&self, p: &Prepared, schema: &FeatureSchema) -> Result<StepEngine, ModelError> {
-        load_bounded(
+        let engine = load_bounded(
             self.server.runtime(),
             Arc::clone(&p.bytes),
             &p.label,
             schema,
             self.server.session_config(),
-        )
+        )?;
+        if let Some(why) = engine.cost_warning() {
+            eprintln!("infer-server: warning: model {}: {why}", p.name);
+        }
+        Ok(engine)
     }
 
     /// Records the outcome of a load (under the registry's lock): the engine kept, or the

@@ -361,9 +361,13 @@ fn io_binding_path_gives_identical_results() {
         io_binding: true,
         ..SessionConfig::default()
     };
+    let run = SessionConfig {
+        io_binding: false,
+        ..SessionConfig::default()
+    };
     for name in ["linear", "tree", "lstm"] {
         let path = dir.join(format!("{name}.onnx"));
-        let mut plain = load(&path, &schema).unwrap();
+        let mut plain = StepEngine::load(common::runtime(), &path, &schema, &run).unwrap();
         let mut binding = StepEngine::load(common::runtime(), &path, &schema, &bound).unwrap();
         let mut reference = ReferenceLstm::new();
         for t in 0..100 {
@@ -377,6 +381,29 @@ fn io_binding_path_gives_identical_results() {
                 let want = reference.step([f, x]);
                 assert!(close(b, want, 1e-5), "{name} step {t}: {b} vs {want}");
             }
+        }
+    }
+}
+
+#[test]
+fn warm_up_is_timed_into_the_cost() {
+    let Some(dir) = common::fixtures() else {
+        return;
+    };
+    let schema = FeatureSchema::standard();
+    for name in ["linear", "lstm"] {
+        let engine = load(&dir.join(format!("{name}.onnx")), &schema).unwrap();
+        let cost = &engine.info().cost;
+        // the fixtures were exported without `haptics.cost`
+        assert!(cost["export"].is_null(), "{name}: {cost}");
+        let p50 = cost["warmup"]["p50_us"].as_f64().unwrap();
+        let max = cost["warmup"]["max_us"].as_f64().unwrap();
+        assert!(p50 > 0.0 && p50 <= max, "{name}: {cost}");
+        assert_eq!(cost["warmup"]["deadline_us"], 50.0);
+        // a fixture steps in microseconds: nothing to warn about unless the machine stalls
+        // for the whole warm-up (the warning itself: the wording is in engine.rs)
+        if p50 < 50.0 {
+            assert!(engine.cost_warning().is_none(), "{name}: {cost}");
         }
     }
 }

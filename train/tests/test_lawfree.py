@@ -69,7 +69,7 @@ def test_lawfree_onnx_steps_in_parity(fitted):
     assert meta["haptics.state_size"] == str(m.state_size)
     ops = [n.op_type for n in om.graph.node if n.op_type != "Constant"]
     assert len(ops) <= 40, ops  # a small graph: the model-cost budget is p50 <= 5 us
-    x, v = presses([0.02], 2.0)
+    x, v = presses([0.02, 0.03], 2.0)  # past the deepest training press too (w = min(u, 1))
     X = np.column_stack([x, v])
     st = OnnxStepper(om)
     got = np.array([st.step(r) for r in X.astype(np.float32)])

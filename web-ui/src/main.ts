@@ -635,7 +635,7 @@ function renderModels(): void {
   body.replaceChildren();
   if (!models.length) {
     const tr = document.createElement("tr");
-    tr.innerHTML = `<td colspan="4" class="muted">No models in the server's model directory</td>`;
+    tr.innerHTML = `<td colspan="5" class="muted">No models in the server's model directory</td>`;
     body.append(tr);
     return;
   }
@@ -654,6 +654,12 @@ function renderModels(): void {
     if (m.error) state.title = m.error;
     const kind = document.createElement("td");
     kind.textContent = m.kind ?? "";
+    const cost = document.createElement("td");
+    cost.className = "cost";
+    const c = m.cost;
+    const f = (v?: number): string => (v === undefined ? "–" : v.toFixed(1));
+    cost.textContent = c ? `${f(c.export_p50_us)}/${f(c.export_p99_us)}${c.warmup_p50_us !== undefined ? ` (here ${f(c.warmup_p50_us)})` : ""}` : "–";
+    cost.title = "µs per call: p50/p99 measured at export on the exporting machine; (here: this server's warm-up median)";
     const act = document.createElement("td");
     const b = document.createElement("button");
     b.type = "button";
@@ -662,7 +668,7 @@ function renderModels(): void {
     b.setAttribute("aria-label", active ? `${m.name} is the active model` : `Activate model ${m.name}`);
     b.addEventListener("click", () => void swapModel(m, b));
     act.append(b);
-    tr.append(name, state, kind, act);
+    tr.append(name, state, kind, cost, act);
     body.append(tr);
   }
 }

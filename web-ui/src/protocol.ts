@@ -88,6 +88,36 @@ export interface ModelInfo {
   size_bytes?: number;
   /** The id the model's answers carry while it is active (its generation; 0: never active). */
   model_id?: number;
+  /** What one call costs, us: the export's measurement (on the exporting machine, the model's
+   * `haptics.cost`) and this server's warm-up median (docs/model-contract.md, "Cost"). */
+  cost?: ModelCost;
+}
+
+export interface ModelCost {
+  export_p50_us?: number;
+  export_p99_us?: number;
+  warmup_p50_us?: number;
+}
+
+/** `{"export": {"p50_us", "p99_us", ..}, "warmup": {"p50_us", ..}}` (the JSON API's `cost`, or
+ * gRPC's `cost_json` string); undefined when nothing is known. */
+export function normalizeCost(v: unknown): ModelCost | undefined {
+  let o: unknown = v;
+  if (typeof v === "string") {
+    try {
+      o = JSON.parse(v);
+    } catch {
+      return undefined;
+    }
+  }
+  const c = o && typeof o === "object" ? (o as Record<string, Record<string, unknown> | null>) : null;
+  if (!c) return undefined;
+  const n = (part: string, key: string): number | undefined => {
+    const x = c[part]?.[key];
+    return typeof x === "number" ? x : undefined;
+  };
+  const cost = { export_p50_us: n("export", "p50_us"), export_p99_us: n("export", "p99_us"), warmup_p50_us: n("warmup", "p50_us") };
+  return Object.values(cost).some((x) => x !== undefined) ? cost : undefined;
 }
 
 /** The fields of the status object the page shows; everything optional (shown as "–"). */
@@ -148,6 +178,7 @@ export function normalizeModel(m: unknown): ModelInfo | null {
     units: typeof o.units === "string" ? o.units : undefined,
     size_bytes: typeof o.size_bytes === "number" ? o.size_bytes : undefined,
     model_id: typeof o.model_id === "number" ? o.model_id : undefined,
+    cost: normalizeCost(o.cost ?? o.cost_json),
   };
 }
 

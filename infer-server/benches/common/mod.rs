@@ -7,6 +7,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::time::{Duration, Instant};
 
 pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -41,4 +42,18 @@ pub fn bench_models() -> PathBuf {
         .unwrap();
     assert!(status.success(), "make_bench_models.py failed");
     dir
+}
+
+/// Waits like a paced loop until `next`: sleeps until 30 us before it (when `sleep`; a loop
+/// that leaves the other core to the server must), then spins the rest.
+pub fn pace_until(next: Instant, sleep: bool) {
+    if sleep {
+        let now = Instant::now();
+        if next > now + Duration::from_micros(30) {
+            std::thread::sleep(next - now - Duration::from_micros(30));
+        }
+    }
+    while Instant::now() < next {
+        std::hint::spin_loop();
+    }
 }

@@ -97,6 +97,9 @@ pub struct ModelInfo {
     pub model_id: u32,
     /// For the active model: the first step it answered.
     pub active_since_step: Option<u64>,
+    /// What one call costs (`{"export": .., "warmup": ..}`, docs/model-contract.md); empty
+    /// when not loaded.
+    pub cost_json: String,
 }
 
 impl ModelInfo {
@@ -113,6 +116,7 @@ impl ModelInfo {
             size_bytes,
             model_id: 0,
             active_since_step: None,
+            cost_json: String::new(),
         }
     }
 }

@@ -207,6 +207,7 @@ impl SimBackend {
                     size_bytes: bytes.len() as u64,
                     model_id: id,
                     active_since_step: None,
+                    cost_json: String::new(),
                 };
                 s.models.insert(
                     name,

@@ -22,6 +22,7 @@ import numpy as np
 import onnx
 
 from .contract import ContractError
+from .cost import COST_KEY, measure_cost
 from .dagger import fit_dagger
 from .data import Dataset
 from .evaluate import BASELINES, evaluate, pooled_metrics, score_baselines
@@ -312,6 +313,8 @@ def export_models(
                 "recommended": rec["recommended"], "this_model_rank": place,
                 "of": len(rec["ranking"]), "metric": rec["metric"],
             }))  # fmt: skip
+        # what one call costs on this machine, as infer-server steps it (docs/model-contract.md)
+        m.metadata_props.add(key=COST_KEY, value=json.dumps(measure_cost(m)))
         path = save_onnx(m, folder / f"{model.name}.onnx")
         entry["onnx"] = str(path)
         entry["onnx_bytes"] = path.stat().st_size

@@ -177,6 +177,8 @@ pub struct ModelJson {
     pub active_since_step: Option<u64>,
     /// The model's provenance, parsed when it is JSON (else the raw string).
     pub provenance: serde_json::Value,
+    /// What one call costs: `{"export": .., "warmup": ..}` (null when not loaded).
+    pub cost: serde_json::Value,
 }
 
 impl From<&ModelInfo> for ModelJson {
@@ -197,6 +199,7 @@ impl From<&ModelInfo> for ModelJson {
                 serde_json::from_str(&m.provenance_json)
                     .unwrap_or_else(|_| serde_json::Value::String(m.provenance_json.clone()))
             },
+            cost: serde_json::from_str(&m.cost_json).unwrap_or(serde_json::Value::Null),
         }
     }
 }

@@ -41,9 +41,9 @@ reports the work the rendered object does over the training recordings (> 0: it 
 
 The state steps once per row at the training period `dt`, like `structured`. Exported as a
 stateful model (docs/model-contract.md): `h_in`/`h_out` carry [s_1..s_K, p_1..p_P]; `c_in`/
-`c_out` are passed through. The graph is small (the state updates and one dot product: about
-thirty elementwise nodes besides constants, no matrix product). The filters' coefficients are
-rounded to float32 in `predict` too, so it agrees with the graph within float32 arithmetic.
+`c_out` are passed through. The graph is built by hand (lawfree_graph.py): the state updates
+and the readout as a few vector nodes. The filters' coefficients are rounded to float32 in
+`predict` too, so it agrees with the graph within float32 arithmetic.
 
 Sequences layout (`models.base`): `fit(X, y, info)`. Fitted attributes: `dt_`,
 `depth_scale_m_`, `speed_scale_mps_`, `widths_`, `w_` (the readout's weights), `c_`
@@ -56,17 +56,15 @@ import time
 
 import numpy as np
 import onnx
-import torch
 from scipy.optimize import lsq_linear
 from scipy.signal import lfilter
-from torch import nn
 
 from ..data import SequenceInfo
 from ..features import KINEMATICS
 from ..metrics import loop_work
 from .base import ForceModel, check_sequences, step_dt
+from .lawfree_graph import lawfree_graph
 from .structured import dahl
-from .torch_export import export_stateful
 
 LAWFREE_DEFAULT: dict = {
     "taus_s": [0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0],
@@ -222,41 +220,6 @@ class LawFreeModel(ForceModel):
 
     def to_onnx(self) -> onnx.ModelProto:
         self._check_fitted()
-        return export_stateful(_LawFreeModule(self), len(self.features), self.state_size)
-
-
-class _LawFreeModule(nn.Module):
-    """One step of the object's force (the bench's friction is not rendered)."""
-
-    def __init__(self, m: LawFreeModel) -> None:
-        super().__init__()
-        f32 = torch.float32
-        d = np.exp(-m.dt_ / np.asarray(m.hyper["taus_s"], dtype=float))
-        self.k = len(d)
-        nq = 2 + len(d) + len(m.widths_)
-        w = np.asarray(m.w_, dtype=float)
-        self.register_buffer("a", torch.tensor(d, dtype=f32))
-        self.register_buffer("b", torch.tensor(1.0 - d, dtype=f32))
-        self.register_buffer("r", torch.tensor(m.widths_, dtype=f32))
-        self.register_buffer("w1", torch.tensor(w[:nq], dtype=f32))
-        self.register_buffer("w2", torch.tensor(w[nq : 2 * nq], dtype=f32))
-        self.register_buffer("w3", torch.tensor(w[2 * nq :], dtype=f32))
-        self.inv_d = 1.0 / m.depth_scale_m_
-        self.inv_v = 1.0 / m.speed_scale_mps_
-
-    def forward(
-        self, features: torch.Tensor, h: torch.Tensor, c: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        st = h.reshape(-1)
-        x, v = features[0, 0:1], features[0, 1:2]
-        contact = (x > 0.0).to(torch.float32)
-        u = torch.relu(x) * self.inv_d
-        vn = v * self.inv_v * contact
-        s = st[: self.k] * self.a + self.b * u
-        p = torch.minimum(torch.maximum(st[self.k :], u - self.r), u + self.r)
-        state = torch.cat([s, p])
-        q = torch.cat([u, vn, u - state])
-        w = torch.clamp(u, max=1.0)  # no growth of the weights past the deepest press
-        f = (q * (self.w1 + w * (self.w2 + w * self.w3))).sum()
-        f = torch.relu(f) * contact
-        return f.reshape(1, 1), torch.cat([s, p]).reshape(1, 1, -1), c + 0.0
+        return lawfree_graph(
+            self, np.exp(-self.dt_ / np.asarray(self.hyper["taus_s"], dtype=float))
+        )

@@ -23,7 +23,7 @@ from tqdm.auto import tqdm
 from ..data import SequenceInfo
 from ..features import F_PREVIOUS, KINEMATICS, PREVIOUS_FORCE_FEATURES, RATIO_DIVISORS
 from .base import ForceModel, check_rows, check_sequences
-from .torch_export import export_stateful, export_stateless
+from .network_graphs import dense_graph, lstm_graph
 
 #: |z / s| beyond this is clipped before asinh (asinh(1e15) = 35.2; (1e15)^2 fits float32)
 ASINH_CLIP = 1e15
@@ -290,7 +290,7 @@ class DenseModel(ForceModel):
 
     def to_onnx(self) -> onnx.ModelProto:
         self._check_fitted()
-        return export_stateless(self.net_.eval(), len(self.features))
+        return dense_graph(self.net_.eval(), len(self.features), ASINH_CLIP)
 
 
 class LSTMNet(nn.Module):
@@ -306,22 +306,6 @@ class LSTMNet(nn.Module):
     ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
         y, st = self.lstm(z, state)
         return self.head(y), st
-
-
-class LSTMStep(nn.Module):
-    """One control step: the stateful graph of the model contract."""
-
-    def __init__(self, net: LSTMNet) -> None:
-        super().__init__()
-        self.net = net
-
-    def forward(
-        self, features: torch.Tensor, h_in: torch.Tensor, c_in: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        z = self.net.inp(features).unsqueeze(1)  # [batch 1, seq 1, n]
-        y, (h, c) = self.net.lstm(z, (h_in, c_in))
-        force = self.net.out(self.net.head(y[:, 0, :]))  # [1, 1]
-        return force, h, c
 
 
 LSTM_DEFAULT = {
@@ -498,6 +482,4 @@ class LSTMModel(ForceModel):
 
     def to_onnx(self) -> onnx.ModelProto:
         self._check_fitted()
-        return export_stateful(
-            LSTMStep(self.net_).eval(), len(self.features), self.net_.lstm.hidden_size
-        )
+        return lstm_graph(self.net_.eval(), len(self.features), ASINH_CLIP)

@@ -27,14 +27,13 @@ from __future__ import annotations
 
 import numpy as np
 import onnx
-import torch
 from scipy.optimize import nnls
 from scipy.signal import lfilter
 
 from ..data import SequenceInfo
 from ..features import KINEMATICS
 from .base import ForceModel, check_sequences, step_dt
-from .torch_export import export_stateful
+from .onnx_graph import Graph, row, stateful_model
 
 PRONY_DEFAULT = {"poly": 3, "tau_min_steps": 5, "tau_min_s": 0.02, "tau_max_s": 30.0, "n_tau": 6}
 
@@ -47,26 +46,16 @@ def branch_states(v: np.ndarray, dt: float, taus: np.ndarray) -> np.ndarray:
     return np.column_stack([lfilter([g], [1.0, -ei], v) for g, ei in zip(gain, e, strict=True)])
 
 
-class _PronyModule(torch.nn.Module):
-    def __init__(self, k: np.ndarray, w: np.ndarray, e: np.ndarray, gain: np.ndarray) -> None:
-        super().__init__()
-        f32 = torch.float32
-        self.register_buffer("k", torch.tensor(k, dtype=f32))
-        self.register_buffer("w", torch.tensor(w, dtype=f32).reshape(1, 1, -1))
-        self.register_buffer("e", torch.tensor(e, dtype=f32).reshape(1, 1, -1))
-        self.register_buffer("g", torch.tensor(gain, dtype=f32).reshape(1, 1, -1))
-
-    def forward(
-        self, features: torch.Tensor, h: torch.Tensor, c: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        x = features[:, 0:1]
-        v = features[:, 1:2].reshape(1, 1, 1)
-        s = h * self.e + self.g * v
-        spring = torch.zeros_like(x)
-        for i in range(self.k.shape[0] - 1, -1, -1):  # Horner: k1 x + k2 x^2 + ...
-            spring = (spring + self.k[i]) * x
-        f = spring + (s * self.w).sum(dim=2)
-        return torch.relu(f), s, c + 0.0
+def prony_graph(k: np.ndarray, w: np.ndarray, e: np.ndarray, gain: np.ndarray) -> onnx.ModelProto:
+    """One step as a handful of vector nodes (models/onnx_graph.py says why not torch.onnx):
+    s' = e s + gain v; F = relu([x, x^2, ..., s'] . [k, w])."""
+    g = Graph("prony")
+    x, v = g.split("features", [1, 1], axis=1, hint="xv")  # [1, 1] each
+    s = g.op("Add", g.op("Mul", "h_in", g.const(row(e))), g.op("Mul", v, g.const(row(gain))))
+    powers = g.op("Pow", x, g.const(row(np.arange(1, len(k) + 1))))  # [1, 1, P]
+    terms = g.op("Concat", powers, s, axis=2)
+    f = g.op("MatMul", terms, g.const(np.concatenate([k, w]).reshape(-1, 1)))
+    return stateful_model(g, 2, len(w), g.op("Relu", f), s)
 
 
 class PronyModel(ForceModel):
@@ -137,5 +126,4 @@ class PronyModel(ForceModel):
     def to_onnx(self) -> onnx.ModelProto:
         self._check_fitted()
         e = np.exp(-self.dt_ / self.taus_)
-        mod = _PronyModule(self.k_, self.w_, e, self.taus_ * (1.0 - e))
-        return export_stateful(mod, len(self.features), len(self.taus_))
+        return prony_graph(self.k_, self.w_, e, self.taus_ * (1.0 - e))

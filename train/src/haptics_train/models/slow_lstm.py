@@ -45,8 +45,8 @@ from tqdm.auto import tqdm
 
 from ..data import SequenceInfo
 from .base import ForceModel, check_sequences, step_dt
-from .networks import InputScaler, TargetScaler
-from .torch_export import export_stateful
+from .networks import ASINH_CLIP, InputScaler, TargetScaler
+from .onnx_graph import Graph, row, scaled_input, stateful_model
 
 SLOW_LSTM_DEFAULT: dict = {
     "hidden": 48,
@@ -85,34 +85,48 @@ class SlowLSTMNet(nn.Module):
         return _clean(self.inp(x))
 
 
-class _SlowStep(nn.Module):
-    """One control step of the served graph (see the module docstring)."""
-
-    def __init__(self, net: SlowLSTMNet, block_steps: int) -> None:
-        super().__init__()
-        self.net = net
-        self.hid = net.lstm.hidden_size
-        self.nf = net.lstm.input_size
-        self.block = float(block_steps)
-
-    def forward(
-        self, features: torch.Tensor, h_in: torch.Tensor, c_in: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        hid, nf = self.hid, self.nf
-        h, acc, cnt = h_in[:, :, :hid], h_in[:, :, hid : hid + nf], h_in[:, :, hid + nf :]
-        c = c_in[:, :, :hid]
-        z = self.net.scaled(features)  # [1, f]
-        # the force first, from the last complete block's state (what training scores)
-        force = self.net.out(self.net.head(torch.cat([h[0], z], dim=1)))  # [1, 1]
-        acc = acc + z.unsqueeze(0)
-        cnt = cnt + 1.0
-        full = cnt > self.block - 0.5  # [1, 1, 1]
-        _, (h2, c2) = self.net.lstm(acc / cnt, (h, c))  # the block's mean, one state step
-        h = torch.where(full, h2, h)
-        c = torch.where(full, c2, c)
-        acc = torch.where(full, torch.zeros_like(acc), acc)
-        cnt = torch.where(full, torch.zeros_like(cnt), cnt)
-        return force, torch.cat([h, acc, cnt], dim=2), torch.cat([c, c_in[:, :, hid:]], dim=2)
+def slow_lstm_graph(net: SlowLSTMNet, block_steps: int) -> onnx.ModelProto:
+    """One control step of the served graph (see the module docstring), built by hand
+    (models/onnx_graph.py says why): the scaler folded into one multiply-add, the head's target
+    scaling folded into its last layer, the LSTM cell as one MatMul over [h, mean z] for the
+    four gates (ordered i, f, o, g: one Sigmoid, one Tanh), and the block's bookkeeping as
+    one Where per state tensor."""
+    hid, nf = net.lstm.hidden_size, net.lstm.input_size
+    f64 = lambda t: t.detach().double().numpy()  # noqa: E731
+    inp = net.inp
+    g = Graph("lstm_slow")
+    z = scaled_input(g, "features", f64(inp.soft).astype(bool), f64(inp.s), f64(inp.mu),
+                     f64(inp.sd), ASINH_CLIP)  # fmt: skip
+    zero = g.const(0.0)
+    z = g.op("Where", g.op("Less", g.op("Abs", z), g.const(_Z_LIMIT)), z, zero)  # [1, 1, f]
+    h, acc, cnt = g.split("h_in", [hid, nf, 1], axis=2, hint="h")
+    c, c_rest = g.split("c_in", [hid, nf + 1], axis=2, hint="c")
+    # the force, from the last complete block's state: head(cat[h, z]) scaled to N
+    lin1, lin2 = net.head[0], net.head[2]
+    pre = g.op("Add", g.op("MatMul", g.op("Concat", h, z, axis=2), g.const(f64(lin1.weight).T)),
+               g.const(row(f64(lin1.bias))))  # fmt: skip
+    scale, offset = float(net.out.scale), float(net.out.offset)
+    force = g.op("Add", g.op("MatMul", g.op("Tanh", pre), g.const(f64(lin2.weight).T * scale)),
+                 g.const(row(f64(lin2.bias) * scale + offset)))  # fmt: skip
+    acc = g.op("Add", acc, z)
+    cnt = g.op("Add", cnt, g.const(1.0))
+    full = g.op("Greater", cnt, g.const(block_steps - 0.5))
+    mean = g.op("Div", acc, cnt)
+    # torch's gate rows are i, f, g, o; reordered i, f, o, g
+    order = np.r_[0:2 * hid, 3 * hid:4 * hid, 2 * hid:3 * hid]
+    w = np.concatenate([f64(net.lstm.weight_hh_l0), f64(net.lstm.weight_ih_l0)], axis=1)[order]
+    b = (f64(net.lstm.bias_ih_l0) + f64(net.lstm.bias_hh_l0))[order]
+    gates = g.op("Add", g.op("MatMul", g.op("Concat", h, mean, axis=2), g.const(w.T)),
+                 g.const(row(b)))  # fmt: skip
+    sig, cand = g.split(gates, [3 * hid, hid], axis=2, hint="gates")
+    i, f, o = g.split(g.op("Sigmoid", sig), [hid, hid, hid], axis=2, hint="ifo")
+    c2 = g.op("Add", g.op("Mul", f, c), g.op("Mul", i, g.op("Tanh", cand)))
+    h2 = g.op("Mul", o, g.op("Tanh", c2))
+    # a complete block: the new state and an empty block; else the old state and the sums
+    h_out = g.op("Where", full, g.op("Concat", h2, g.const(np.zeros((1, 1, nf + 1))), axis=2),
+                 g.op("Concat", h, acc, cnt, axis=2))  # fmt: skip
+    c_out = g.op("Where", full, g.op("Concat", c2, c_rest, axis=2), "c_in")
+    return stateful_model(g, nf, hid + nf + 1, force, h_out, c_out)
 
 
 def _blocks(x: np.ndarray, rows: int) -> np.ndarray:
@@ -260,5 +274,4 @@ class SlowLSTMModel(ForceModel):
 
     def to_onnx(self) -> onnx.ModelProto:
         self._check_fitted()
-        step = _SlowStep(self.net_, self.block_steps_).eval()
-        return export_stateful(step, len(self.features), self.state_size)
+        return slow_lstm_graph(self.net_, self.block_steps_)

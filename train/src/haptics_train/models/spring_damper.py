@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 import onnx
-import torch
 
 from ..features import KINEMATICS
 from .base import ForceModel, check_rows
-from .torch_export import export_stateless
+from .onnx_graph import Graph, stateless_model
 
 
 def design(x: np.ndarray, v: np.ndarray, order: int) -> np.ndarray:
@@ -21,22 +20,15 @@ def design(x: np.ndarray, v: np.ndarray, order: int) -> np.ndarray:
     return np.column_stack(cols)
 
 
-class _SpringDamperModule(torch.nn.Module):
-    def __init__(self, k: np.ndarray, b: np.ndarray) -> None:
-        super().__init__()
-        self.register_buffer("k", torch.tensor(k, dtype=torch.float32))
-        self.register_buffer("b", torch.tensor(b, dtype=torch.float32))
-
-    def forward(self, features: torch.Tensor) -> torch.Tensor:
-        x = features[:, 0:1]
-        v = features[:, 1:2]
-        # Horner's scheme for k(x) and b(x), highest coefficient first.
-        kx = torch.zeros_like(x) + self.k[-1]
-        bx = torch.zeros_like(x) + self.b[-1]
-        for i in range(self.k.shape[0] - 2, -1, -1):
-            kx = kx * x + self.k[i]
-            bx = bx * x + self.b[i]
-        return kx * x + bx * v
+def spring_damper_graph(k: np.ndarray, b: np.ndarray) -> onnx.ModelProto:
+    """F = x k(x) + v b(x) in five nodes for any batch (models/onnx_graph.py says why not
+    torch.onnx): the powers of x, [k(x), b(x)] by one MatMul, then the dot with [x, v]."""
+    g = Graph("spring_damper")
+    x = g.op("Slice", "features", g.ints([0]), g.ints([1]), g.ints([1]))  # [N, 1]
+    powers = g.op("Pow", x, g.const(np.arange(len(k)).reshape(1, -1)))  # [N, order + 1]
+    kb = g.op("MatMul", powers, g.const(np.column_stack([k, b])))  # [N, 2]: k(x), b(x)
+    f = g.op("ReduceSum", g.op("Mul", "features", kb), g.ints([1]), keepdims=1)
+    return stateless_model(g, 2, f)
 
 
 class SpringDamper(ForceModel):
@@ -81,4 +73,4 @@ class SpringDamper(ForceModel):
 
     def to_onnx(self) -> onnx.ModelProto:
         self._check_fitted()
-        return export_stateless(_SpringDamperModule(self.k_, self.b_), len(self.features))
+        return spring_damper_graph(self.k_, self.b_)

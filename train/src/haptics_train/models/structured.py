@@ -54,7 +54,8 @@ own friction under the hand, so rendering it as well would count it twice (issue
 
 The state steps once per row at the training period `dt`, like `prony`. Exported as a stateful
 model: `h_in`/`h_out` carry [q_1..q_K, u_1..u_M, set, largest depth, previous e]; `c_in`/`c_out`
-are passed through.
+carry the equilibrium force at the previous e in their first element (the graph is built by
+hand: structured_graph.py).
 
 Sequences layout (`models.base`): `fit(X, y, info)`, X one [n_i, 2] array (x, v) per recording,
 rows in time order. Fitted attributes: `dt_`, `depth_scale_m_`, `basis_` (the resolved basis in
@@ -69,14 +70,13 @@ import math
 
 import numpy as np
 import onnx
-import torch
 from scipy.optimize import nnls
 from scipy.signal import lfilter
 
 from ..data import SequenceInfo
 from ..features import KINEMATICS
 from .base import ForceModel, check_sequences, step_dt
-from .torch_export import export_stateful
+from .structured_graph import structured_graph
 
 #: The grids (see the module docstring for each range and why). Lengths are fractions of the
 #: training data's depth scale D; times in seconds.
@@ -230,75 +230,6 @@ def _set_shape(law: dict, depth: float) -> dict:
     }
 
 
-class _StructuredModule(torch.nn.Module):
-    """One step of the object's force (the bench's friction is not rendered)."""
-
-    def __init__(self, m: StructuredModel) -> None:
-        super().__init__()
-        h, f32 = m.basis_, torch.float32
-        self.nb, self.nk = len(m.a_), len(m.g_)
-        self.nm = len(m.h_)
-        dt = m.dt_
-
-        def buf(name: str, v: object) -> None:
-            self.register_buffer(name, torch.tensor(np.asarray(v, dtype=float), dtype=f32))
-
-        buf("a_t", m.a_[: len(h["yield_m"])])
-        buf("a_d", m.a_[len(h["yield_m"]) :])
-        buf("yld", h["yield_m"])
-        buf("dens", h["densification_m"])
-        buf("dexp", h["densification_exponent"])
-        buf("decay", np.exp(-dt / np.asarray(h["taus_s"], dtype=float)))
-        buf("g", m.g_)
-        buf("hw", m.h_)
-        buf("hl", h["hysteresis_lengths_m"])
-        self.set_m = float(m.set_max_m_)
-        self.ref = float(h["set_reference_m"])
-        self.kg = min(dt / float(h["set_tau_grow_s"]), 1.0)
-        self.kr = min(dt / float(h["set_tau_recover_s"]), 1.0)
-        self.lf = float(h["set_loaded_fraction"])
-        self.keep = float(h["set_keep_fraction"])
-        self.sexp = float(h["set_exponent"])
-
-    def feq(self, e: torch.Tensor) -> torch.Tensor:
-        e = torch.clamp(e, min=0.0)
-        plateau = (torch.tanh(e / self.yld) * self.a_t).sum()
-        cap = 0.95 * self.dens
-        u = 1.0 - torch.minimum(e, cap) / self.dens
-        dens = (
-            u**-self.dexp
-            - 1.0
-            + self.dexp / self.dens * u ** (-self.dexp - 1.0) * torch.clamp(e - cap, min=0.0)
-        )
-        return plateau + (dens * self.a_d).sum()
-
-    def forward(
-        self, features: torch.Tensor, h: torch.Tensor, c: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        st = h.reshape(-1)
-        nk, nm = self.nk, self.nm
-        q, u = st[:nk], st[nk : nk + nm]
-        s, md, e_prev = st[nk + nm], st[nk + nm + 1], st[nk + nm + 2]
-        x = features[0, 0]
-        md = torch.maximum(md, x)
-        target = self.set_m * (md / self.ref) ** self.sexp
-        loaded = (x > self.lf * md) & (x - s > 0.0)
-        s = torch.where(loaded & (s < target), s + (target - s) * self.kg, s)
-        floor = self.keep * target
-        s = torch.where(~loaded & (s > floor), s - (s - floor) * self.kr, s)
-        e = x - s
-        f_eq = self.feq(e)
-        q = q * self.decay + (f_eq - self.feq(e_prev))
-        contact = e > 0.0
-        de = torch.clamp(e, min=0.0) - torch.clamp(e_prev, min=0.0)
-        a = torch.exp(-torch.abs(de) / self.hl)
-        u = torch.where(contact, a * u + (1.0 - a) * torch.sign(de), torch.zeros_like(u))
-        f = f_eq + (q * self.g).sum() + f_eq * (u * self.hw).sum()
-        f = torch.where(contact, torch.relu(f), torch.zeros_like(f))
-        state = torch.cat([q, u, torch.stack([s, md, e])]).reshape(1, 1, -1)
-        return f.reshape(1, 1), state, c + 0.0
-
-
 class StructuredModel(ForceModel):
     algo = "structured"
     kind = "stateful"
@@ -432,4 +363,4 @@ class StructuredModel(ForceModel):
 
     def to_onnx(self) -> onnx.ModelProto:
         self._check_fitted()
-        return export_stateful(_StructuredModule(self), len(self.features), self.state_size)
+        return structured_graph(self)

@@ -1,0 +1,285 @@
+//! Every model family as infer-server serves it: each ONNX file of a folder is loaded into a
+//! `StepEngine` exactly as the server loads it (`SessionConfig::default()`, the segment's
+//! schema), handed to the real inference thread (`InferenceThread`, the wait profile infer-server
+//! picks on this machine) over a real shared-memory segment, and stepped at 10 kHz by this
+//! benchmark's main thread standing in for the loop: one run, the state carried from step to
+//! step as served. The cost of a call is what the inference thread itself reports in each
+//! answer (`ForceMsg::inference_ns`: from the message's receipt to the answer, the model's step
+//! included), the allocations per call are counted by a malloc interposer over the whole
+//! process while the measured steps run (the loop side allocates nothing).
+//!
+//! Run by `scripts/bench-models.sh`, which trains and exports one model of each family and the
+//! `identity` graph (one node, the stateless contract's input and output: the floor of calling
+//! ONNX Runtime at all). By hand:
+//!   `cargo bench -p infer-server --bench model_families -- DIR`
+//! DIR holds `NAME.onnx` files; optional `DIR/nodes.json` ({NAME: node count}) and
+//! `DIR/features.f64` (little-endian f64 rows of the segment's ten features, replayed in order;
+//! without it a synthetic press is fed). Env: BENCH_STEPS (measured steps per model, default
+//! 20000), BENCH_WARM (steps before measuring, default 2000), BENCH_IO_BINDING=1|0 (bind the
+//! inputs and outputs once and step with `RunWithBinding`, or step with `Run`; default: what
+//! infer-server does, `SessionConfig::default()`).
+//! Prints a table, and as its last line one JSON object:
+//! `{"families": {NAME: {"p50_us", "p99_us", "p999_us", "max_us", "allocs_per_call", "nodes"}},
+//!   "identity_p50_us": .., "load": "..", "steps": ..}`.
+
+mod common;
+#[path = "common/malloc_count.rs"]
+mod malloc_count;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use haptics_proto::{FeatureMsg, Segment};
+use infer_server::handoff;
+use infer_server::inference_thread::{InferenceConfig, InferenceThread};
+use infer_server::profile::{self, Machine, Profile};
+use infer_server::{FeatureSchema, Runtime, SessionConfig, StepEngine};
+use shm_ring::{monotonic_ns, SegmentName, WaitStrategy};
+
+/// The segment's schema as rt-loop publishes it (the nine of Table 3.1, then `f_previous`).
+fn schema_names() -> Vec<String> {
+    haptics_proto::SCHEMA_NAMES
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
+}
+
+fn env_usize(name: &str) -> Option<usize> {
+    std::env::var(name).ok().and_then(|s| s.parse().ok())
+}
+
+/// The feature rows to replay: the recording's (`features.f64`), else a synthetic 1 Hz press
+/// of 0-10 mm with its velocity and a spring-like force (so trees and branches move).
+fn feature_rows(dir: &Path, n: usize) -> Vec<[f64; 10]> {
+    if let Ok(bytes) = std::fs::read(dir.join("features.f64")) {
+        let rows: Vec<[f64; 10]> = bytes
+            .chunks_exact(80)
+            .map(|c| {
+                std::array::from_fn(|j| f64::from_le_bytes(c[j * 8..j * 8 + 8].try_into().unwrap()))
+            })
+            .collect();
+        if !rows.is_empty() {
+            return rows;
+        }
+    }
+    (0..n.max(1))
+        .map(|t| {
+            let w = 2.0 * std::f64::consts::PI;
+            let s = t as f64 * 1e-4;
+            let x = 0.005 * (1.0 - (w * s).cos());
+            let v = 0.005 * w * (w * s).sin();
+            let a = 0.005 * w * w * (w * s).cos();
+            let f = 800.0 * x;
+            [
+                x,
+                v,
+                a,
+                f / x.max(1e-4),
+                f / v.abs().max(1e-3),
+                f / a.abs().max(1e-2),
+                1.0,
+                x,
+                f * x,
+                f,
+            ]
+        })
+        .collect()
+}
+
+struct Row {
+    name: String,
+    nodes: Option<u64>,
+    p50: u64,
+    p99: u64,
+    p999: u64,
+    max: u64,
+    allocs: f64,
+}
+
+fn quantile(sorted: &[u64], q: f64) -> u64 {
+    sorted[((sorted.len() as f64 * q).ceil() as usize).clamp(1, sorted.len()) - 1]
+}
+
+/// Serves `path` through the inference thread for `warm + steps` steps at 10 kHz; the
+/// inference thread's own per-call times of the last `steps`, and allocations per call.
+fn serve(
+    rt: &'static Runtime,
+    path: &Path,
+    rows: &[[f64; 10]],
+    warm: usize,
+    steps: usize,
+) -> (Vec<u64>, f64) {
+    let names = schema_names();
+    let schema = FeatureSchema::new(names.clone()).unwrap();
+    let stem = path.file_stem().unwrap().to_string_lossy().to_string();
+    let seg = SegmentName::new(&format!("/bench-models-{}-{stem}", std::process::id())).unwrap();
+    let config = shm_ring::Config {
+        feature_names: names,
+        ..haptics_proto::layout::config()
+    };
+    let mut lp = Segment::create(&seg, &config).unwrap().loop_side().unwrap();
+    lp.forces_rx
+        .set_wait_strategy(WaitStrategy::DEFAULT_SPIN_THEN_PARK);
+    let machine = Machine::detect();
+    let chosen = profile::settings(Profile::Auto, &machine);
+    let (mut activator, taker) = handoff::channel();
+    let thread = InferenceThread::spawn(
+        InferenceConfig {
+            segment: seg.clone(),
+            wait: chosen.wait,
+            cpu: chosen.cpu,
+            rt_priority: chosen.rt_priority,
+            exit_when_loop_gone: true,
+        },
+        taker,
+    )
+    .unwrap();
+    let mut cfg = SessionConfig::default();
+    if let Ok(v) = std::env::var("BENCH_IO_BINDING") {
+        cfg.io_binding = v == "1";
+    }
+    let engine = StepEngine::load(rt, path, &schema, &cfg)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let generation = activator.offer(engine);
+    assert!(activator.wait_active(generation, Duration::from_secs(10)));
+    while thread.segment_schema().is_none() {
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let mut msg = FeatureMsg {
+        len: 10,
+        run_id: 1,
+        flags: FeatureMsg::RUN_START,
+        ..FeatureMsg::default()
+    };
+    let period = Duration::from_micros(100);
+    let start = Instant::now();
+    let t0_ns = monotonic_ns();
+    let mut next = start + period;
+    let mut samples = Vec::with_capacity(steps);
+    for i in 0..warm + steps {
+        if i == warm {
+            malloc_count::start();
+        }
+        // Paced like the loop (on two cores a spinning "loop" would take the core the
+        // inference thread needs).
+        common::pace_until(next, true);
+        next += period;
+        msg.seq = i as u64 + 1;
+        msg.timestamp_ns = monotonic_ns() - t0_ns;
+        msg.values[..10].copy_from_slice(&rows[i % rows.len()]);
+        lp.features_tx.try_send(msg).unwrap();
+        let answer = lp.forces_rx.recv_timeout(Duration::from_secs(5)).unwrap();
+        assert_eq!(answer.seq, msg.seq);
+        assert_eq!(answer.flags, 0, "{stem}: answer flags {}", answer.flags);
+        msg.flags = 0;
+        if i >= warm {
+            samples.push(answer.inference_ns);
+        }
+    }
+    let allocs = malloc_count::stop() as f64 / steps as f64;
+    drop(lp);
+    let _ = thread.join();
+    (samples, allocs)
+}
+
+fn main() {
+    let dir: PathBuf = std::env::args()
+        .skip(1)
+        .find(|a| !a.starts_with('-'))
+        .map(PathBuf::from)
+        .unwrap_or_else(|| common::repo_root().join("target/bench-models/families"));
+    let steps = env_usize("BENCH_STEPS").unwrap_or(20_000);
+    let warm = env_usize("BENCH_WARM").unwrap_or(2_000);
+    let rt = Runtime::init(None).unwrap_or_else(|e| panic!("{e}"));
+    let nodes: BTreeMap<String, u64> = std::fs::read_to_string(dir.join("nodes.json"))
+        .ok()
+        .and_then(|s| serde_json::from_str(&s).ok())
+        .unwrap_or_default();
+    let mut models: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "onnx"))
+        .collect();
+    // identity first (the floor), then by name
+    models.sort_by_key(|p| {
+        let s = p.file_stem().unwrap().to_string_lossy().to_string();
+        (!s.starts_with("identity"), s)
+    });
+    let rows = feature_rows(&dir, warm + steps);
+    let load = std::fs::read_to_string("/proc/loadavg")
+        .unwrap_or_default()
+        .split(' ')
+        .take(3)
+        .collect::<Vec<_>>()
+        .join(" ");
+    let machine = Machine::detect();
+    let binding = std::env::var("BENCH_IO_BINDING")
+        .map(|v| v == "1")
+        .unwrap_or(SessionConfig::default().io_binding);
+    println!(
+        "model families served by the inference thread ({}), ONNX Runtime {}, {}, 10 kHz, {steps} steps each after {warm}; per call, us; load average {load}",
+        profile::settings(Profile::Auto, &machine).describe(),
+        rt.version(),
+        if binding { "RunWithBinding" } else { "Run" },
+    );
+    println!(
+        "{:<22} {:>6} {:>8} {:>8} {:>8} {:>8} {:>12}",
+        "model", "nodes", "p50", "p99", "p99.9", "max", "allocs/call"
+    );
+    let us = |ns: u64| ns as f64 / 1000.0;
+    let mut out = Vec::new();
+    for path in &models {
+        let name = path.file_stem().unwrap().to_string_lossy().to_string();
+        let (mut samples, allocs) = serve(rt, path, &rows, warm, steps);
+        samples.sort_unstable();
+        let row = Row {
+            nodes: nodes.get(&name).copied(),
+            p50: quantile(&samples, 0.5),
+            p99: quantile(&samples, 0.99),
+            p999: quantile(&samples, 0.999),
+            max: *samples.last().unwrap(),
+            allocs,
+            name,
+        };
+        println!(
+            "{:<22} {:>6} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>12.2}",
+            row.name,
+            row.nodes.map_or("-".into(), |n| n.to_string()),
+            us(row.p50),
+            us(row.p99),
+            us(row.p999),
+            us(row.max),
+            row.allocs
+        );
+        out.push(row);
+    }
+    let families: serde_json::Map<String, serde_json::Value> = out
+        .iter()
+        .filter(|r| r.name != "identity")
+        .map(|r| {
+            (
+                r.name.clone(),
+                serde_json::json!({
+                    "p50_us": us(r.p50),
+                    "p99_us": us(r.p99),
+                    "p999_us": us(r.p999),
+                    "max_us": us(r.max),
+                    "allocs_per_call": r.allocs,
+                    "nodes": r.nodes,
+                }),
+            )
+        })
+        .collect();
+    let identity = out.iter().find(|r| r.name == "identity").map(|r| us(r.p50));
+    println!(
+        "{}",
+        serde_json::json!({
+            "families": families,
+            "identity_p50_us": identity,
+            "steps": steps,
+            "load": load,
+            "io_binding": binding,
+        })
+    );
+}

@@ -1,0 +1,64 @@
+"""The ONNX graph of `lawfree` (one control step of the object's force), built by hand
+(models/onnx_graph.py says why not torch.onnx; structured_graph.py gives ONNX Runtime's cost
+per node).
+
+The same step as `LawFreeModel.predict_served` (see lawfree.py for the model), over the whole
+state [s (K filters), p (P plays)] at once, so no node slices it:
+
+- [u, v/V] = [x/D, v/V] contact (u = relu(x)/D: x/D times contact is 0 out of contact), one
+  MatMul with a constant diagonal; contact = sign(relu(x/D));
+- the state in one pass: lin = st A + u B (A = [d_k, 1], B = [1 - d_k, 0]: the filters step,
+  the plays keep their value), then clamped to [u - R, u + R] (R = [1e30, r]: the filters are
+  never clamped, each play stays within its half-width r of u);
+- the readout sum_j q_j (w1_j + w2_j w + w3_j w^2), w = min(u, 1), as [q] W (one MatMul,
+  W = [w1 w2 w3]) times [1, w, w^2] (one Pow of w by [0, 1, 2], one MatMul), q = [u, v/V,
+  u - state];
+- relu, times contact. `c` is passed through.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import onnx
+
+from .onnx_graph import Graph, row, stateful_model
+
+if TYPE_CHECKING:
+    from .lawfree import LawFreeModel
+
+#: the filters' clamp half-width: never reached (u is O(1)), so the filters are not clamped
+_NO_CLAMP = 1e30
+
+
+def lawfree_graph(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
+    """The graph of fitted `m`; `decay` the filters' d_k (float32-rounded, as `predict` uses)."""
+    widths = np.asarray(m.widths_, dtype=np.float64)
+    k, p = len(decay), len(widths)
+    w = np.asarray(m.w_, dtype=np.float64).reshape(3, 2 + k + p).T  # [2 + K + P, 3]
+    g = Graph("lawfree")
+    # x/D on its own (for u and contact) and [x/D, v/V]: MatMuls, cheaper than slicing
+    xd = g.op(
+        "MatMul", "features", g.const(np.array([[1.0 / m.depth_scale_m_], [0.0]]).reshape(1, 2, 1))
+    )
+    u = g.op("Relu", xd, hint="u")  # [1, 1, 1]
+    contact = g.op("Sign", u)
+    scale = np.diag([1.0 / m.depth_scale_m_, 1.0 / m.speed_scale_mps_]).reshape(1, 2, 2)
+    uv = g.op("Mul", g.op("MatMul", "features", g.const(scale)), contact, hint="uv")  # [1, 1, 2]
+
+    a = np.concatenate([decay, np.ones(p)])
+    b = np.concatenate([1.0 - decay, np.zeros(p)])
+    r = np.concatenate([np.full(k, _NO_CLAMP), widths])
+    lin = g.op("Add", g.op("Mul", "h_in", g.const(row(a))), g.op("Mul", u, g.const(row(b))))
+    state = g.op("Min", g.op("Max", lin, g.op("Sub", u, g.const(row(r)))),
+                 g.op("Add", u, g.const(row(r))), hint="state")  # fmt: skip
+
+    q = g.op("Concat", uv, g.op("Sub", u, state), axis=2)  # [1, 1, 2 + K + P]
+    c = g.op("MatMul", q, g.const(w))  # [1, 1, 3]: q.w1, q.w2, q.w3
+    # [1, w, w^2], w = min(u, 1): the weights stop growing past the deepest training press
+    wu = g.op("Min", u, g.const(1.0))
+    powers = g.op("Pow", wu, g.const(np.array([0.0, 1.0, 2.0]).reshape(3, 1)))  # [1, 3, 1]
+    f = g.op("MatMul", c, powers)  # [1, 1, 1]
+    force = g.op("Mul", g.op("Relu", f), contact)
+    return stateful_model(g, len(m.features), k + p, force, state)

@@ -1,0 +1,135 @@
+"""The ONNX graph of `structured` (one control step of the object's force), built by hand.
+
+The same step as `StructuredModel._parts` (see structured.py for the physics), written as a
+few vector operations over the state [q (K branches), u (M hysteresis), set, largest depth,
+previous e] so ONNX Runtime dispatches a few dozen nodes instead of one per scalar:
+
+- the permanent set: s' = s + kg [loaded] relu(target - s) - kr [not loaded] relu(s - keep
+  target), the two branches of the law in one two-element vector (target = max_m (md /
+  ref)^k, the fitted exponent k and reference depth ref = D: one Pow, none when k = 1);
+  when the fitted magnitude max_m is 0 the set stays 0 and the law is left out;
+- the equilibrium at e (one MatMul with the fitted coefficients over [plateaus, poles,
+  overs]): tanh(e / y) plateaus and the densification poles u^-n - 1 + n/d u^(-n-1) relu(e -
+  0.95 d), u = max(1 - e/d, 0.05) (= 1 - min(e, 0.95 d)/d), the per-pole exponents n one
+  constant vector of a single Pow. Past 0.95 d, u is exactly 0.05, so the linear
+  continuation is n/d 20^(n+1) relu(e - 0.95 d): a constant folded into the MatMul's
+  weights times one Relu; the -1s are one constant added after it. Columns whose fitted
+  weight is exactly 0 are left out (they add exactly 0), a kind with none left with its nodes;
+- the K Maxwell branches q' = d q + dF_eq and the M Dahl states as one vector each;
+- the force f_eq + q'.g + f_eq u'.h as one MatMul, clamped at 0, 0 out of contact;
+- `c` (which the model needs for nothing else) carries f_eq at the previous e, so the
+  equilibrium is evaluated once per step.
+
+ONNX Runtime's cost per node on the 2-core machine (benchmarked with chains of one op): a
+unary op ~0.19 us, a binary op ~0.27, MatMul ~0.34, Slice/Concat ~0.42, Split ~0.5, a
+comparison with Where ~1.1: the graph prefers MatMuls with constant selectors to slicing and
+arithmetic (Sign, products) to comparisons.
+
+The graph reads what the fit resolved and chose (`m.basis_`: lengths in metres, one exponent
+per pole, the set law's shape; `m.set_max_m_`; the coefficients), never the grids' values, so
+it follows whatever the fit chose.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import onnx
+from onnx import TensorProto
+
+from .onnx_graph import Graph, row, stateful_model
+
+if TYPE_CHECKING:
+    from .structured import StructuredModel
+
+
+def _equilibrium(g: Graph, ec: str, m: StructuredModel) -> str:
+    """F_eq at the clamped compression `ec` [1, 1, 1] (the basis of `equilibrium_basis` times
+    the fitted `a_`), zero-weight columns left out."""
+    b = m.basis_
+    a = np.asarray(m.a_, dtype=np.float64)
+    j1 = len(b["yield_m"])
+    a_t, a_d = a[:j1], a[j1:]
+    yld = np.asarray(b["yield_m"], dtype=np.float64)
+    dens = np.asarray(b["densification_m"], dtype=np.float64)
+    dexp = np.asarray(b["densification_exponent"], dtype=np.float64)
+    kt, kd = a_t != 0.0, a_d != 0.0
+    if not (kt.any() or kd.any()):
+        kt[0] = True  # an all-zero equilibrium: one column of weight 0 keeps the graph whole
+    cols, w = [], []
+    if kt.any():
+        cols.append(g.op("Tanh", g.op("Mul", ec, g.const(row(1.0 / yld[kt])))))
+        w.append(a_t[kt])
+    if kd.any():
+        d, n, ad = dens[kd], dexp[kd], a_d[kd]
+        u = g.op("Max", g.op("Add", g.op("Mul", ec, g.const(row(-1.0 / d))), g.const(1.0)),
+                 g.const(0.05))  # fmt: skip
+        cols.append(g.op("Pow", u, g.const(row(-n))))
+        cols.append(g.op("Relu", g.op("Sub", ec, g.const(row(0.95 * d)))))
+        w += [ad, ad * n / d * 20.0 ** (n + 1.0)]
+    basis = cols[0] if len(cols) == 1 else g.op("Concat", *cols, axis=2)
+    fe = g.op("MatMul", basis, g.const(np.concatenate(w).reshape(-1, 1)))
+    if kd.any():
+        fe = g.op("Add", fe, g.const(-float(a_d[kd].sum())))
+    return fe
+
+
+def structured_graph(m: StructuredModel) -> onnx.ModelProto:
+    b = m.basis_
+    gk = np.asarray(m.g_, dtype=np.float64)
+    hw = np.asarray(m.h_, dtype=np.float64)
+    taus = np.asarray(b["taus_s"], dtype=np.float64)
+    hl = np.asarray(b["hysteresis_lengths_m"], dtype=np.float64)
+    nk, nm = len(gk), len(hw)
+    dt = float(m.dt_)
+    state = nk + nm + 3
+    first = row(np.eye(1, state))  # [1, 0, ..., 0]
+
+    g = Graph("structured")
+    # x by a MatMul: cheaper in ONNX Runtime than a Slice, Gather or Split (measured)
+    x = g.op("MatMul", "features", g.const(np.eye(len(m.features), 1)), hint="x")  # [1, 1]
+    q, u, s, md, e_prev = g.split("h_in", [nk, nm, 1, 1, 1], axis=2, hint="st")
+    md2 = g.op("Max", md, x, hint="md")  # [1, 1, 1]
+
+    set_m = float(m.set_max_m_)
+    if set_m > 0.0:
+        k = float(b["set_exponent"])
+        c1 = set_m / float(b["set_reference_m"]) ** k
+        keep = float(b["set_keep_fraction"])
+        kg = min(dt / float(b["set_tau_grow_s"]), 1.0)
+        kr = min(dt / float(b["set_tau_recover_s"]), 1.0)
+        # r = relu([target - s, s - keep target]), target = c1 md^k
+        mdk = md2 if k == 1.0 else g.op("Pow", md2, g.const(k))
+        t = g.op("Mul", mdk, g.const(row([c1, -keep * c1])))
+        r = g.op("Relu", g.op("Add", t, g.op("Mul", s, g.const(row([-1.0, 1.0])))))
+        thr = g.op("Max", g.op("Mul", md2, g.const(float(b["set_loaded_fraction"]))), s)
+        loaded = g.op("Cast", g.op("Greater", x, thr), to=TensorProto.FLOAT)
+        # s' = s + [kg loaded, -kr (1 - loaded)] . r
+        gate = g.op("Add", g.op("Mul", loaded, g.const(row([kg, kr]))), g.const(row([0.0, -kr])))
+        step = g.op("MatMul", g.op("Mul", gate, r), g.const(np.ones((2, 1))))
+        s = g.op("Add", s, step, hint="set")
+    # (max_m 0: the set stays at its zero start, s' = s)
+
+    e = g.op("Sub", x, s, hint="e")  # [1, 1, 1]
+    ec = g.op("Relu", e)
+    # 1 in contact, else 0: arithmetic, cheaper than a comparison and a Where (measured)
+    contact = g.op("Sign", ec)
+    fe = _equilibrium(g, ec, m)
+    # c carries f_eq at the previous e in its first element (0 at the zero state, as f_eq(0))
+    dfeq = g.op("Sub", fe, g.op("MatMul", "c_in", g.const(first.reshape(-1, 1))))
+    c_out = g.op("Mul", fe, g.const(first))
+    decay = np.exp(-dt / taus)
+    q2 = g.op("Add", g.op("Mul", q, g.const(row(decay))), dfeq, hint="q")
+
+    de = g.op("Sub", ec, g.op("Relu", e_prev))
+    att = g.op("Exp", g.op("Mul", g.op("Abs", de), g.const(row(-1.0 / hl))))
+    sg = g.op("Sign", de)
+    # a u + (1 - a) sign(de) = sign + a (u - sign); 0 out of contact
+    u2 = g.op("Mul", g.op("Add", sg, g.op("Mul", att, g.op("Sub", u, sg))), contact, hint="u")
+
+    terms = g.op("Concat", q2, g.op("Mul", u2, fe), fe, axis=2)
+    f = g.op("MatMul", terms, g.const(np.concatenate([gk, hw, [1.0]]).reshape(-1, 1)))
+    force = g.op("Mul", g.op("Relu", f), contact)
+    h_out = g.op("Concat", q2, u2, s, md2, e, axis=2)
+    return stateful_model(g, len(m.features), state, force, h_out, c_out)
