@@ -229,17 +229,33 @@ fn another_local_user_is_refused_every_call_and_read_the_owner_is_not() {
             ("GET", "/ws/telemetry"),
         ] {
             let u = url(path);
-            let o = nobody(&[
+            let mut args = vec![
                 "curl",
                 "-s",
+                "--max-time",
+                "10",
                 "-o",
                 "/dev/null",
                 "-w",
                 "%{http_code}",
                 "-X",
                 method,
-                u.as_str(),
-            ]);
+            ];
+            if path.starts_with("/ws/") {
+                // A real WebSocket upgrade, as a page's `new WebSocket(...)` sends it.
+                args.extend([
+                    "-H",
+                    "Connection: Upgrade",
+                    "-H",
+                    "Upgrade: websocket",
+                    "-H",
+                    "Sec-WebSocket-Version: 13",
+                    "-H",
+                    "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==",
+                ]);
+            }
+            args.push(u.as_str());
+            let o = nobody(&args);
             let code = String::from_utf8_lossy(&o.stdout).to_string();
             eprintln!("as uid 65534: curl -X {method} {u}: {code}");
             assert_eq!(code, "401", "{method} {path}");
