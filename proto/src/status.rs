@@ -205,13 +205,25 @@ pub struct LoopStatus {
     pub round_trip: Quantiles,
     /// |actual period - nominal period| (realtime clock).
     pub period_jitter: Quantiles,
+    /// The passivity layer (issue 20): whether its damper acts (the observer always runs),
+    pub passivity_on: bool,
+    /// the energy the rendered object holds by its observer (received - returned, less the
+    /// forgotten dissipated energy), J,
+    pub passivity_energy_j: f64,
+    /// the gross energy the object received from the hand and returned to it, J,
+    pub passivity_received_j: f64,
+    pub passivity_returned_j: f64,
+    /// the largest damping it applied this run, N s/m,
+    pub passivity_damping_ns_per_m: f64,
+    /// and the steps on which it changed the rendered force.
+    pub passivity_active_steps: u64,
 }
 
 const fn words(bytes: usize) -> usize {
     bytes / 8
 }
 
-/// Where each field sits in the block's words (the order of layout version 3; changing it
+/// Where each field sits in the block's words (the order of layout version 4; changing it
 /// changes the segment layout: bump `shm_ring::LAYOUT_VERSION`).
 mod at {
     use super::*;
@@ -237,7 +249,14 @@ mod at {
     pub const CORRUPT: usize = ON_TIME + 4;
     pub const MAX_TRANSITION_STEP_N: usize = ON_TIME + 5;
     pub const EXPERIMENT: usize = ON_TIME + 6;
-    pub const END: usize = EXPERIMENT + words(EXPERIMENT_BYTES);
+    // layout version 4: the passivity layer's figures
+    pub const PASSIVITY_ON: usize = EXPERIMENT + words(EXPERIMENT_BYTES);
+    pub const PASSIVITY_ENERGY_J: usize = PASSIVITY_ON + 1;
+    pub const PASSIVITY_RECEIVED_J: usize = PASSIVITY_ON + 2;
+    pub const PASSIVITY_RETURNED_J: usize = PASSIVITY_ON + 3;
+    pub const PASSIVITY_DAMPING: usize = PASSIVITY_ON + 4;
+    pub const PASSIVITY_ACTIVE_STEPS: usize = PASSIVITY_ON + 5;
+    pub const END: usize = PASSIVITY_ON + 6;
 }
 
 const _: () = assert!(
@@ -284,6 +303,12 @@ impl LoopStatus {
         w[at::CORRUPT] = self.corrupt;
         w[at::MAX_TRANSITION_STEP_N] = self.max_transition_step_n.to_bits();
         self.experiment.store(&mut w[at::EXPERIMENT..]);
+        w[at::PASSIVITY_ON] = u64::from(self.passivity_on);
+        w[at::PASSIVITY_ENERGY_J] = self.passivity_energy_j.to_bits();
+        w[at::PASSIVITY_RECEIVED_J] = self.passivity_received_j.to_bits();
+        w[at::PASSIVITY_RETURNED_J] = self.passivity_returned_j.to_bits();
+        w[at::PASSIVITY_DAMPING] = self.passivity_damping_ns_per_m.to_bits();
+        w[at::PASSIVITY_ACTIVE_STEPS] = self.passivity_active_steps;
         w
     }
 
@@ -312,6 +337,12 @@ impl LoopStatus {
             fallback_steps: w[at::FALLBACK_STEPS],
             corrupt: w[at::CORRUPT],
             max_transition_step_n: f64::from_bits(w[at::MAX_TRANSITION_STEP_N]),
+            passivity_on: w[at::PASSIVITY_ON] != 0,
+            passivity_energy_j: f64::from_bits(w[at::PASSIVITY_ENERGY_J]),
+            passivity_received_j: f64::from_bits(w[at::PASSIVITY_RECEIVED_J]),
+            passivity_returned_j: f64::from_bits(w[at::PASSIVITY_RETURNED_J]),
+            passivity_damping_ns_per_m: f64::from_bits(w[at::PASSIVITY_DAMPING]),
+            passivity_active_steps: w[at::PASSIVITY_ACTIVE_STEPS],
         }
     }
 }
@@ -394,6 +425,12 @@ mod tests {
             fallback_steps: 15,
             corrupt: 16,
             max_transition_step_n: 0.04,
+            passivity_on: true,
+            passivity_energy_j: 0.25,
+            passivity_received_j: 1.5,
+            passivity_returned_j: 1.25,
+            passivity_damping_ns_per_m: 80.0,
+            passivity_active_steps: 17,
         };
         assert_eq!(block.publish(&s.to_words()), 1);
         let (generation, words) = block.read().expect("published");

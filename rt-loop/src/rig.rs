@@ -46,6 +46,9 @@ pub struct Rig<B: Board> {
     period: f64,
     long_steps: u64,
     max_dt: f64,
+    /// The passivity layer, after the ladder (crate::passivity; observing only until a run
+    /// configures it).
+    pub passivity: crate::passivity::PassivityController,
 }
 
 impl<B: Board> Rig<B> {
@@ -74,6 +77,7 @@ impl<B: Board> Rig<B> {
             period: 1e-4,
             long_steps: 0,
             max_dt: 0.0,
+            passivity: crate::passivity::PassivityController::off(),
         }
     }
 
@@ -161,6 +165,11 @@ impl<B: Board> Rig<B> {
         };
         let (f_ref, i_ref) = match d.command {
             Command::Force(f_cmd) => {
+                // the passivity layer, on the steps that render an object (F_cmd = -F)
+                let f_cmd = match d.phase {
+                    Phase::Reproduction => -self.passivity.render(-f_cmd, est.x, dt),
+                    _ => f_cmd,
+                };
                 let i_ref = p.k_p * (f_cmd - est.f_ext) * p.m_n / p.k_fn;
                 (f_cmd, i_ref + est.f_dis / p.k_fn)
             }

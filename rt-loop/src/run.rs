@@ -62,6 +62,8 @@ pub struct RunSummary {
     pub long_steps: u64,
     /// The longest step, ms.
     pub max_step_ms: f64,
+    /// Reproduction/shadow: the passivity layer's figures (crate::passivity).
+    pub passivity: Option<crate::passivity::PassivityReport>,
     pub warnings: Vec<String>,
 }
 
@@ -184,6 +186,7 @@ pub fn build_rig(
     let board = build_board(cfg, Some(&material))?;
     let mut rig = Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone());
     rig.set_period(1.0 / cfg.rate_hz);
+    rig.passivity = crate::passivity::PassivityController::for_run(cfg);
     Ok(rig)
 }
 
@@ -265,6 +268,7 @@ fn set_up_and_run(
     // Rig::new writes 0 A and arms the watchdog, then lets the model wait for its server.
     let mut rig = Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone());
     rig.set_period(1.0 / cfg.rate_hz);
+    rig.passivity = crate::passivity::PassivityController::for_run(cfg);
     let result = drive(cfg, &mut rig, &material_text, shutdown, progress, sink);
     give_back(rig.experiment, model);
     result
@@ -448,6 +452,7 @@ fn drive(
         corrupt: totals.map_or(0, |t| t.corrupt),
         long_steps: rig.long_steps(),
         max_step_ms: rig.max_dt() * 1e3,
+        passivity: ladder.map(|_| rig.passivity.report()),
         warnings,
     })
 }
@@ -463,5 +468,6 @@ fn figures<'a>(
         experiment: &rig.experiment,
         clock,
         recorder: recorder.map(|r| (r.pushed(), r.failed())),
+        passivity: rig.experiment.model_stats().map(|_| rig.passivity.report()),
     }
 }

@@ -28,6 +28,8 @@ pub struct RunFigures<'a> {
     pub clock: Option<&'a RealtimeClock>,
     /// Rows handed to the recorder so far and whether it failed; `None` without a recording.
     pub recorder: Option<(u64, bool)>,
+    /// The passivity layer's figures (reproduction and shadow; `None` for the others).
+    pub passivity: Option<crate::passivity::PassivityReport>,
 }
 
 /// What a sink sent during the run, for the run's summary.

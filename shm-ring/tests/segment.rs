@@ -510,6 +510,12 @@ fn loop_status_block_round_trips_through_the_segment() {
         fallback_steps: 45,
         corrupt: 1,
         max_transition_step_n: 0.04,
+        passivity_on: true,
+        passivity_energy_j: 0.5,
+        passivity_received_j: 2.0,
+        passivity_returned_j: 1.5,
+        passivity_damping_ns_per_m: 120.0,
+        passivity_active_steps: 9,
     };
     assert_eq!(
         s.recorder.as_str().len(),

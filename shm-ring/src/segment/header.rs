@@ -12,7 +12,7 @@ use crate::status_block::{StatusBlock, STATUS_WORDS};
 /// protocol's message must carry at most as many values).
 pub const MAX_SCHEMA_NAMES: usize = 16;
 
-// The status block's size is part of the layout (LAYOUT_VERSION 3: 58 words).
+// The status block's size is part of the layout (LAYOUT_VERSION 4: 64 words).
 const _: () = assert!(std::mem::size_of::<StatusBlock>() == (1 + STATUS_WORDS) * 8);
 
 /// "HAPTSHM1" little-endian: the first word of every segment.
@@ -20,7 +20,8 @@ pub const MAGIC: u64 = u64::from_le_bytes(*b"HAPTSHM1");
 /// Bumped whenever the header or ring protocol changes incompatibly.
 /// 2: the loop-status block (`loop_status`) was added after the heartbeats.
 /// 3: the loop-status block gained the degradation ladder's counters and the experiment name.
-pub const LAYOUT_VERSION: u64 = 3;
+/// 4: the loop-status block gained the passivity layer's figures.
+pub const LAYOUT_VERSION: u64 = 4;
 
 /// Per-channel description in the header.
 #[repr(C)]
