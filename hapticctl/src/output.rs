@@ -119,6 +119,12 @@ fn latency_json(l: Option<&pb::LatencyPercentiles>) -> Value {
     json!({ "p50_us": l.p50_us, "p99_us": l.p99_us, "p999_us": l.p999_us, "max_us": l.max_us, "count": l.count })
 }
 
+fn passivity_json(p: Option<&pb::PassivityStatus>) -> Value {
+    let p = p.copied().unwrap_or_default();
+    json!({ "on": p.on, "energy_j": p.energy_j, "received_j": p.received_j, "returned_j": p.returned_j,
+            "damping_ns_per_m": p.damping_ns_per_m, "active_steps": p.active_steps })
+}
+
 pub fn status_json(s: &pb::Status) -> Value {
     let e = s.experiment.clone().unwrap_or_default();
     json!({
@@ -150,6 +156,7 @@ pub fn status_json(s: &pb::Status) -> Value {
             "round_trip_latency": latency_json(s.round_trip_latency.as_ref()),
             "overruns": s.overruns,
             "period_jitter": latency_json(s.period_jitter.as_ref()),
+            "passivity": passivity_json(s.passivity.as_ref()),
         },
         "server": {
             "version": s.server_version,
@@ -224,6 +231,12 @@ pub fn status_text(s: &pb::Status) -> String {
             s.board_quadrature_errors
         ));
     }
+    let p = s.passivity.unwrap_or_default();
+    out.push_str(&format!(
+        "passivity:   {}    energy {:.4} J (received {:.4} J, returned {:.4} J)    max damping {:.1} N s/m    active steps {}\n",
+        if p.on { "on" } else { "off (observing)" },
+        p.energy_j, p.received_j, p.returned_j, p.damping_ns_per_m, p.active_steps
+    ));
     out.push_str(&format!(
         "round trip:  {}\n",
         lat(s.round_trip_latency.as_ref())

@@ -105,6 +105,14 @@ pub fn apply_loop_block(status: &mut LoopStatus, b: &haptics_proto::LoopStatus) 
         status.fallback = b.fallback_steps;
         status.max_transition_step_n = b.max_transition_step_n;
         status.saturated = b.saturated;
+        status.passivity = control_plane::backend::PassivityStatus {
+            on: b.passivity_on,
+            energy_j: b.passivity_energy_j,
+            received_j: b.passivity_received_j,
+            returned_j: b.passivity_returned_j,
+            damping_ns_per_m: b.passivity_damping_ns_per_m,
+            active_steps: b.passivity_active_steps,
+        };
     }
     status.corrupt = b.corrupt;
     status.board_faults = b.board_faults;

@@ -219,13 +219,25 @@ pub struct LoopStatus {
     pub board_fifo_overflows: u64,
     /// Snapshots with a quadrature error (counted, not fatal), this run.
     pub board_quadrature_errors: u64,
+    /// The passivity layer (issue 20): whether its damper acts (the observer always runs),
+    pub passivity_on: bool,
+    /// the energy the rendered object holds by its observer (received - returned, less the
+    /// forgotten dissipated energy), J,
+    pub passivity_energy_j: f64,
+    /// the gross energy the object received from the hand and returned to it, J,
+    pub passivity_received_j: f64,
+    pub passivity_returned_j: f64,
+    /// the largest damping it applied this run, N s/m,
+    pub passivity_damping_ns_per_m: f64,
+    /// and the steps on which it changed the rendered force.
+    pub passivity_active_steps: u64,
 }
 
 const fn words(bytes: usize) -> usize {
     bytes / 8
 }
 
-/// Where each field sits in the block's words (the order of layout version 3; changing it
+/// Where each field sits in the block's words (the order of layout version 4; changing it
 /// changes the segment layout: bump `shm_ring::LAYOUT_VERSION`).
 mod at {
     use super::*;
@@ -251,13 +263,19 @@ mod at {
     pub const CORRUPT: usize = ON_TIME + 4;
     pub const MAX_TRANSITION_STEP_N: usize = ON_TIME + 5;
     pub const EXPERIMENT: usize = ON_TIME + 6;
-    // layout version 4: saturated steps (issue 23) and the board's failures (issue 20)
+    // layout version 4: saturated steps (issue 23), the board's failures and the passivity layer's figures (issue 20)
     pub const SATURATED: usize = EXPERIMENT + words(EXPERIMENT_BYTES);
     pub const BOARD_FAULTS: usize = SATURATED + 1;
     pub const BOARD_FIFO_OVERFLOWS: usize = BOARD_FAULTS + 1;
     pub const BOARD_QUADRATURE_ERRORS: usize = BOARD_FAULTS + 2;
     pub const BOARD_FAULT: usize = BOARD_FAULTS + 3;
-    pub const END: usize = BOARD_FAULT + words(BOARD_FAULT_BYTES);
+    pub const PASSIVITY_ON: usize = BOARD_FAULT + words(BOARD_FAULT_BYTES);
+    pub const PASSIVITY_ENERGY_J: usize = PASSIVITY_ON + 1;
+    pub const PASSIVITY_RECEIVED_J: usize = PASSIVITY_ON + 2;
+    pub const PASSIVITY_RETURNED_J: usize = PASSIVITY_ON + 3;
+    pub const PASSIVITY_DAMPING: usize = PASSIVITY_ON + 4;
+    pub const PASSIVITY_ACTIVE_STEPS: usize = PASSIVITY_ON + 5;
+    pub const END: usize = PASSIVITY_ON + 6;
 }
 
 const _: () = assert!(
@@ -309,6 +327,12 @@ impl LoopStatus {
         w[at::BOARD_FIFO_OVERFLOWS] = self.board_fifo_overflows;
         w[at::BOARD_QUADRATURE_ERRORS] = self.board_quadrature_errors;
         self.board_fault.store(&mut w[at::BOARD_FAULT..]);
+        w[at::PASSIVITY_ON] = u64::from(self.passivity_on);
+        w[at::PASSIVITY_ENERGY_J] = self.passivity_energy_j.to_bits();
+        w[at::PASSIVITY_RECEIVED_J] = self.passivity_received_j.to_bits();
+        w[at::PASSIVITY_RETURNED_J] = self.passivity_returned_j.to_bits();
+        w[at::PASSIVITY_DAMPING] = self.passivity_damping_ns_per_m.to_bits();
+        w[at::PASSIVITY_ACTIVE_STEPS] = self.passivity_active_steps;
         w
     }
 
@@ -342,6 +366,12 @@ impl LoopStatus {
             board_fault: StatusText::load(&w[at::BOARD_FAULT..]),
             board_fifo_overflows: w[at::BOARD_FIFO_OVERFLOWS],
             board_quadrature_errors: w[at::BOARD_QUADRATURE_ERRORS],
+            passivity_on: w[at::PASSIVITY_ON] != 0,
+            passivity_energy_j: f64::from_bits(w[at::PASSIVITY_ENERGY_J]),
+            passivity_received_j: f64::from_bits(w[at::PASSIVITY_RECEIVED_J]),
+            passivity_returned_j: f64::from_bits(w[at::PASSIVITY_RETURNED_J]),
+            passivity_damping_ns_per_m: f64::from_bits(w[at::PASSIVITY_DAMPING]),
+            passivity_active_steps: w[at::PASSIVITY_ACTIVE_STEPS],
         }
     }
 }
@@ -429,6 +459,12 @@ mod tests {
             board_fault: StatusText::new("S826_DacDataWrite returned S826_ERR_NOTREADY"),
             board_fifo_overflows: 19,
             board_quadrature_errors: 20,
+            passivity_on: true,
+            passivity_energy_j: 0.25,
+            passivity_received_j: 1.5,
+            passivity_returned_j: 1.25,
+            passivity_damping_ns_per_m: 80.0,
+            passivity_active_steps: 21,
         };
         assert_eq!(block.publish(&s.to_words()), 1);
         let (generation, words) = block.read().expect("published");

@@ -164,6 +164,9 @@ pub fn print_summary(s: &crate::run::RunSummary) {
             r.late, r.no_server, r.flagged, r.ring_full, r.server_lost, r.hung, r.rejected
         );
     }
+    if let Some(p) = &s.passivity {
+        eprintln!("rt-loop: {p}");
+    }
     if s.long_steps > 0 {
         eprintln!(
             "rt-loop: {} long steps (over {} periods; filters took bounded updates), longest {:.2} ms",

@@ -291,6 +291,9 @@ pub struct CommonArgs {
     /// The experiment's ramp (for `serve`: the defaults a start command may override).
     #[command(flatten)]
     pub experiment: ExperimentArgs,
+    /// The passivity layer (`--passivity auto|on|off` and its guards).
+    #[command(flatten)]
+    pub passivity: crate::passivity::PassivityArgs,
 }
 
 impl CommonArgs {
@@ -311,6 +314,7 @@ impl CommonArgs {
             c.material = v.clone();
         }
         c.ramp.override_with(&self.experiment);
+        self.passivity.apply(&mut c.passivity);
         if let Some(p) = &self.bench {
             c.params.friction = crate::friction::Friction::load(p)?;
         }

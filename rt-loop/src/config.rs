@@ -117,6 +117,8 @@ pub struct RunConfig {
     pub reproduction: ReproductionConfig,
     /// The degradation ladder of reproduction (late answers, held force, fallback fade).
     pub ladder: crate::ladder::LadderConfig,
+    /// The time-domain passivity layer of reproduction (after the ladder).
+    pub passivity: crate::passivity::PassivityConfig,
     pub realtime: RealtimeConfig,
 }
 
@@ -145,6 +147,7 @@ impl Default for RunConfig {
             features: FeatureParams::default(),
             reproduction: ReproductionConfig::default(),
             ladder: crate::ladder::LadderConfig::default(),
+            passivity: crate::passivity::PassivityConfig::default(),
             realtime: RealtimeConfig::default(),
         }
     }
@@ -197,6 +200,7 @@ impl RunConfig {
         self.validate_rates()?;
         self.validate_reproduction()?;
         self.ladder.validate()?;
+        self.passivity.validate()?;
         self.ramp.validate()?;
         self.sim.validate()?;
         self.s826.validate()?;

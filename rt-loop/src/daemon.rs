@@ -254,6 +254,9 @@ pub fn run(cfg: &DaemonConfig, shutdown: &Shutdown) -> Result<u64> {
                         r.late, r.no_server, r.flagged, r.ring_full, r.server_lost, r.hung, r.rejected
                     );
                 }
+                if let Some(p) = &s.passivity {
+                    eprintln!("rt-loop: run {run_id} {p}");
+                }
                 if s.stop == StopReason::Interrupted {
                     break;
                 }

@@ -1,6 +1,25 @@
 //! The simulated operator (docs/physics.md, "The simulated sponge bench"): a hand with its own impedance (stiffness and
 //! damping toward a moving set-point) following a press-hold-release trajectory. The hand
 //! only pushes (it rests against the shaft, it does not grip it).
+//!
+//! Not a position source: the probe's motion comes out of the hand's impedance, the motor's
+//! force and the probe's mass together (rt-loop/src/board/sim.rs integrates them), so a rendered
+//! object that generates energy can make the coupled system oscillate with a growing amplitude,
+//! as it would on a real hand (what the passivity layer, crate::passivity, is there to stop;
+//! tests/tests/passivity_system.rs shows both).
+//!
+//! The values: for small motions a hand or a finger holding a haptic handle behaves as a
+//! mass-spring-damper whose stiffness and damping grow with the grip force. Hajian and Howe
+//! 1997 ("Identification of the mechanical impedance at the human finger tip", J. Biomech.
+//! Eng. 119) measured the index finger at a few hundred to over a thousand N/m with a few N s/m
+//! of damping and an effective mass of grams; Hasser and Cutkosky 2002 (pinch grasp on a knob)
+//! and Kuchenbecker, Park and Niemeyer 2003 ("Characterizing the human wrist for improved
+//! haptic interaction") found the same growth with grip. The defaults, 1500 N/m and 15 N s/m,
+//! are a firm grasp at the stiff, well-damped end of those ranges (a lighter grip, less damped,
+//! is easier to destabilise: set `[hand]` lower to try it). The hand's own mass is not
+//! modelled: the probe and motor move 0.67 kg, two orders of magnitude above a finger's
+//! effective mass, so the probe's mass stands for both; the existing studies' figures were
+//! made with this hand and stay valid.
 
 use crate::invalid::{require_non_negative, require_positive, InvalidSetting};
 use serde::{Deserialize, Serialize};
@@ -8,9 +27,9 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct HandConfig {
-    /// Hand stiffness toward its set-point, N/m.
+    /// Hand stiffness toward its set-point, N/m (literature: see the module doc).
     pub stiffness: f64,
-    /// Hand damping, N s/m.
+    /// Hand damping, N s/m (literature: see the module doc).
     pub damping: f64,
     /// Set-point depth at full press, m (where the hand would go if nothing resisted).
     pub depth_m: f64,

@@ -4,7 +4,7 @@
 //!
 //! Layout: [`board`] (trait + `sim` + `replay`), [`object`] (the simulated object of any law:
 //! its material file, the laws, the oracle) and [`hand`] (the simulated world), [`filters`] (pseudo-derivatives, observers), [`rig`] (the step),
-//! [`experiment`], [`ladder`], [`features`], [`model`] (the force-model hook), [`record`],
+//! [`experiment`], [`ladder`], [`passivity`], [`features`], [`model`] (the force-model hook), [`record`],
 //! [`clock`], [`config`], [`run`] (one run; its per-step output to a [`sink`]), [`daemon`]
 //! (`rt-loop serve`), [`shm_io`]/[`shm_model`]/[`shm_renew`] (the shared-memory side),
 //! [`stop`], [`percentiles`], [`invalid`], [`lstsq`] (small shared leaves), [`import`] (the
@@ -32,6 +32,7 @@ pub mod lstsq;
 pub mod model;
 pub mod object;
 pub mod params;
+pub mod passivity;
 pub mod percentiles;
 pub mod record;
 pub mod rig;

@@ -71,6 +71,9 @@ pub struct Rig<B: Board> {
     activated: bool,
     /// Why activation failed, when it failed on the first step.
     activate_error: Option<BoardError>,
+    /// The passivity layer, after the ladder (crate::passivity; observing only until a run
+    /// configures it).
+    pub passivity: crate::passivity::PassivityController,
 }
 
 impl<B: Board> Rig<B> {
@@ -107,6 +110,7 @@ impl<B: Board> Rig<B> {
             period: 1e-4,
             long_steps: 0,
             max_dt: 0.0,
+            passivity: crate::passivity::PassivityController::off(),
             fault: None,
             finished: false,
             activated: false,
@@ -262,6 +266,11 @@ impl<B: Board> Rig<B> {
         };
         let (f_ref, i_ref) = match d.command {
             Command::Force(f_cmd) => {
+                // the passivity layer, on the steps that render an object (F_cmd = -F)
+                let f_cmd = match d.phase {
+                    Phase::Reproduction => -self.passivity.render(-f_cmd, est.x, dt),
+                    _ => f_cmd,
+                };
                 let i_ref = p.k_p * (f_cmd - est.f_ext) * p.m_n / p.k_fn;
                 (f_cmd, i_ref + est.f_dis / p.k_fn)
             }

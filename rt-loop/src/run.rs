@@ -65,6 +65,8 @@ pub struct RunSummary {
     /// The board's counters of what went wrong without stopping the loop (FIFO overflows,
     /// quadrature errors, empty-FIFO retries, timestamp wraps).
     pub board: crate::board::BoardHealth,
+    /// Reproduction/shadow: the passivity layer's figures (crate::passivity).
+    pub passivity: Option<crate::passivity::PassivityReport>,
     pub warnings: Vec<String>,
 }
 
@@ -195,6 +197,7 @@ pub fn build_rig(
     let mut rig = Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone())
         .map_err(|f| anyhow!("board {}: {}", cfg.board, f.error))?;
     rig.set_period(1.0 / cfg.rate_hz);
+    rig.passivity = crate::passivity::PassivityController::for_run(cfg);
     Ok(rig)
 }
 
@@ -283,6 +286,7 @@ fn set_up_and_run(
         }
     };
     rig.set_period(1.0 / cfg.rate_hz);
+    rig.passivity = crate::passivity::PassivityController::for_run(cfg);
     let result = drive(cfg, &mut rig, &material_text, shutdown, progress, sink);
     // 0 A, watchdog off, board closed, whatever happened.
     rig.finish();
@@ -476,6 +480,7 @@ fn drive(
         long_steps: rig.long_steps(),
         max_step_ms: rig.max_dt() * 1e3,
         board: rig.board_health(),
+        passivity: ladder.map(|_| rig.passivity.report()),
         warnings,
     })
 }
@@ -493,5 +498,6 @@ fn figures<'a>(
         recorder: recorder.map(|r| (r.pushed(), r.failed())),
         board: rig.board_health(),
         board_fault: rig.fault(),
+        passivity: rig.experiment.model_stats().map(|_| rig.passivity.report()),
     }
 }

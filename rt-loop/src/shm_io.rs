@@ -242,6 +242,12 @@ impl LoopIo {
         s.corrupt = 0;
         self.corrupt_at_run_start = self.renewal.as_ref().map_or(0, |r| r.corrupt());
         s.max_transition_step_n = 0.0;
+        s.passivity_on = cfg.passivity.enabled_on(cfg.board);
+        s.passivity_energy_j = 0.0;
+        s.passivity_received_j = 0.0;
+        s.passivity_returned_j = 0.0;
+        s.passivity_damping_ns_per_m = 0.0;
+        s.passivity_active_steps = 0;
         s.deadline_misses = 0;
         s.overruns = 0;
         s.round_trip = Quantiles::default();
@@ -317,6 +323,14 @@ impl LoopIo {
             s.fallback_steps = l.counts.fallback;
             s.saturated = l.counts.saturated;
             s.max_transition_step_n = l.max_transition_step_n;
+        }
+        if let Some(p) = f.passivity {
+            s.passivity_on = p.enabled;
+            s.passivity_energy_j = p.energy_j;
+            s.passivity_received_j = p.received_j;
+            s.passivity_returned_j = p.returned_j;
+            s.passivity_damping_ns_per_m = p.max_damping_ns_per_m;
+            s.passivity_active_steps = p.active_steps;
         }
         f.experiment.report_status(s);
         s.board_fifo_overflows = f.board.fifo_overflows;

@@ -32,6 +32,8 @@ pub struct RunFigures<'a> {
     pub board: crate::board::BoardHealth,
     /// The board failure that ended the run (`None` while it runs, or when none did).
     pub board_fault: Option<&'static str>,
+    /// The passivity layer's figures (reproduction and shadow; `None` for the others).
+    pub passivity: Option<crate::passivity::PassivityReport>,
 }
 
 /// What a sink sent during the run, for the run's summary.

@@ -60,6 +60,29 @@ fn step_allocates_nothing_in_any_experiment() {
         assert_eq!(n, 0, "{kind:?} step allocated {n} times");
     }
 
+    // the passivity layer acting on every path (observing, damping, withholding): an active
+    // object (negative damping) rendered with the layer on
+    let mut p = common::short_cfg(1, 8.0, 2.0);
+    p.experiment = ExperimentKind::Reproduction;
+    p.passivity.mode = rt_loop::passivity::PassivityMode::On;
+    p.reproduction.fallback.b = -100.0;
+    let mut rig = rt_loop::run::build_rig(&p, None).unwrap();
+    alloc_count::start();
+    let mut done = 0;
+    while done < 40_000 && rig.step().is_ok() {
+        done += 1;
+    }
+    let n = alloc_count::stop();
+    let rep = rig.passivity.report();
+    assert!(
+        done >= 40_000 && rep.active_steps > 0,
+        "{done} steps, {rep:?}"
+    );
+    assert_eq!(
+        n, 0,
+        "a step with the passivity layer on allocated {n} times"
+    );
+
     // the counter itself works: a Vec allocates
     alloc_count::start();
     let v = vec![1u8; 10];

@@ -515,6 +515,12 @@ fn loop_status_block_round_trips_through_the_segment() {
         board_fault: StatusText::new("the hardware watchdog tripped"),
         board_fifo_overflows: 2,
         board_quadrature_errors: 3,
+        passivity_on: true,
+        passivity_energy_j: 0.5,
+        passivity_received_j: 2.0,
+        passivity_returned_j: 1.5,
+        passivity_damping_ns_per_m: 120.0,
+        passivity_active_steps: 9,
     };
     assert_eq!(
         s.recorder.as_str().len(),

@@ -481,6 +481,9 @@ function updateFigures(): void {
   const rungs = [s.on_time, s.late_one, s.held, s.fallback];
   setText("f-ladder", rungs.every((v) => v === undefined) ? "–" : rungs.map(fmtInt).join(" / "), (s.fallback ?? 0) > 0 ? "bad" : (s.late_one ?? 0) + (s.held ?? 0) > 0 ? "warn" : "");
   setText("f-transition", typeof s.max_transition_step_n === "number" ? `${s.max_transition_step_n.toFixed(3)} N` : "–", (s.max_transition_step_n ?? 0) > 0.05 ? "bad" : "");
+  // The passivity layer: on/off, the energy the object holds (received / returned), its damping.
+  const pa = s.passivity;
+  setText("f-passivity", pa ? `${pa.on ? "on" : "off (observing)"}: ${(pa.energy_j ?? 0).toFixed(3)} J (in ${(pa.received_j ?? 0).toFixed(3)} / out ${(pa.returned_j ?? 0).toFixed(3)}), max ${(pa.damping_ns_per_m ?? 0).toFixed(1)} N s/m, ${fmtInt(pa.active_steps)} steps` : "–", (pa?.returned_j ?? 0) > (pa?.received_j ?? 0) ? "bad" : (pa?.active_steps ?? 0) > 0 ? "warn" : "");
   setText("f-corrupt", fmtInt(s.corrupt), (s.corrupt ?? 0) > 0 ? "bad" : "");
   setText("f-model", s.active_model ? `${s.active_model.name}${s.active_model.kind ? ` (${s.active_model.kind})` : ""}` : s.loop_alive === undefined ? "–" : "none (fallback)");
   const expDetail = s.mode && s.mode !== "idle" ? [s.experiment_cycle ? `cycle ${s.experiment_cycle}` : "", s.experiment_phase ?? ""].filter(Boolean).join(", ") : "";

@@ -78,6 +78,18 @@ export interface Latency {
   count?: number;
 }
 
+/** The passivity layer of the current (or last) run: whether its damper acts, the energy the
+ * rendered object holds, received and returned (J, positive = into the object), the largest
+ * damping it applied (N s/m), the steps it changed the force on. */
+export interface Passivity {
+  on?: boolean;
+  energy_j?: number;
+  received_j?: number;
+  returned_j?: number;
+  damping_ns_per_m?: number;
+  active_steps?: number;
+}
+
 export interface ModelInfo {
   name: string;
   state: string;
@@ -142,6 +154,7 @@ export interface Status {
   /** Board failures that ended a run (each at 0 A) and the last one's reason. */
   board_faults?: number;
   board_fault?: string;
+  passivity?: Passivity;
   experiment_cycle?: number;
   experiment_phase?: string;
   board?: string;
@@ -201,6 +214,19 @@ function latency(v: unknown): Latency | undefined {
   };
 }
 
+function passivity(v: unknown): Passivity | undefined {
+  const o = obj(v);
+  if (!o) return undefined;
+  return {
+    on: bool(o.on),
+    energy_j: num(o.energy_j),
+    received_j: num(o.received_j),
+    returned_j: num(o.returned_j),
+    damping_ns_per_m: num(o.damping_ns_per_m),
+    active_steps: num(o.active_steps),
+  };
+}
+
 /**
  * Reads the status object into the page's flat form. The server sends
  * `{ server: {...}, loop: {...}, active_model }` (docs/web-protocol.md); the flat gRPC `Status`
@@ -238,6 +264,7 @@ export function normalizeStatus(raw: unknown): Status {
     max_transition_step_n: num(loop?.max_transition_step_n),
     board_faults: num(loop?.board_faults),
     board_fault: str(loop?.board_fault),
+    passivity: passivity(loop?.passivity),
     scheduling: str(loop?.scheduling),
     recorder: str(loop?.recorder),
     recorder_failed: bool(loop?.recorder_failed),

@@ -224,6 +224,21 @@ pub struct LoopStatus {
     pub overruns: u64,
     /// |actual period - nominal period| (realtime clock).
     pub period_jitter: Latency,
+    /// The passivity layer of the current (or last) run.
+    pub passivity: PassivityStatus,
+}
+
+/// The passivity layer's figures (rt-loop's passivity module): whether its damper acts, the
+/// energy the rendered object holds, received and returned (J, positive = into the object),
+/// the largest damping it applied (N s/m) and the steps it acted on.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct PassivityStatus {
+    pub on: bool,
+    pub energy_j: f64,
+    pub received_j: f64,
+    pub returned_j: f64,
+    pub damping_ns_per_m: f64,
+    pub active_steps: u64,
 }
 
 impl LoopStatus {

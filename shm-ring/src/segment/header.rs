@@ -12,8 +12,8 @@ use crate::status_block::{StatusBlock, STATUS_WORDS};
 /// protocol's message must carry at most as many values).
 pub const MAX_SCHEMA_NAMES: usize = 16;
 
-// The status block's size is part of the layout (LAYOUT_VERSION 4: 70 words; 4 added the
-// saturated steps and the board's fault counters).
+// The status block's size is part of the layout (LAYOUT_VERSION 4: 76 words; 4 added the
+// saturated steps, the board's fault counters and the passivity layer's figures).
 const _: () = assert!(std::mem::size_of::<StatusBlock>() == (1 + STATUS_WORDS) * 8);
 
 /// "HAPTSHM1" little-endian: the first word of every segment.
@@ -21,8 +21,8 @@ pub const MAGIC: u64 = u64::from_le_bytes(*b"HAPTSHM1");
 /// Bumped whenever the header or ring protocol changes incompatibly.
 /// 2: the loop-status block (`loop_status`) was added after the heartbeats.
 /// 3: the loop-status block gained the degradation ladder's counters and the experiment name.
-/// 4: the loop-status block gained the saturated steps' count (issue 23) and the board's fault
-///    counters and last fault (issue 20).
+/// 4: the loop-status block gained the saturated steps' count (issue 23), the board's fault
+///    counters and last fault, and the passivity layer's figures (issue 20).
 pub const LAYOUT_VERSION: u64 = 4;
 
 /// Per-channel description in the header.

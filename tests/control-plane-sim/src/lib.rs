@@ -437,6 +437,7 @@ impl Backend for SimBackend {
                 round_trip_latency: latency,
                 overruns: 0,
                 period_jitter: Latency::default(),
+                passivity: Default::default(),
             },
             server: ServerStatus {
                 inference_latency: latency,

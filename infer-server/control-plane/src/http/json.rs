@@ -77,6 +77,8 @@ pub struct LoopJson {
     pub telemetry_drops: u64,
     pub overruns: u64,
     pub period_jitter_us: LatencyJson,
+    /// The passivity layer of the current (or last) run.
+    pub passivity: crate::backend::PassivityStatus,
 }
 
 #[derive(Debug, Serialize)]
@@ -150,6 +152,7 @@ impl StatusJson {
                 telemetry_drops: l.telemetry_drops,
                 overruns: l.overruns,
                 period_jitter_us: (&l.period_jitter).into(),
+                passivity: l.passivity,
             },
             active_model: s.active_model.as_ref().map(|m| ActiveModelJson {
                 name: m.name.clone(),

@@ -78,6 +78,36 @@ pub async fn metrics(
         &[],
         l.max_transition_step_n,
     );
+    let p = &l.passivity;
+    m.gauge(
+        "haptics_passivity_on",
+        "Whether the passivity layer's damper acts (1) or only observes (0)",
+        &[],
+        f64::from(u8::from(p.on)),
+    );
+    for (dir, v) in [
+        ("held", p.energy_j),
+        ("received", p.received_j),
+        ("returned", p.returned_j),
+    ] {
+        m.gauge(
+            "haptics_passivity_energy_joules",
+            "Energy of the rendered object by the passivity observer: held (received - returned, less forgotten), received from and returned to the hand",
+            &[("kind", dir)],
+            v,
+        );
+    }
+    m.gauge(
+        "haptics_passivity_damping_newton_seconds_per_metre",
+        "Largest damping the passivity layer applied this run",
+        &[],
+        p.damping_ns_per_m,
+    );
+    m.counter(
+        "haptics_passivity_active_steps_total",
+        "Steps on which the passivity layer changed the rendered force",
+        p.active_steps as f64,
+    );
     m.counter(
         "haptics_board_faults_total",
         "Board failures that ended a run (failed read, DAC write or watchdog kick, board gone, watchdog tripped); each put the motor at 0 A",
