@@ -32,7 +32,7 @@ from .score import score_run
 
 #: The active model: F = K x - B v (N/m, N s/m); B above the hand's own damping (15 N s/m).
 ACTIVE_K = 300.0
-ACTIVE_B = 40.0
+ACTIVE_B = 100.0
 #: The models the product recommends (docs/fidelity.json, README).
 RECOMMENDED = ("sd_poly2", "rf_memory", "structured")
 #: The simulated bench's encoder, m/count.
@@ -52,7 +52,7 @@ def write_active_model(path: Path, k: float = ACTIVE_K, b: float = ACTIVE_B) -> 
     model.ir_version = 10
     provenance = {
         "model": "active_negative_damper",
-        "purpose": "a deliberately active (energy-generating) model for the passivity layer's tests",
+        "purpose": "a deliberately active (energy-generating) model: the passivity layer's test",
         "hyperparameters": {"k_n_per_m": k, "b_ns_per_m": -b},
         "generator": "haptics_train.study.passivity.write_active_model",
     }
@@ -164,8 +164,8 @@ def plot(active: dict[str, dict], path: Path) -> None:
     styles = {"off": ("tab:red", "layer off"), "on": ("tab:blue", "layer on")}
     for layer, e in active.items():
         colour, label = styles[layer]
-        ax[0].plot(e["time"], e["net"], colour, lw=1.0,
-                   label=f"{label}: received {e['received_j']:.3f} J, returned {e['returned_j']:.3f} J")  # fmt: skip
+        totals = f"received {e['received_j']:.3f} J, returned {e['returned_j']:.3f} J"
+        ax[0].plot(e["time"], e["net"], colour, lw=1.0, label=f"{label}: {totals}")
     ax[0].axhline(0.0, color="k", lw=0.6)
     ax[0].set_ylabel("energy into the object [J]\n(received - returned)")
     ax[0].legend(fontsize=8)
@@ -188,8 +188,11 @@ def plot(active: dict[str, dict], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m haptics_train.study.passivity", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    ap = argparse.ArgumentParser(
+        prog="python -m haptics_train.study.passivity",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("--models", type=Path, default=Path("models"))
     ap.add_argument("--out", type=Path, default=Path("docs"))
     ap.add_argument("--work", type=Path, default=Path("data/passivity"))
