@@ -207,10 +207,19 @@ fn model_names_in_examples_are_models_the_commands_make() {
     }
     let bench = read("scripts/bench-loaded.sh");
     let default = after(&bench, "model=${HAPTICS_MODEL:-", '}').expect("bench-loaded.sh");
-    assert!(
-        bench.contains(&format!("HAPTICS_MODEL (default {default}")),
-        "bench-loaded.sh's header names another default model than {default}"
-    );
+    match default.strip_prefix("${recommended:-") {
+        // The recommendation's model, else a fixed one: the header says both.
+        Some(fallback) => assert!(
+            bench.contains("HAPTICS_MODEL (default: the model")
+                && bench.contains("models/recommendation.json recommends, else")
+                && bench.contains(&format!("else {fallback})")),
+            "bench-loaded.sh's header does not say its default model (the recommendation, else {fallback})"
+        ),
+        None => assert!(
+            bench.contains(&format!("HAPTICS_MODEL (default {default}")),
+            "bench-loaded.sh's header names another default model than {default}"
+        ),
+    }
 }
 
 #[test]

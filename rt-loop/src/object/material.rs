@@ -30,7 +30,7 @@ pub struct Material {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 #[serde(tag = "law", rename_all = "snake_case")]
 pub enum LawParams {
-    /// The viscoelastic foam of SPEC section 7 ([`super::foam`]).
+    /// The viscoelastic foam of docs/physics.md, "The simulated sponge bench" ([`super::foam`]).
     Foam(Foam),
     /// A Bouc-Wen hysteretic material ([`super::bouc_wen`]).
     BoucWen(BoucWenParams),

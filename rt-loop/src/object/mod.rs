@@ -3,7 +3,7 @@
 //! implementing [`Law`], and [`Object`] is the one the bench and the oracle step, whatever the
 //! law:
 //!
-//! - [`foam`]: the viscoelastic foam of SPEC section 7 (the default sponge, foam-b, foam-c);
+//! - [`foam`]: the viscoelastic foam of docs/physics.md, "The simulated sponge bench" (the default sponge, foam-b, foam-c);
 //! - [`bouc_wen`]: a rate-independent hysteretic material (Bouc 1967, Wen 1976);
 //! - [`poroelastic`]: a gel under a spherical indenter whose relaxation time grows with the
 //!   contact size (Hu et al. 2010).
