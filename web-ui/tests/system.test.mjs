@@ -256,7 +256,7 @@ describe("page against the real rt-loop and infer-server", () => {
     if (existsSync(bin("hapticctl"))) {
       const args = fill(process.env.HAPTICS_HAPTICCTL_ARGS ?? DEFAULT_HAPTICCTL_ARGS, ctx.vars);
       // The owner's hapticctl finds the token in the connection file: none given here.
-      const env = { ...process.env, ...ctx.env };
+      const env = { ...process.env, ...ctx.env, HAPTICS_INSTANCE: ctx.vars.instance };
       delete env.HAPTICS_TOKEN;
       const r = spawnSync(bin("hapticctl"), args, { encoding: "utf8", timeout: 10000, env });
       assert.equal(r.status, 0, `hapticctl ${args.join(" ")}: ${r.stderr}`);
