@@ -5,6 +5,7 @@ the whole dashboard)."""
 import importlib.util
 import json
 import urllib.request
+from typing import Any
 
 from conftest import REPO
 
@@ -24,10 +25,18 @@ def queries():
             for t in p["targets"]]  # fmt: skip
 
 
+def scrape_metrics(system: Any) -> Any:
+    """GET /metrics with the system's token (infer-server needs it there too, unless started
+    with --open-metrics)."""
+    req = urllib.request.Request(f"{system.http}/metrics",
+                                 headers={"Authorization": f"Bearer {system.token}"})  # fmt: skip
+    return urllib.request.urlopen(req, timeout=5)
+
+
 def test_every_metric_the_dashboard_queries_is_in_metrics(system, client):
     render = render_module()
     client.swap("soft_spring.onnx")  # an active model: haptics_active_model_info is written
-    text = urllib.request.urlopen(f"{system.http}/metrics", timeout=5).read().decode()
+    text = scrape_metrics(system).read().decode()
     scrape = render.parse(text)
     present = {name for name, _ in scrape}
     wanted = {m for _, e in queries() for m in render.metric_names(e)}
@@ -43,7 +52,7 @@ def test_every_metric_the_dashboard_queries_is_in_metrics(system, client):
 
 def test_every_panel_query_renders(system):
     render = render_module()
-    scrapes = [render.parse(urllib.request.urlopen(f"{system.http}/metrics", timeout=5)
+    scrapes = [render.parse(scrape_metrics(system)
                             .read().decode()) for _ in range(2)]  # fmt: skip
     for title, expr in queries():
         series = render.evaluate(expr, [0.0, 1.0], scrapes)
@@ -56,7 +65,7 @@ def test_a_refused_upload_is_counted(system, client, tmp_path):
     import haptics
 
     def refused():
-        text = urllib.request.urlopen(f"{system.http}/metrics", timeout=5).read().decode()
+        text = scrape_metrics(system).read().decode()
         return render_module().parse(text)[
             ("haptics_model_uploads_refused_total", (("reason", "invalid"),))]
 

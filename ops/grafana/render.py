@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import re
 import sys
 import time
@@ -97,7 +98,11 @@ def scrape(url: str, seconds: float, interval: float) -> tuple[list[float], list
     scrapes: list[Scrape] = []
     t0 = time.monotonic()
     while time.monotonic() - t0 < seconds:
-        with urllib.request.urlopen(f"{url.rstrip('/')}/metrics", timeout=5) as r:
+        # /metrics needs infer-server's token unless it runs with --open-metrics.
+        token = os.environ.get("HAPTICS_TOKEN")
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        req = urllib.request.Request(f"{url.rstrip('/')}/metrics", headers=headers)
+        with urllib.request.urlopen(req, timeout=5) as r:
             scrapes.append(parse(r.read().decode()))
         times.append(time.monotonic() - t0)
         time.sleep(max(0.0, interval - (time.monotonic() - t0 - times[-1])))
