@@ -65,6 +65,8 @@ pub enum BoardCmd {
 
 #[derive(Args)]
 pub struct BoardCheckArgs {
+    /// A TOML file of settings (rt-loop/config.example.toml): the loop parameters and the
+    /// motor's limits the bring-up commands respect; the flags override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
     #[command(flatten)]
