@@ -127,8 +127,9 @@ fn reproduction_renders_the_model_and_shadow_compares() {
     assert!((felt_shadow - felt_repro).abs() < 0.5 * felt_shadow.max(felt_repro));
 }
 
-/// A model that misbehaves (NaN, out of range, no answer) is replaced by the fallback and
-/// counted; the loop keeps rendering.
+/// A model that misbehaves (NaN, no answer) is replaced by the fallback and counted; an answer
+/// beyond the force limit is rendered at the limit (saturated, issue 23), not replaced; the
+/// loop keeps rendering.
 #[test]
 fn bad_predictions_fall_back() {
     struct Flaky(std::sync::Arc<std::sync::atomic::AtomicU32>);
@@ -168,7 +169,8 @@ fn bad_predictions_fall_back() {
     let st = rig.experiment.model_stats().unwrap();
     assert_eq!(st.fallbacks, fb);
     assert_eq!(st.served + st.fallbacks, n);
-    assert!((fb as f64 / n as f64 - 0.75).abs() < 0.01);
+    // NaN and no answer (half the steps) fall back; 1e6 N saturates at the limit instead.
+    assert!((fb as f64 / n as f64 - 0.5).abs() < 0.01, "{fb} of {n} fell back");
 }
 
 /// The realtime clock at 10 kHz for 0.3 s: about 3000 steps, jitter statistics measured,

@@ -223,7 +223,7 @@ fn run_with_unwritable_target_fails_clearly_before_starting() {
     let mut cfg = common::short_cfg(1, 8.0, 0.0);
     cfg.record = Some("/nonexistent-dir-rt-loop/x.parquet".into());
     let err = rt_loop::run::run(&cfg, None, None).unwrap_err().to_string();
-    assert!(err.contains("cannot create recording"), "{err}");
+    assert!(err.contains("cannot create the recording"), "{err}");
 }
 
 /// An existing recording is never replaced unless asked.

@@ -176,8 +176,11 @@ fn an_active_model_gains_the_hand_energy_without_the_layer_and_none_with_it() {
     assert!(on_s["passivity"]["active_steps"].as_u64().unwrap() > 0);
     // Sampled data: the force of step k is chosen before the displacement of period k is
     // known, so the observer can only pay a deficit after it happened: up to one step's work
-    // (a few N over a few encoder counts: 1e-4 J is 10 N over 10 um) may stay unpaid.
-    let one_step: f64 = 1e-4;
+    // (a few N over a few encoder counts: 1e-4 J is 10 N over 10 um) may stay unpaid. In
+    // realtime on a loaded machine a late step spans several periods' displacement (seen:
+    // -1.03e-4 J under a parallel build), so the bound is three such steps: still 4000 times
+    // less than the -1.3 J the same run loses with the layer off.
+    let one_step: f64 = 3e-4;
     assert!(
         on.returned <= on.received + one_step,
         "returned {} J > received {} J with the layer on",

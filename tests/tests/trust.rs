@@ -538,6 +538,18 @@ fn a_gibibyte_at_run_time_or_ten_megabytes_of_metadata_is_refused_at_load() {
     let sys = System::start("models", &dir, "linear.onnx", &["--clock", "realtime"]);
     let before = sys.owner_ctl(&["--json", "status"]);
     assert!(before.status.success(), "{}", text(&before));
+    // The served model is warmed (and its cost timed) before it becomes active: wait for it,
+    // so that "the active model is untouched" below compares with an active model.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        let o = sys.owner_ctl(&["--json", "status"]);
+        let st: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_default();
+        if st["active_model"]["name"] == "linear.onnx" {
+            break;
+        }
+        assert!(Instant::now() < deadline, "linear.onnx never became active: {st}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
     for (name, why) in [
         ("memory_hog.onnx", "memory"),
         ("big_metadata.onnx", "at most 65536 bytes"),
