@@ -68,7 +68,9 @@ def test_token_wrong_or_missing_is_typed(system, tmp_path, monkeypatch):
     monkeypatch.delenv("HAPTICS_TOKEN", raising=False)
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))  # no connection file here
     with haptics.Client(system.address, token="not-the-token") as c:
-        assert c.status().loop_alive  # reads need no token
+        # Reads that show live data need the token too (docs/control-plane.md, local trust).
+        with pytest.raises(haptics.WrongToken, match="token"):
+            c.status()
         with pytest.raises(haptics.WrongToken, match="token"):
             c.swap("stiff_spring.onnx")
     with haptics.Client(system.address, instance="none-such") as c:

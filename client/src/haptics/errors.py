@@ -73,7 +73,7 @@ def from_rpc(
         )
     if code in (grpc.StatusCode.UNAUTHENTICATED, grpc.StatusCode.PERMISSION_DENIED):
         return WrongToken(
-            f"{call}: {details}. This server requires its token for changes: pass token=... "
+            f"{call}: {details}. This server requires its token (for every call): pass token=... "
             "or set HAPTICS_TOKEN (a local server's connection file provides it)"
         )
     if code in (grpc.StatusCode.RESOURCE_EXHAUSTED, grpc.StatusCode.OUT_OF_RANGE):
