@@ -298,7 +298,15 @@ export async function startFakeServer(opts = {}) {
         experiment: { kind: bench.exp.running ? bench.exp.kind : "idle", running: !!bench.exp.running, cycle: bench.exp.running ? bench.cycle ?? 0 : 0, phase: bench.phase },
         scheduling: "SCHED_OTHER (fake)",
         recorder: "off",
+        recorder_failed: false,
         telemetry_drops: 0,
+        // the fake bench never saturates, has no real board and no passivity layer acting
+        saturated: 0,
+        board_faults: 0,
+        board_fault: "",
+        board_fifo_overflows: 0,
+        board_quadrature_errors: 0,
+        passivity: { on: false, energy_j: 0, received_j: 0, returned_j: 0, damping_ns_per_m: 0, active_steps: 0 },
       },
       active_model: m ? { name: state.active, kind: m.kind, features: m.features, since_step: state.activeSince, model_id: state.modelIds[state.active] } : null,
     };
@@ -315,6 +323,7 @@ export async function startFakeServer(opts = {}) {
     model_id: state.modelIds[n],
     ...(n === state.active ? { active_since_step: state.activeSince } : {}),
     provenance: null,
+    cost: null,
   });
   const json = (res, code, body) => {
     res.writeHead(code, { "Content-Type": "application/json", "Cache-Control": "no-store" });
