@@ -170,7 +170,10 @@ fn bad_predictions_fall_back() {
     assert_eq!(st.fallbacks, fb);
     assert_eq!(st.served + st.fallbacks, n);
     // NaN and no answer (half the steps) fall back; 1e6 N saturates at the limit instead.
-    assert!((fb as f64 / n as f64 - 0.5).abs() < 0.01, "{fb} of {n} fell back");
+    assert!(
+        (fb as f64 / n as f64 - 0.5).abs() < 0.01,
+        "{fb} of {n} fell back"
+    );
 }
 
 /// The realtime clock at 10 kHz for 0.3 s: about 3000 steps, jitter statistics measured,

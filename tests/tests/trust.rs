@@ -547,7 +547,10 @@ fn a_gibibyte_at_run_time_or_ten_megabytes_of_metadata_is_refused_at_load() {
         if st["active_model"]["name"] == "linear.onnx" {
             break;
         }
-        assert!(Instant::now() < deadline, "linear.onnx never became active: {st}");
+        assert!(
+            Instant::now() < deadline,
+            "linear.onnx never became active: {st}"
+        );
         std::thread::sleep(Duration::from_millis(100));
     }
     for (name, why) in [
