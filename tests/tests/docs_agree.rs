@@ -48,7 +48,7 @@ fn repository_files() -> Vec<PathBuf> {
         }
     }
     fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
-        const SKIP: &[&str] = &[
+        const NOT_WALKED: &[&str] = &[
             ".git",
             "target",
             "node_modules",
@@ -62,7 +62,7 @@ fn repository_files() -> Vec<PathBuf> {
             let p = e.path();
             let name = e.file_name().to_string_lossy().into_owned();
             if p.is_dir() {
-                if !SKIP.contains(&name.as_str()) {
+                if !NOT_WALKED.contains(&name.as_str()) {
                     walk(&p, out);
                 }
             } else {
