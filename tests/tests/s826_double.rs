@@ -28,6 +28,17 @@ fn double() -> Option<PathBuf> {
     }
 }
 
+/// `rt-loop serve` of instance `inst` on the double `lib` with the settings file `cfg`; the
+/// caller adds the clock, rate and autostart.
+fn serve_on_double(inst: &str, lib: &Path, cfg: &Path) -> Command {
+    let mut c = Command::new(bin("rt-loop"));
+    c.args(["serve", "--instance", inst, "--board", "s826", "--s826-lib"])
+        .arg(lib)
+        .arg("--config")
+        .arg(cfg);
+    c
+}
+
 /// The watchdog these runs arm: 100 ms, because this shared machine stalls a process for tens
 /// of milliseconds now and then (a real-time host runs the default, five periods).
 const WATCHDOG_US: u64 = 100_000;
@@ -302,18 +313,7 @@ fn serve_on_the_double_shows_a_board_fault_everywhere() {
     let inst = instance("s826");
     let mut lp = Proc::spawn(
         "rt-loop serve",
-        Command::new(bin("rt-loop"))
-            .args([
-                "serve",
-                "--instance",
-                &inst,
-                "--board",
-                "s826",
-                "--s826-lib",
-            ])
-            .arg(&lib)
-            .arg("--config")
-            .arg(&cfg)
+        serve_on_double(&inst, &lib, &cfg)
             .args(["--clock", "realtime", "--rate-hz", "1000"])
             .args(["--deadline-us", "900", "--wait", "park"])
             .env("S826_DOUBLE_LOG", dir.join("double.log"))
@@ -396,18 +396,7 @@ fn serve_on_the_double_a_vanished_card_is_cut_by_its_own_watchdog() {
     let inst = instance("s826v");
     let mut lp = Proc::spawn(
         "rt-loop serve",
-        Command::new(bin("rt-loop"))
-            .args([
-                "serve",
-                "--instance",
-                &inst,
-                "--board",
-                "s826",
-                "--s826-lib",
-            ])
-            .arg(&lib)
-            .arg("--config")
-            .arg(&cfg)
+        serve_on_double(&inst, &lib, &cfg)
             .args([
                 "--clock",
                 "realtime",
