@@ -112,7 +112,7 @@ trap interrupted INT TERM
 trap stop EXIT
 
 loop_args=(serve --clock realtime --instance "$instance" --board "$board")
-bench="simulated bench"
+bench="the simulated bench"
 case "$board" in
   s826*)
     s826_lib=${HAPTICS_S826_LIB:-}
@@ -123,7 +123,9 @@ case "$board" in
       bench="the 826's C-ABI double (no lib826_64.so on this machine; the double simulates the rig)"
     else
       watchdog=${HAPTICS_S826_WATCHDOG_US:-}
-      bench="Sensoray 826 board ${board#s826}"
+      num=${board#s826}
+      bench="the Sensoray 826 board number ${num#:}"
+      [ -n "${num#:}" ] || bench="the Sensoray 826 board number 0"
     fi
     [ -n "$s826_lib" ] && loop_args+=(--s826-lib "$s826_lib")
     [ -n "$watchdog" ] && loop_args+=(--s826-watchdog-us "$watchdog")
@@ -170,7 +172,7 @@ ctl=target/release/hapticctl
 [ "$grpc" = 127.0.0.1:50051 ] || ctl+=" --addr http://$grpc"
 cat <<EOF
 
-  The system is up on the $bench.
+  The system is up on $bench.
     page:      $page
     gRPC:      $grpc   ($ctl status --watch)
     model:     $model (models/), experiment: $autostart
