@@ -13,7 +13,8 @@
 
 use crate::board::sim::SimConfig;
 use crate::board::Board;
-use crate::config::RunConfig;
+use crate::clock::RealtimeClock;
+use crate::config::{ClockKind, RunConfig};
 use crate::experiment::{Experiment, PositionPid, Trajectory};
 use crate::friction::{fit, BenchFile, FrictionFit, SweepPoint};
 use crate::invalid::InvalidSetting;
@@ -165,7 +166,18 @@ pub fn identify(cfg: &RunConfig, plan: &SweepPlan) -> Result<Identification> {
         .collect();
     let mut k = 0usize;
     let mut loop_time = 0.0;
+    // On the realtime clock (a real board, which moves in wall time), the sweep is paced at the
+    // loop's rate as `run` paces it: unpaced, the loop would spin a core flat out, and on a busy
+    // machine a spinning SCHED_OTHER thread is the one the scheduler preempts for tens of ms,
+    // past the card's watchdog. Lockstep (the simulated bench) runs as fast as it can.
+    let mut pace = (cfg.clock == ClockKind::Realtime).then(|| RealtimeClock::new(cfg.rate_hz));
+    if let Some(c) = pace.as_mut() {
+        c.start();
+    }
     loop {
+        if let Some(c) = pace.as_mut() {
+            c.wait();
+        }
         match rig.step() {
             Ok(row) => {
                 loop_time = row.time;

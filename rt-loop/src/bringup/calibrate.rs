@@ -81,7 +81,8 @@ pub fn calibrate(cfg: &RunConfig, given: &Given) -> Result<(RigFile, Vec<String>
     } else {
         let mut fc = cfg.clone();
         fc.clock = ClockKind::Realtime;
-        // the sweeps run unpaced on the card's own timestamps: a generous watchdog
+        // the sweeps run paced at the loop's rate (friction_id::identify), on the card's own
+        // timestamps; a generous watchdog, as for the pulses
         fc.s826.watchdog_us = Some(super::BRINGUP_WATCHDOG_US);
         let id = crate::friction_id::identify(&fc, &crate::friction_id::SweepPlan::default())?;
         notes.push(format!(
