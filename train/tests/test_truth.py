@@ -16,7 +16,7 @@ import pytest
 from haptics_train.data import Recording
 from haptics_train.models import TrainConfig
 from haptics_train.ood import readme_section, target_column
-from haptics_train.study import STUDY_HAND, Run, Tools, read_series, run_loop, write_config
+from haptics_train.study import STUDY_HAND, Row, Run, Tools, read_series, run_loop, write_config
 from haptics_train.study.score import prediction_along_real
 from haptics_train.truth import FELT_FORCE, OBJECT_FORCE, is_hand_run, object_truth
 
@@ -113,3 +113,32 @@ def test_rt_loop_records_the_object_force_on_a_hand_run(rt_loop: Path, tmp_path:
     m, col, _ = prediction_along_real(Run("builtin", "shadow", ref.path, True, served=1,
                                           series=s))  # fmt: skip
     assert m is not None and col == OBJECT_FORCE and m["rmse"] != m["felt_rmse"]
+
+
+def test_the_study_readme_says_which_truth_the_prediction_along_real_met(tmp_path: Path) -> None:
+    from haptics_train.study.report import results_json, write_readme
+
+    def row(name: str, felt: float, along: float, learned: bool, series: dict) -> Row:
+        run = Run(name, "reproduction", Path(name), True, steps=N, served=N)
+        m = {"r2": 0.9, "mae": felt, "mse": felt * felt, "rmse": felt, "coverage": 1.0}
+        sh = Run(name, "shadow", Path(name), True, served=N, series=series)
+        along_m, col, note = prediction_along_real(sh)
+        assert along_m is not None
+        along_m["rmse"] = along
+        return Row(name, "served ONNX", m, along_m, run, sh, learned, col, note)
+
+    rows = [row("structured", 0.06, 0.13, True, _hand_series()),
+            row("sd_poly2", 1.36, 2.41, False, _hand_series(False))]  # fmt: skip
+    cell = {"r2": 1.0, "mae": 0.1, "mse": 0.01, "rmse": 0.1}
+    replay = {"rtob_force": cell, "F_true": cell, "position_x": cell}
+    ref = Run("sponge", "reference", Path("ref"), True, steps=N)
+    readme = write_readme(tmp_path, ref, rows, replay, ref, Path("test_2.1.parquet"), {}, 1.0, 1)
+    text = readme.read_text()
+    assert "F_pred vs the simulated object's own force F_object): best learned `structured` " \
+           "RMSE 0.130 N" in text
+    assert "`structured` would read 0.950 N" in text  # against the hand's F_true
+    assert "scored against the felt force instead of the object's own: sd_poly2: no F_object" \
+           in text
+    doc = results_json(rows, replay, 1.0)
+    assert doc["models"]["structured"]["prediction_along_real_against"] == OBJECT_FORCE
+    assert doc["models"]["sd_poly2"]["prediction_along_real_against"] == FELT_FORCE
