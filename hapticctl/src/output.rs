@@ -296,6 +296,7 @@ pub fn sample_json(x: &pb::TelemetrySample) -> Value {
         "velocity": num(x.velocity),
         "acceleration": num(x.acceleration),
         "f_true": num(x.f_true),
+        "f_object": num(x.f_object),
         "fallbacks": x.fallbacks,
         "min": x.min.iter().map(|v| num(*v)).collect::<Vec<_>>(),
         "max": x.max.iter().map(|v| num(*v)).collect::<Vec<_>>(),

@@ -16,9 +16,10 @@ pub const SERIES: [&str; N_SERIES] = [
     "F_true",
     "f_previous",
     "model_id",
+    "F_object",
 ];
 /// How many series a frame carries.
-pub const N_SERIES: usize = 9;
+pub const N_SERIES: usize = 10;
 
 /// Index of each series in a frame (and in `SERIES`).
 pub const F_REF: usize = 0;
@@ -30,6 +31,9 @@ pub const ACCELERATION: usize = 5;
 pub const F_TRUE: usize = 6;
 pub const F_PREVIOUS: usize = 7;
 pub const MODEL_ID: usize = 8;
+/// The simulated object's own force (the recording's `F_object`); `F_TRUE` is the felt force
+/// (with the simulated hand, the hand's).
+pub const F_OBJECT: usize = 9;
 
 /// One telemetry row's value of every series, in frame order (NaN: not known, e.g. F_pred
 /// without a model, F_true on a real board).
@@ -44,6 +48,7 @@ pub fn values(row: &TelemetryRow) -> [f64; N_SERIES] {
     v[F_TRUE] = row.f_true;
     v[F_PREVIOUS] = row.f_previous;
     v[MODEL_ID] = f64::from(row.model_id);
+    v[F_OBJECT] = row.f_object;
     v
 }
 
@@ -63,6 +68,7 @@ mod tests {
             (F_TRUE, "F_true"),
             (F_PREVIOUS, "f_previous"),
             (MODEL_ID, "model_id"),
+            (F_OBJECT, "F_object"),
         ];
         for (i, name) in names {
             assert_eq!(SERIES[i], name);
@@ -71,9 +77,11 @@ mod tests {
             rtob_force: 2.0,
             f_previous: 1.5,
             model_id: 4,
+            f_object: 0.5,
             ..TelemetryRow::default()
         };
         let v = values(&row);
+        assert_eq!(v[F_OBJECT], 0.5);
         assert_eq!(v[RTOB_FORCE], 2.0);
         assert_eq!(v[F_PREVIOUS], 1.5);
         assert_eq!(v[MODEL_ID], 4.0);

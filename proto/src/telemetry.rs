@@ -6,7 +6,7 @@ use shm_ring::{layout_id, DecodeError, Message};
 
 /// The recording's columns in file order (docs/recording-format.md): the fields of a
 /// [`TelemetryRow`] but `run_id`, `model_id` and `f_previous`, which only telemetry carries.
-pub const RECORDING_COLUMNS: [&str; 24] = [
+pub const RECORDING_COLUMNS: [&str; 25] = [
     "step",
     "timestamp",
     "time",
@@ -31,6 +31,7 @@ pub const RECORDING_COLUMNS: [&str; 24] = [
     "f_previous_a",
     "deformation",
     "area_fx",
+    "F_object",
 ];
 
 /// The full state of one loop step: a recording row (`docs/recording-format.md`, columns
@@ -72,10 +73,15 @@ pub struct TelemetryRow {
     pub f_previous_a: f64,
     pub deformation: f64,
     pub area_fx: f64,
+    /// The simulated object's own force on the probe, N (NaN where the bench has no object
+    /// of its own: a real board, reproduction's virtual object, imported data). `f_true` is
+    /// the felt force: with the simulated hand, the hand's force, which also carries the
+    /// bench's friction and the motor's mass; an object-only model is compared with this one.
+    pub f_object: f64,
 }
 
 impl TelemetryRow {
-    const FLOATS: usize = 18;
+    const FLOATS: usize = 19;
 
     fn floats(&self) -> [f64; Self::FLOATS] {
         [
@@ -97,6 +103,7 @@ impl TelemetryRow {
             self.deformation,
             self.area_fx,
             self.f_previous,
+            self.f_object,
         ]
     }
 }
@@ -104,10 +111,10 @@ impl TelemetryRow {
 impl Message for TelemetryRow {
     const WORDS: usize = 4 + Self::FLOATS;
     const LAYOUT_ID: u64 = layout_id(
-        "TelemetryRow v2: run_id u32|model_id u32<<32, step u64, timestamp u32|counts i32, \
+        "TelemetryRow v3: run_id u32|model_id u32<<32, step u64, timestamp u32|counts i32, \
          analog_out_motor u16|phase u8<<16|fallback u8<<24|cycle_no u32<<32, time, dt, f_ref, \
          rtob_force, dob_force, position_x, velocity, acceleration, i_a_ref, i_motor, f_true, \
-         f_pred, f_previous_x, f_previous_v, f_previous_a, deformation, area_fx, f_previous (f64)",
+         f_pred, f_previous_x, f_previous_v, f_previous_a, deformation, area_fx, f_previous, f_object (f64)",
     );
 
     fn encode(&self, out: &mut [u64]) {
@@ -160,6 +167,7 @@ impl Message for TelemetryRow {
             deformation: f(15),
             area_fx: f(16),
             f_previous: f(17),
+            f_object: f(18),
         })
     }
 }
@@ -183,6 +191,7 @@ mod tests {
             cycle_no: 3,
             rtob_force: 1.25,
             area_fx: 0.5,
+            f_object: 0.75,
             ..TelemetryRow::default()
         };
         let mut words = [0u64; TelemetryRow::WORDS];

@@ -18,7 +18,7 @@
 //! - the metadata records the source, the units (and where each came from), the rate and every
 //!   setting used.
 //!
-//! Columns with no source: F_ref, dob_force, I_a_ref, I_motor, F_true, F_pred are NaN;
+//! Columns with no source: F_ref, dob_force, I_a_ref, I_motor, F_true, F_pred, F_object are NaN;
 //! analog_out_motor is 32768 (0 A), phase 0, fallback false. `rtob_force` is the imported
 //! force, `counts` the position rounded to encoder counts, `timestamp` the time in
 //! microseconds wrapped to 32 bits like a board counter.
@@ -394,6 +394,7 @@ pub fn rows_from_series(
                 f_previous_a: f.f_previous_a,
                 deformation: f.deformation,
                 area_fx: f.area_fx,
+                f_object: f64::NAN,
                 run_id: 0,
                 model_id: 0,
                 f_previous: f.f_previous,

@@ -330,6 +330,7 @@ impl<B: Board> Rig<B> {
             f_previous_a: feats.f_previous_a,
             deformation: feats.deformation,
             area_fx: feats.area_fx,
+            f_object: self.board.object_force(),
             run_id: 0,
             model_id: d.model_id,
             f_previous: feats.f_previous,

@@ -28,6 +28,7 @@ fn replay_board_reprocesses_a_recording() {
         "f_previous_x",
         "area_fx",
         "F_true",
+        "F_object",
     ];
     let a = read_columns(&path, &cols).unwrap();
     let b = read_columns(&dir.join("same.parquet"), &cols).unwrap();

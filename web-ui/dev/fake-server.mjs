@@ -25,7 +25,7 @@ const { module: vocab } = await runnerImport(join(here, "..", "src", "vocab.ts")
 /** The telemetry series in the server's order. */
 export const SERIES = vocab.SERIES;
 /** Where each quantity the bench computes goes in a telemetry row; a series it cannot fill is an error. */
-const FIELDS = ["F_ref", "rtob_force", "F_pred", "position_x", "velocity", "acceleration", "F_true", "f_previous", "model_id"];
+const FIELDS = ["F_ref", "rtob_force", "F_pred", "position_x", "velocity", "acceleration", "F_true", "f_previous", "model_id", "F_object"];
 const unknown = SERIES.filter((n) => !FIELDS.includes(n));
 if (unknown.length) throw new Error(`fake-server: the vocabulary has series it does not fill: ${unknown.join(", ")}`);
 const COLUMN = FIELDS.map((n) => SERIES.indexOf(n));
@@ -67,6 +67,7 @@ export class FakeBench {
     this.aInt = 0;
     this.a = 0;
     this.prevF = 0; // the previous step's RFOB force: the f_previous feature
+    this.fric = 0; // the guide's friction, N (felt, not the object's)
     this.row = new Float64Array(SERIES.length);
     this.exp = { kind: "idle", running: false };
     this.phase = DONE;
@@ -144,20 +145,25 @@ export class FakeBench {
     this.s += (k2 * xdot - this.s / tau) * dt;
     // Permanent deformation grows with the largest depth, recovers a little.
     this.perm = Math.max(this.perm, 0.04 * xe) * (1 - 0.02 * dt);
-    const Ftrue = fel + this.s + c * xdot;
+    // The object's own force, and the felt force: the object's plus the friction of the
+    // probe's guide (as the simulated bench's F_true carries it on a hand run), a Dahl element
+    // of 20 um that keeps its last value when the probe stops (a hold is never friction-free).
+    const Fobject = fel + this.s + c * xdot;
+    this.fric = Math.max(-0.09, Math.min(0.09, this.fric + (0.09 * xdot * dt) / 2e-5));
+    const Ftrue = Fobject + this.fric;
     // Encoder: 5 um counts; pseudo-derivatives as the loop computes them.
     const xq = Math.round(this.x / 5e-6) * 5e-6;
     this.vInt += this.v * dt;
     this.v = 30 * (xq - this.vInt);
     this.aInt += this.a * dt;
     this.a = 100 * (this.v - this.aInt);
-    let Fres = Ftrue + 0.9 * Math.tanh(xdot / 2e-4) * 0.1 + 0.03 * this.r.n();
+    let Fres = Ftrue + 0.03 * this.r.n();
     if (this.step % 25000 === 12345) Fres += 2.5; // a one-step spike every 2.5 s (what min/max buckets must keep)
     let Fpred = NaN;
-    if (model) Fpred = model.predict(xq, this.v, Ftrue, this.r);
+    if (model) Fpred = model.predict(xq, this.v, Fobject, this.r);
     this.t += dt;
     this.step++;
-    const values = [Fcmd, Fres, Fpred, xq, this.v, this.a, Ftrue, this.prevF, model ? modelId : 0];
+    const values = [Fcmd, Fres, Fpred, xq, this.v, this.a, Ftrue, this.prevF, model ? modelId : 0, Fobject];
     for (let k = 0; k < values.length; k++) this.row[COLUMN[k]] = values[k];
     this.prevF = Fres;
     return this.row;

@@ -21,7 +21,7 @@ const $ = <T extends HTMLElement = HTMLElement>(id: string): T => {
 };
 
 // Colours: Okabe-Ito, darkened where needed for contrast on white.
-const C = { cmd: "#111827", res: "#0072b2", pred: "#d55e00", truth: "#009e73", prev: "#cc79a7", depth: "#7b3294", vel: "#0072b2", acc: "#a6611a" };
+const C = { cmd: "#111827", res: "#0072b2", pred: "#d55e00", truth: "#009e73", felt: "#56b4e9", prev: "#cc79a7", depth: "#7b3294", vel: "#0072b2", acc: "#a6611a" };
 
 const S = Object.fromEntries(SERIES.map((n, i) => [n, i])) as Record<(typeof SERIES)[number], number>;
 /** Unit conversion per series for display: depth in mm, velocity in mm/s. */
@@ -37,7 +37,12 @@ const PLOTS: PlotDef[] = [
       { series: S.F_ref, label: "command F_ref", short: "F_ref", unit: "N", color: C.cmd, dash: [6, 4] },
       { series: S.rtob_force, label: "RFOB response", short: "F_res", unit: "N", color: C.res },
       { series: S.F_pred, label: "predicted", short: "F_pred", unit: "N", color: C.pred },
-      { series: S.F_true, label: "true (sim)", short: "F_true", unit: "N", color: C.truth },
+      // The simulated object's own force: what a model of the object predicts, so F_pred is
+      // compared with this one. The felt force F_true is what pushes the probe from outside:
+      // with the simulated hand, the hand's force, which also carries the bench's friction (up
+      // to 1 N while the probe rests) and the motor's mass; without a hand, the object's again.
+      { series: S.F_object, label: "object (sim)", short: "F_object", unit: "N", color: C.truth },
+      { series: S.F_true, label: "felt (sim)", short: "F_true", unit: "N", color: C.felt, dash: [2, 3] },
       // The force the model was given as its previous one (F(t-1)): beside F_res it shows what a
       // feedback model saw. Off by default (at plot resolution it lies on the RFOB response).
       { series: S.f_previous, label: "previous F(t-1)", short: "F_prev", unit: "N", color: C.prev, hidden: true },
@@ -205,7 +210,7 @@ function render(): void {
   lastCols = cols;
   lastDrawn = [t0, t1];
   for (const p of timePlots) p.update(cols, t0, t1);
-  for (const name of ["F_pred", "F_true"] as const) {
+  for (const name of ["F_pred", "F_object", "F_true"] as const) {
     const s = S[name];
     const has = cols.max[s].some((v) => v !== null);
     const nd = document.getElementById(`nodata-${name}`);

@@ -12,7 +12,7 @@ export const THESIS_FEATURES = ["position_x", "velocity", "acceleration", "f_pre
 export const PHASE_NAMES = ["hold-zero", "ramp-up", "hold-max", "ramp-down", "position", "reproduction", "done"] as const;
 
 /** The series of a telemetry frame, in frame order (docs/web-protocol.md). */
-export const SERIES = ["F_ref", "rtob_force", "F_pred", "position_x", "velocity", "acceleration", "F_true", "f_previous", "model_id"] as const;
+export const SERIES = ["F_ref", "rtob_force", "F_pred", "position_x", "velocity", "acceleration", "F_true", "f_previous", "model_id", "F_object"] as const;
 
 /** The columns of a recording, in file order (docs/recording-format.md). */
-export const RECORDING_COLUMNS = ["step", "timestamp", "time", "dt", "F_ref", "rtob_force", "dob_force", "counts", "position_x", "velocity", "acceleration", "I_a_ref", "I_motor", "analog_out_motor", "phase", "F_true", "F_pred", "fallback", "cycle_no", "f_previous_x", "f_previous_v", "f_previous_a", "deformation", "area_fx"] as const;
+export const RECORDING_COLUMNS = ["step", "timestamp", "time", "dt", "F_ref", "rtob_force", "dob_force", "counts", "position_x", "velocity", "acceleration", "I_a_ref", "I_motor", "analog_out_motor", "phase", "F_true", "F_pred", "fallback", "cycle_no", "f_previous_x", "f_previous_v", "f_previous_a", "deformation", "area_fx", "F_object"] as const;

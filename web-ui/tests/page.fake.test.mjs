@@ -243,6 +243,23 @@ describe("page against the fake server", () => {
     assert.equal((await page.evaluate(() => window.__haptics.shown())).F_ref, true);
   });
 
+  test("the object's own force and the felt force are two series, each named for what it is", async () => {
+    const label = (n) => page.textContent(`label:has(input[data-series="${n}"]) > span:not(.sw):not(.nodata)`);
+    assert.equal(await label("F_object"), "object (sim)");
+    assert.equal(await label("F_true"), "felt (sim)");
+    const shown = await page.evaluate(() => window.__haptics.shown());
+    assert.ok(shown.F_object && shown.F_true, "both shown by default");
+    const o = await hook.points(page, "F_object");
+    const f = await hook.points(page, "F_true");
+    assert.ok(finite(o.max).length > 10 && finite(f.max).length > 10, "both series reach the plot");
+    // The fake's felt force carries the guide's friction (0.09 N while it moves): not the object's.
+    const n = Math.min(o.max.length, f.max.length);
+    let apart = 0;
+    for (let i = 0; i < n; i++) if (Math.abs(f.max[i] - o.max[i]) > 0.01) apart++;
+    assert.ok(apart > 0, "the felt and the object series are different data");
+    assert.equal(await page.textContent("#nodata-F_object"), "");
+  });
+
   test("export writes the visible window as CSV at full resolution", async () => {
     await page.click("#live");
     await page.click("#pause");

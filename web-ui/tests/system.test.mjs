@@ -323,6 +323,20 @@ describe("page against the real rt-loop and infer-server", () => {
     assert.ok((await page.$$eval("#model-strip .run", (els) => els.map((e) => e.textContent))).includes(active.name));
     // F(t-1), the previous force the loop gives a model, reaches the page too.
     assert.ok(finite((await hook.points(page, "f_previous")).max).length > 20, "f_previous has data");
+    // The hand presses the simulated object: its own force (what the model predicts) and the
+    // hand's felt force (the object's plus the bench's friction and mass) are both plotted, apart.
+    // (The hand rests 1 s before it presses: wait for the press.)
+    await waitFor(
+      async () => {
+        const o = await hook.points(page, "F_object");
+        const f = await hook.points(page, "F_true");
+        if (finite(o.max).length < 20 || finite(f.max).length < 20) return false;
+        const n = Math.min(o.max.length, f.max.length);
+        for (let i = 0; i < n; i++) if (Math.abs(f.max[i] - o.max[i]) > 0.1) return true;
+        return false;
+      },
+      { timeoutMs: 10000, what: "the felt force apart from the object's while the hand presses" },
+    );
   });
 
   it("loop gone: the page says so, and recovers when a loop attaches again", async () => {

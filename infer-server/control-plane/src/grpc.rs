@@ -215,6 +215,7 @@ pub fn sample_to_pb(b: &Bucket) -> pb::TelemetrySample {
         fallbacks: b.fallbacks,
         min: b.min[..N_SERIES].to_vec(),
         max: b.max[..N_SERIES].to_vec(),
+        f_object: b.last[F_OBJECT],
     }
 }
 

@@ -723,6 +723,9 @@ async fn hundred_swaps_report_the_step_they_take_effect() {
                     "step {} answered by gain {g}",
                     x.step
                 );
+                // the object's own force has its field and its series (the last)
+                assert_eq!(x.f_object, x.f_true);
+                assert_eq!(x.max.last(), Some(&x.f_object));
                 checked += 1;
             }
         }

@@ -109,9 +109,18 @@ pub trait Board {
     fn health(&self) -> BoardHealth {
         BoardHealth::default()
     }
-    /// Ground truth for the recording: the true contact force on the probe (N, in the RFOB's
-    /// sign: positive = the contact pushes the probe back). NaN on a real board.
+    /// Ground truth for the recording's `F_true`: the felt force, what pushes the probe from
+    /// outside (N, in the RFOB's sign: positive = the contact pushes the probe back). With the
+    /// simulated hand it is the hand's force, which also carries the bench's friction and the
+    /// motor's mass dynamics; without one, the object's. NaN on a real board.
     fn true_force(&self) -> f64 {
+        f64::NAN
+    }
+    /// Ground truth for the recording's `F_object`: the simulated object's own force on the
+    /// probe (N, same sign), whatever its law and whoever presses; what an object-only model
+    /// predicts. NaN where there is no object of the bench's own (a real board, reproduction's
+    /// virtual object, a recording without the column). REAL-TIME PATH: a field read.
+    fn object_force(&self) -> f64 {
         f64::NAN
     }
     /// Whether the watchdog has fired since it was armed.
@@ -155,6 +164,9 @@ impl<B: Board + ?Sized> Board for Box<B> {
     fn true_force(&self) -> f64 {
         (**self).true_force()
     }
+    fn object_force(&self) -> f64 {
+        (**self).object_force()
+    }
     fn watchdog_tripped(&self) -> bool {
         (**self).watchdog_tripped()
     }
@@ -165,7 +177,7 @@ impl<B: Board + ?Sized> Board for Box<B> {
 
 /// For a board that wraps another (tests' instrumented boards): forwards the lifecycle's
 /// non-step methods (`configure`, `activate`, `deactivate`, `on_error`, `shutdown`, `health`,
-/// `true_force`, `watchdog_tripped`) to the field named; the wrapper writes `read`, `write`,
+/// `true_force`, `object_force`, `watchdog_tripped`) to the field named; the wrapper writes `read`, `write`,
 /// `kick` and `name` itself.
 #[macro_export]
 macro_rules! forward_board_lifecycle {
@@ -190,6 +202,9 @@ macro_rules! forward_board_lifecycle {
         }
         fn true_force(&self) -> f64 {
             self.$inner.true_force()
+        }
+        fn object_force(&self) -> f64 {
+            self.$inner.object_force()
         }
         fn watchdog_tripped(&self) -> bool {
             self.$inner.watchdog_tripped()

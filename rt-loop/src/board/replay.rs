@@ -1,7 +1,8 @@
 //! The replay board: feeds a recording's encoder counts and timestamps back through the loop,
 //! so a recording can be reprocessed offline with other observer settings. The DAC words the
-//! loop writes are ignored (the recorded motion already happened); the recorded F_true is
-//! passed through.
+//! loop writes are ignored (the recorded motion already happened); the recorded F_true and
+//! F_object are passed through (NaN when the recording has no such column: older recordings
+//! have no F_object).
 
 use super::{Board, BoardError, BoardStop, Snapshot};
 use crate::invalid::InvalidSeries;
@@ -10,6 +11,7 @@ pub struct ReplayBoard {
     counts: Vec<i32>,
     timestamps: Vec<u32>,
     f_true: Vec<f64>,
+    f_object: Vec<f64>,
     next: usize,
     current: usize,
 }
@@ -31,17 +33,30 @@ impl ReplayBoard {
             counts,
             timestamps,
             f_true,
+            f_object: Vec::new(),
             next: 0,
             current: 0,
         })
     }
 
-    /// Loads `counts`, `timestamp` and (if present) `F_true` from a recording.
+    /// Passes the recording's `F_object` through as well (empty: none, NaN on every step).
+    pub fn with_object_force(mut self, f_object: Vec<f64>) -> Result<Self, InvalidSeries> {
+        if !f_object.is_empty() && f_object.len() != self.counts.len() {
+            return Err("replay columns have different lengths".into());
+        }
+        self.f_object = f_object;
+        Ok(self)
+    }
+
+    /// Loads `counts`, `timestamp` and (if present) `F_true` and `F_object` from a recording.
     pub fn from_recording(path: &std::path::Path) -> anyhow::Result<Self> {
         let cols = crate::record::read::read_columns(path, &["counts", "timestamp"])?;
-        let f_true = crate::record::read::read_columns(path, &["F_true"])
-            .map(|mut c| c.remove(0))
-            .unwrap_or_default();
+        let optional = |name: &str| {
+            crate::record::read::read_columns(path, &[name])
+                .map(|mut c| c.remove(0))
+                .unwrap_or_default()
+        };
+        let (f_true, f_object) = (optional("F_true"), optional("F_object"));
         let counts = integers(&cols[0], "counts", i32::MIN as f64, i32::MAX as f64)
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
             .into_iter()
@@ -52,7 +67,9 @@ impl ReplayBoard {
             .into_iter()
             .map(|t| t as u32)
             .collect();
-        ReplayBoard::new(counts, ts, f_true).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+        ReplayBoard::new(counts, ts, f_true)
+            .and_then(|b| b.with_object_force(f_object))
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
     }
 
     pub fn len(&self) -> usize {
@@ -111,6 +128,9 @@ impl Board for ReplayBoard {
     fn shutdown(&mut self) {}
     fn true_force(&self) -> f64 {
         self.f_true.get(self.current).copied().unwrap_or(f64::NAN)
+    }
+    fn object_force(&self) -> f64 {
+        self.f_object.get(self.current).copied().unwrap_or(f64::NAN)
     }
     fn name(&self) -> &'static str {
         "replay"

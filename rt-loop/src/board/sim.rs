@@ -317,11 +317,18 @@ impl Board for SimBoard {
 
     fn true_force(&self) -> f64 {
         match (&self.sponge, &self.hand) {
-            // With a hand, the felt force is what the hand pushes with.
+            // With a hand, the felt force is what the hand pushes with: the object's force plus
+            // what the bench's friction and the motor's mass take (minus the motor's own).
             (_, Some(_)) => self.hand_force,
             (Some(s), None) => s.force(),
             (None, None) => 0.0,
         }
+    }
+
+    fn object_force(&self) -> f64 {
+        // The object's own force, whichever law; none in reproduction (the object is the
+        // model the motor renders), so NaN, never a zero a comparison would take as truth.
+        self.sponge.as_ref().map_or(f64::NAN, |s| s.force())
     }
 
     fn watchdog_tripped(&self) -> bool {
@@ -418,6 +425,87 @@ mod tests {
             b.read().unwrap();
         }
         assert!(b.position() > 1e-4);
+    }
+
+    /// A hand pressing an object of each law at 0 A: `F_object` is the object's own force
+    /// (bit for bit), never the hand's; `F_true` (the hand's) differs from it by what the
+    /// bench takes: the friction (up to the breakaway force while the probe sticks, at rest
+    /// and in the holds) and the mass times the acceleration while it moves.
+    #[test]
+    fn object_force_is_the_objects_and_differs_from_the_felt_by_friction_and_mass() {
+        for law in ["sponge", "bouc-wen", "gel"] {
+            let cfg = SimConfig {
+                current_noise_a: 0.0,
+                period_jitter_us: 0.0,
+                ..SimConfig::default()
+            };
+            let (m, static_n) = (cfg.mass_kg, cfg.static_n);
+            let period = 1e-4;
+            let mut b = SimBoard::new(
+                cfg,
+                SimWorld {
+                    sponge: Some(Material::repository(law)),
+                    hand: Some(HandConfig {
+                        repeats: 1,
+                        ..HandConfig::default()
+                    }),
+                },
+                SimTime::Virtual { period_s: period },
+                5,
+            );
+            b.read().unwrap();
+            b.write(dac::current_to_word(0.0, 0.6)).unwrap();
+            let (mut v_last, mut stuck_gap, mut worst_sliding) = (0.0, 0.0f64, 0.0f64);
+            let (mut stuck_pressed, mut peak) = (0, 0.0f64);
+            while b.sim_time() < 5.0 {
+                b.read().unwrap();
+                let obj = b.object_force();
+                assert_eq!(
+                    obj.to_bits(),
+                    b.sponge().unwrap().force().to_bits(),
+                    "{law}"
+                );
+                assert_eq!(b.true_force().to_bits(), b.hand_force().to_bits(), "{law}");
+                peak = peak.max(obj);
+                let gap = b.true_force() - obj;
+                if b.velocity() == 0.0 && v_last == 0.0 {
+                    // stuck: friction balances whatever the hand and the object leave
+                    assert!(gap.abs() <= static_n + 1e-9, "{law}: stuck gap {gap}");
+                    if b.hand_force() > 1.0 {
+                        stuck_pressed += 1;
+                        stuck_gap = stuck_gap.max(gap.abs());
+                    }
+                } else if b.velocity() != 0.0 && v_last != 0.0 {
+                    // sliding: the gap is the mass's m*a plus the sliding friction
+                    let mass = m * (b.velocity() - v_last) / period;
+                    let rest = gap - mass - b.sliding_friction(b.velocity());
+                    worst_sliding = worst_sliding.max(rest.abs());
+                }
+                v_last = b.velocity();
+            }
+            eprintln!(
+                "{law}: peak object force {peak:.2} N; stuck and pressed {stuck_pressed} steps, \
+                 felt - object up to {stuck_gap:.3} N; sliding residual {worst_sliding:.3} N"
+            );
+            assert!(peak > 2.0, "{law}: the hand pressed the object ({peak} N)");
+            assert!(stuck_pressed > 100, "{law}: the probe stuck in a hold");
+            // the "about 1 N off in every hold" of comparing an object model with F_true
+            assert!(stuck_gap > 0.3, "{law}: felt and object differ at rest");
+            assert!(worst_sliding < 0.2, "{law}: felt - object - m a - friction");
+        }
+        // no object of the bench's own (reproduction): NaN, not a zero taken as truth
+        let mut b = SimBoard::new(
+            SimConfig::default(),
+            SimWorld {
+                sponge: None,
+                hand: Some(HandConfig::default()),
+            },
+            SimTime::Virtual { period_s: 1e-4 },
+            5,
+        );
+        b.read().unwrap();
+        b.read().unwrap();
+        assert!(b.object_force().is_nan() && b.true_force().is_finite());
     }
 
     #[test]

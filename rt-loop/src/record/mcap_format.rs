@@ -11,8 +11,8 @@
 //!
 //! The run metadata is also the file's MCAP Metadata record `haptics` (key `haptics.run`).
 //! A message's log time is the step's `time` in nanoseconds. Floats are written as their
-//! shortest round-trip text (serde_json), so reading back gives identical values; NaN (F_true on
-//! a real board, F_pred without a model) is `null`. Each property of a schema names its Arrow
+//! shortest round-trip text (serde_json), so reading back gives identical values; NaN (F_true and
+//! F_object on a real board, F_pred without a model) is `null`. Each property of a schema names its Arrow
 //! type (`x-arrow-type`), so a converter can restore the Parquet columns exactly
 //! (`haptics-mcap`, client/src/haptics/mcap_format.py).
 

@@ -125,6 +125,7 @@ pub(super) fn batch(rows: &[Row]) -> Result<RecordBatch, arrow_schema::ArrowErro
         f64_col(rows, |r| r.f_previous_a),
         f64_col(rows, |r| r.deformation),
         f64_col(rows, |r| r.area_fx),
+        f64_col(rows, |r| r.f_object),
     ];
     RecordBatch::try_new(schema(), cols)
 }
@@ -215,11 +216,12 @@ impl Sink {
                     // `{:?}` on f64 is the shortest text that parses back to the same value
                     let _ = write!(
                         line,
-                        "{},{},{:?},{:?},{:?},{:?},{:?},{},{:?},{:?},{:?},{:?},{:?},{},{},{:?},{:?},{},{},{:?},{:?},{:?},{:?},{:?}",
+                        "{},{},{:?},{:?},{:?},{:?},{:?},{},{:?},{:?},{:?},{:?},{:?},{},{},{:?},{:?},{},{},{:?},{:?},{:?},{:?},{:?},{:?}",
                         r.step, r.timestamp, r.time, r.dt, r.f_ref, r.rtob_force, r.dob_force,
                         r.counts, r.position_x, r.velocity, r.acceleration, r.i_a_ref, r.i_motor,
                         r.analog_out_motor, r.phase, r.f_true, r.f_pred, r.fallback, r.cycle_no,
-                        r.f_previous_x, r.f_previous_v, r.f_previous_a, r.deformation, r.area_fx
+                        r.f_previous_x, r.f_previous_v, r.f_previous_a, r.deformation, r.area_fx,
+                        r.f_object
                     );
                     line.push('\n');
                     let before = out.get_ref().bytes;

@@ -95,6 +95,7 @@ pub fn rows_identical(a: &[Row], b: &[Row]) -> bool {
             r.f_previous_a,
             r.deformation,
             r.area_fx,
+            r.f_object,
         ]
         .map(f64::to_bits)
     };

@@ -297,6 +297,8 @@ fn run_loop(inner: &Inner) {
             values[series::VELOCITY] = v;
             values[series::ACCELERATION] = a;
             values[series::F_TRUE] = f_true;
+            // no hand in this simulation: the felt force is the object's own
+            values[series::F_OBJECT] = f_true;
             batch.push(Bucket::step(i, t, values, gain.is_none()));
         }
         let n = target - s.step;

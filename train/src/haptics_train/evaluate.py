@@ -16,9 +16,18 @@ from .data import Dataset, Recording, to_rows
 from .features import F_PREVIOUS, FEEDBACK_FEATURES, TARGET_DEFAULT
 from .metrics import force_metrics, pooled
 from .models.base import ForceModel, TrainConfig, fit_recordings
+from .truth import is_hand_run, object_truth
 
-#: the simulated bench's true contact force (a recording column; no real bench has it)
-TRUE_FORCE = "F_true"
+
+def true_column(rec: Recording) -> str | None:
+    """The simulated object's own force in `rec` (`truth.object_truth`: F_object, or F_true
+    where a recording predates it, said on stdout when that was a hand run); None on a real or
+    imported recording."""
+    hand = is_hand_run(rec.meta, rec.name)
+    truth = object_truth(rec.columns, rec.name, hand)
+    if hand and truth.note:
+        print(f"[evaluate] {truth.note}", flush=True)
+    return truth.column
 
 
 def needs_feedback(model: ForceModel) -> bool:
@@ -41,7 +50,7 @@ def evaluate(
       own predictions. A model without any such feature gets the same inputs either way, so
       its closed-loop result is its one-step result (`closed_loop_same_as_one_step`);
     - rendered vs true (simulated recordings only): the force the graph renders against the
-      object's own force `F_true`.
+      object's own force `F_object` (`F_true` on a recording older than that column).
     """
     y = rec.target(cfg.target)
     x = rec.column("position_x")
@@ -72,7 +81,8 @@ def evaluate(
             res["closed_loop"] = dict(res["one_step"])
             res["closed_loop_same_as_one_step"] = True
             preds["closed_loop"] = one
-        if TRUE_FORCE in rec.columns:
+        true = true_column(rec)
+        if true is not None:
             # On the simulated bench the object's own force is known: what the graph renders
             # (`structured` leaves the bench's friction out of it) against it. The recorded
             # target (the RFOB estimate) carries the bench's friction and, while the probe
@@ -82,7 +92,8 @@ def evaluate(
             if served is not None:
                 preds["rendered"] = served(rec.matrix(model.features))
             rendered = preds.get("rendered", preds["closed_loop"])
-            res["rendered_vs_true"] = force_metrics(rec.column(TRUE_FORCE), rendered, x, contact)
+            res["rendered_vs_true"] = force_metrics(rec.column(true), rendered, x, contact)
+            res["true_column"] = true
     return res, preds
 
 
@@ -97,14 +108,13 @@ def pooled_metrics(
                 (r.target(target), p[kind], r.column("position_x"), contact_thresholds(r)[1])
                 for r, p in zip(recs, preds, strict=True)
             ])  # fmt: skip
-    if recs and all("closed_loop" in p for p in preds) and all(
-        TRUE_FORCE in r.columns for r in recs
-    ):
+    trues = [true_column(r) for r in recs]
+    if recs and all("closed_loop" in p for p in preds) and None not in trues:
         # the rendered force against the simulated object's own (see `evaluate`)
         out["rendered_vs_true"] = pooled([
-            (r.column(TRUE_FORCE), p.get("rendered", p["closed_loop"]), r.column("position_x"),
+            (r.column(t), p.get("rendered", p["closed_loop"]), r.column("position_x"),
              contact_thresholds(r)[1])
-            for r, p in zip(recs, preds, strict=True)
+            for r, p, t in zip(recs, preds, trues, strict=True)
         ])  # fmt: skip
     return out
 

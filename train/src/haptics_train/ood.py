@@ -4,9 +4,13 @@ the training range, position-controlled presses, hand presses). Free run, as in 
 a feedback model steps its exported graph on its own predictions (`evaluate.evaluate`).
 
 The target of each recording is the model's training target, except the hand presses: in
-`shadow` the force loop holds the RFOB near 0 N, so their target is the felt force F_true. On
-simulated recordings every run is also scored as rendered (for `structured` the object without
-the bench's friction) against F_true: `rendered_vs_true_rmse`, `worst_true_rmse_n`. A
+`shadow` the force loop holds the RFOB near 0 N, so their target is the simulated object's own
+force F_object, and the force compared with it is the one the model renders (for `structured`
+the object without the bench's friction): like with like. F_true there is the hand's force,
+which also carries the bench's friction (up to 1 N while the probe rests) and mass; a
+recording made before rt-loop wrote F_object is scored against F_true instead, and its row and
+the report say so (`truth.object_truth`). On simulated recordings every run is also scored as
+rendered against the object's own force: `rendered_vs_true_rmse`, `worst_true_rmse_n`. A
 free run diverges when it is not finite or leaves three times the recording's force range: it
 is counted, and its RMSE is reported as it is.
 """
@@ -20,19 +24,29 @@ from pathlib import Path
 import numpy as np
 
 from .closed_loop import contact_thresholds
-from .data import load_recording
+from .data import Recording, load_recording
 from .evaluate import evaluate
 from .export import provenance, to_contract_onnx
 from .fidelity import merge
 from .metrics import force_metrics
 from .models import ForceModel, TrainConfig
+from .truth import FELT_FORCE, object_truth
 
 OOD_FILE = "ood.json"
 
 
-def target_column(name: str, cfg: TrainConfig) -> str:
-    """The column a suite recording is scored against (see the module docstring)."""
-    return "F_true" if name.startswith("hand_") else cfg.target
+def is_hand(name: str) -> bool:
+    """A hand press of the suite (scripts/record-ood.sh names them hand_*)."""
+    return name.startswith("hand_")
+
+
+def target_column(rec: Recording, cfg: TrainConfig) -> tuple[str, str]:
+    """The column a suite recording is scored against (see the module docstring) and, when a
+    hand press had to fall back to the felt force, why."""
+    if not is_hand(rec.name):
+        return cfg.target, ""
+    truth = object_truth(rec.columns, rec.name, hand=True)
+    return truth.column or FELT_FORCE, truth.note
 
 
 def diverged(y: np.ndarray, pred: np.ndarray) -> bool:
@@ -57,16 +71,21 @@ def score_suite(
         draft = to_contract_onnx(model, provenance(model, cfg, None, None))
         rows: dict = {}
         for rec in recs:
-            col = target_column(rec.name, cfg)
+            col, note = target_column(rec, cfg)
             rcfg = TrainConfig(**{**cfg.to_dict(), "target": col, "progress": False})
             res, preds = evaluate(model, draft, rec, rcfg)
-            # the free run (`predict` for a kinematics-only model); on the sponge study's
-            # hand presses `structured`'s object + friction is nearer F_true than the object
-            # alone (0.30 vs 0.90 N, hand_slow), so the rendered force is shown beside it
-            # (`rendered_vs_true_rmse`) rather than in its place
-            y, pred = rec.column(col), preds["closed_loop"]
+            # the free run (`predict` for a kinematics-only model: object + the bench's
+            # friction, as the RFOB reads it); on a hand press the force the model renders
+            # (the object alone), compared with the object's own force
+            pred = preds["closed_loop"]
+            if is_hand(rec.name):
+                pred = preds.get("rendered", pred)
+            y = rec.column(col)
             m = force_metrics(y, pred, rec.column("position_x"), contact_thresholds(rec)[1])
             rows[rec.name] = {"target": col, "rows": len(y), "diverged": diverged(y, pred), **m}
+            if note:
+                rows[rec.name]["target_note"] = note
+                print(f"[ood] {note}", flush=True)
             if "rendered_vs_true" in res:  # simulated: the rendered force vs the object's own
                 rows[rec.name]["rendered_vs_true_rmse"] = res["rendered_vs_true"]["rmse"]
             print(f"[ood] {model.name} {rec.name}: free-run RMSE {m['rmse']:.4g} N"
@@ -115,11 +134,13 @@ def readme_section(doc: dict, recommended: str | None = None) -> list[str]:
     L = [f"{OOD_HEADING}\n",
          "Free-run RMSE (N) of each model on each recording of the suite "
          "(`scripts/record-ood.sh`, scored by `haptics-train ood`); the hand presses are "
-         "scored against the felt force F_true, the others against the training target. "
+         "scored as rendered against the simulated object's own force F_object (not the "
+         "hand's F_true, which carries the bench's friction and mass too), the others "
+         "against the training target. "
          "A run is counted diverged when it is not finite or leaves three times the "
          "recording's force range."
          + (" After the slash: the rendered force against the simulated object's own force "
-            "F_true on every recording." if true else "") + "\n",
+            "on every recording." if true else "") + "\n",
          "| recording | " + " | ".join(f"`{n}`" for n in names) + " |",
          "|---|" + "---|" * len(names)]  # fmt: skip
 
@@ -145,6 +166,11 @@ def readme_section(doc: dict, recommended: str | None = None) -> list[str]:
                  "recordings diverged"
                  + ("." if t is None else f"; against the object's own force, worst "
                     f"{_cell(t)} N."))  # fmt: skip
+    notes = sorted({r["target_note"] for e in doc.values() for r in e["recordings"].values()
+                    if r.get("target_note")})  # fmt: skip
+    if notes:
+        L.append("\nScored against the felt force instead of the object's own: "
+                 + "; ".join(notes) + ".")
     return [*L, ""]
 
 

@@ -121,6 +121,8 @@ def make_recording_columns(
         "f_previous_a": feats["f_previous_a"],
         "deformation": feats["deformation"],
         "area_fx": feats["area_fx"],
+        # no hand: the felt force is the object's own
+        "F_object": f_true,
     }
 
 

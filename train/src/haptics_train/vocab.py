@@ -15,7 +15,7 @@ THESIS_FEATURES: tuple[str, ...] = ("position_x", "velocity", "acceleration", "f
 PHASE_NAMES: tuple[str, ...] = ("hold-zero", "ramp-up", "hold-max", "ramp-down", "position", "reproduction", "done")
 
 #: The series of a telemetry frame, in frame order (docs/web-protocol.md).
-SERIES: tuple[str, ...] = ("F_ref", "rtob_force", "F_pred", "position_x", "velocity", "acceleration", "F_true", "f_previous", "model_id")
+SERIES: tuple[str, ...] = ("F_ref", "rtob_force", "F_pred", "position_x", "velocity", "acceleration", "F_true", "f_previous", "model_id", "F_object")
 
 #: The columns of a recording, in file order (docs/recording-format.md).
-RECORDING_COLUMNS: tuple[str, ...] = ("step", "timestamp", "time", "dt", "F_ref", "rtob_force", "dob_force", "counts", "position_x", "velocity", "acceleration", "I_a_ref", "I_motor", "analog_out_motor", "phase", "F_true", "F_pred", "fallback", "cycle_no", "f_previous_x", "f_previous_v", "f_previous_a", "deformation", "area_fx")
+RECORDING_COLUMNS: tuple[str, ...] = ("step", "timestamp", "time", "dt", "F_ref", "rtob_force", "dob_force", "counts", "position_x", "velocity", "acceleration", "I_a_ref", "I_motor", "analog_out_motor", "phase", "F_true", "F_pred", "fallback", "cycle_no", "f_previous_x", "f_previous_v", "f_previous_a", "deformation", "area_fx", "F_object")

@@ -13,8 +13,10 @@ same; the felt forces are compared at the reference's time stamps (R2, MAE, MSE,
 
 Beside it, the thesis's own 6.4.4 comparison: the model predicting along the real interaction
 (`shadow --model shm`: F_pred, built from the model's own previous predictions, against the
-felt force F_true), and the position-replay validation of 6.4.3: a recorded trajectory replayed
-with the position PID on the simulated sponge, its force against the recording's.
+simulated object's own force F_object, like with like: the hand's F_true also carries the
+bench's friction and mass, which a model of the object does not predict), and the
+position-replay validation of 6.4.3: a recorded trajectory replayed with the position PID on
+the simulated sponge, its force against the recording's.
 
 The package, one module per concern (each imports only those listed before it):
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
-from .protocol import SERIES, StudyError
+from .protocol import OPTIONAL_SERIES, SERIES, StudyError
 
 
 @dataclass
@@ -60,8 +60,12 @@ def find_tools(root: Path, rt_loop: str | None, infer_server: str | None) -> Too
 
 
 def read_series(path: Path, columns: tuple[str, ...] = SERIES) -> dict[str, np.ndarray]:
-    table = pq.read_table(path, columns=list(columns))
-    return {c: np.asarray(table.column(c), dtype=np.float64) for c in columns}
+    """The columns of a recording as float64; an optional one the file lacks (F_object in an
+    older recording) is left out of the answer, for the scorer to say so."""
+    have = set(pq.read_schema(path).names)
+    wanted = [c for c in columns if c in have or c not in OPTIONAL_SERIES]
+    table = pq.read_table(path, columns=wanted)
+    return {c: np.asarray(table.column(c), dtype=np.float64) for c in wanted}
 
 
 def write_config(path: Path, seed: int, hand: dict[str, float], clock: str = "lockstep") -> None:

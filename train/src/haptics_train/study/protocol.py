@@ -43,7 +43,9 @@ DEFAULT_MATERIAL = "materials/sponge.toml"
 #: docs/fidelity.json keys the study fills (the pipeline fills the others).
 FIDELITY_KEYS = ("oracle_felt_rmse_n", "sd_poly2_felt_rmse_n", "felt_rmse_n", "felt_fast_rmse_n")
 
-SERIES = ("time", "position_x", "F_true", "F_pred", "rtob_force", "fallback")
+SERIES = ("time", "position_x", "F_true", "F_pred", "rtob_force", "fallback", "F_object")
+#: series a recording may lack: F_object in recordings older than the column
+OPTIONAL_SERIES = ("F_object",)
 
 
 class StudyError(RuntimeError):

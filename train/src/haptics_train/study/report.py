@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 
 from ..fidelity import merge, read_object
+from ..truth import OBJECT_FORCE
 from .processes import Run
 from .protocol import (
     DEFAULT_MATERIAL,
@@ -175,12 +176,18 @@ def write_readme(
         L.append(
             "The thesis's Table 6.19 itself compared the forces *predicted* along a real "
             "interaction (model and spring-damper) with the measured one. The same here "
-            "(`pred along real` below: each model fed the hand-on-sponge run, F_pred vs the "
-            f"felt force): best learned `{pb.name}` RMSE {fmt(pb.shadow['rmse'])} N "
+            "(`pred along real` below: each model fed the hand-on-sponge run, F_pred vs "
+            f"{truth_text(pb)}): best learned `{pb.name}` RMSE {fmt(pb.shadow['rmse'])} N "
             f"(R2 {fmt(pb.shadow['r2'])}), `sd_poly2` {fmt(sd2.shadow['rmse'])} N "
             f"(R2 {fmt(sd2.shadow['r2'])}): "
-            f"{fmt(ratio(sd2.shadow['rmse'], pb.shadow['rmse']), 2)}x.\n"
+            f"{fmt(ratio(sd2.shadow['rmse'], pb.shadow['rmse']), 2)}x. Against the hand's "
+            f"F_true instead (the felt force, the bench's friction and mass included) "
+            f"`{pb.name}` would read {fmt(pb.shadow.get('felt_rmse'))} N.\n"
         )
+    notes = [r.shadow_note for r in rows if r.shadow_note]
+    if notes:
+        L.append("Predictions along the real interaction scored against the felt force "
+                 "instead of the object's own: " + "; ".join(notes) + ".\n")  # fmt: skip
     fast_note = "not run."
     if fast_rows:
         fb, fsd = best_row(fast_rows, True), sd2_row(fast_rows)
@@ -194,7 +201,8 @@ def write_readme(
         "`repro` = reproduction (the hand on the virtual sponge) vs the reference's felt force. "
         "`pred along real` = the thesis's own 6.4.4 comparison: `shadow --model shm`, the model "
         "predicting along the real interaction from its own previous predictions, F_pred vs "
-        "the felt force F_true of that run. `one-step` / `closed-loop` = the offline "
+        "the simulated object's own force F_object of that run (not the hand's F_true). "
+        "`one-step` / `closed-loop` = the offline "
         "test-set RMSE of docs/report (held-out 2.1 N/s ramps). Wall = seconds for the "
         "reproduction run (both processes, start to end).\n"
     )
@@ -372,6 +380,13 @@ def floor_section(
     return L
 
 
+def truth_text(r: Row) -> str:
+    """What a row's prediction along the real interaction was scored against."""
+    if r.shadow_truth == OBJECT_FORCE:
+        return "the simulated object's own force F_object"
+    return f"the felt force {r.shadow_truth} (no F_object in that recording)"
+
+
 def results_json(
     rows: list[Row], replay: dict, total_s: float, fast_rows: list[Row] | None = None
 ) -> dict:
@@ -384,6 +399,7 @@ def results_json(
                 "how": r.how,
                 "reproduction": r.repro,
                 "prediction_along_real": r.shadow,
+                "prediction_along_real_against": r.shadow_truth if r.shadow else None,
                 "served": r.run.served,
                 "fallbacks": r.run.fallbacks,
                 "saturated": r.run.saturated,

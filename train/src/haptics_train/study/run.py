@@ -12,7 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..fidelity import RECOMMENDATION_FILE, load_recommendation, merge, recommendation
-from ..metrics import regression_metrics
+from ..truth import OBJECT_FORCE
 from .plot import write_plots
 from .processes import Run, Tools, find_tools, read_series, run_loop, write_config
 from .protocol import (
@@ -28,7 +28,16 @@ from .protocol import (
     StudyError,
 )
 from .report import fmt, load_results, results_json, write_fidelity, write_readme
-from .score import Row, compare, felt_rmse, floor_summary, rankable, repro_rmse, score_run
+from .score import (
+    Row,
+    compare,
+    felt_rmse,
+    floor_summary,
+    prediction_along_real,
+    rankable,
+    repro_rmse,
+    score_run,
+)
 
 
 def study_models(models_dir: Path, names: list[str] | None) -> list[Path]:
@@ -209,7 +218,8 @@ def _reproduce_all(
     clock: str = "lockstep",
 ) -> tuple[Run, list[Row]]:
     """The reference (shadow on the simulated object), the oracle, then every model's
-    reproduction (and, optionally, its prediction along the real interaction), then the
+    reproduction (and, optionally, its prediction along the real interaction, against the
+    object's own force F_object), then the
     builtin spring-damper, all with the same hand programme, seed, material and bench file
     (`extra`: rt-loop flags)."""
     cfg = work / f"{tag}hand.toml"
@@ -260,13 +270,14 @@ def _reproduce_all(
         r = loop(name, "reproduction", "reproduction", f"repro_{name}", model=f)
         repro = score_run(t_ref, f_ref, r)
         sh = None
-        sh_m = None
+        sh_m, sh_truth, sh_note = None, OBJECT_FORCE, ""
         if shadow_predictions and r.series:
             sh = loop(name, "shadow", "shadow", f"shadow_{name}", model=f)
-            if sh.series and sh.served > 0:
-                sh_m = regression_metrics(sh.series["F_true"], sh.series["F_pred"])
+            sh_m, sh_truth, sh_note = prediction_along_real(sh)
+            if sh_note:
+                say(f"{tag}{name}: {sh_note}")
         learned = name not in SPRING_DAMPERS
-        rows.append(Row(name, "served ONNX", repro, sh_m, r, sh, learned=learned))
+        rows.append(Row(name, "served ONNX", repro, sh_m, r, sh, learned, sh_truth, sh_note))
         say(
             f"{tag}{name}: felt-force RMSE {fmt(repro['rmse'] if repro else None)} N, "
             f"{r.served} served / {r.fallbacks} fallbacks, stop {r.stop or '-'}, "

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..metrics import regression_metrics
+from ..truth import FELT_FORCE, OBJECT_FORCE, object_truth
 from .processes import Run
 from .protocol import BUILTIN, ORACLE
 
@@ -66,6 +67,26 @@ class Row:
     run: Run
     shadow_run: Run | None
     learned: bool
+    #: the truth `shadow` was scored against (F_object; F_true in an older recording)
+    shadow_truth: str = OBJECT_FORCE
+    #: why it is not F_object, when it is not
+    shadow_note: str = ""
+
+
+def prediction_along_real(sh: Run) -> tuple[dict[str, float] | None, str, str]:
+    """The thesis's 6.4.4 comparison on a shadow run: F_pred (the model along the real
+    interaction) against the simulated object's own force F_object, like with like (the hand's
+    F_true also carries the bench's friction and mass, which an object model does not
+    predict); `felt_rmse` beside it is the same against F_true. Also the column used and, when
+    it is not F_object (a recording older than it), why."""
+    if not sh.series or sh.served == 0:
+        return None, OBJECT_FORCE, ""
+    truth = object_truth(sh.series, sh.name, hand=True)
+    if truth.column is None:
+        return None, OBJECT_FORCE, truth.note
+    m = regression_metrics(sh.series[truth.column], sh.series["F_pred"])
+    m["felt_rmse"] = regression_metrics(sh.series[FELT_FORCE], sh.series["F_pred"])["rmse"]
+    return m, truth.column, truth.note
 
 
 def repro_rmse(r: Row) -> float:
