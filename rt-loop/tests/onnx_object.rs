@@ -263,6 +263,23 @@ fn a_nan_force_while_running_stops_the_run() {
     assert_eq!(o.substep(0.025), 0.0);
     assert_eq!(o.fault(), Some(FAULT_NON_FINITE));
     assert_eq!(o.substep(0.01), 0.0, "latched");
+    // the oracle of that material answers no prediction from the fault on
+    let mut oracle = OracleModel::new(&m, 10_000.0, 1.0);
+    oracle.begin_run();
+    let mut feats = Features {
+        position_x: 0.01,
+        ..Default::default()
+    };
+    assert!(oracle.predict(0, &feats).is_some());
+    feats.position_x = 0.025;
+    assert_eq!(oracle.predict(1, &feats), None);
+    feats.position_x = 0.01;
+    assert_eq!(oracle.predict(2, &feats), None);
+    oracle.begin_run();
+    assert!(
+        oracle.predict(0, &feats).is_some(),
+        "a new run, a fresh object"
+    );
 
     let mut cfg = short_cfg(3, 4.0, 4.0); // 2, 6, 10 N: past 20 mm at 300 N/m
     cfg.material = file;
