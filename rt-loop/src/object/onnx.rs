@@ -15,10 +15,11 @@
 //! REAL-TIME PATH ([`OnnxObject::substep`]): writes the kinematics into tensors allocated
 //! when the object was made, runs the graph with inputs and outputs bound once
 //! (`RunWithBinding`, as infer-server's engine does), copies each state output into its
-//! input. Nothing on the Rust side allocates, locks or does I/O. ONNX Runtime's `Run` itself
-//! allocates internally (about 15 `malloc`s per call for a small graph, measured in
-//! infer-server's `benches/step_latency.rs`): that is ONNX Runtime's own, not removable from
-//! here. A failed run or a non-finite force is latched as a fault ([`OnnxObject::fault`]):
+//! input. Nothing on the Rust side allocates, locks or does I/O (tests/onnx_object.rs counts
+//! the Rust allocations of 10,000 sub-steps: 0). ONNX Runtime's `Run` itself allocates
+//! internally with its own `malloc` (about 15 per call plus about 3 per node, measured by
+//! infer-server's benchmarks, docs/infer-server.md: some 90 for the example's 28 nodes): that is
+//! ONNX Runtime's own, not removable from here. A failed run or a non-finite force is latched as a fault ([`OnnxObject::fault`]):
 //! the object pushes 0 from then on and the simulated board stops the run with the reason.
 
 use std::ptr;
@@ -333,7 +334,7 @@ impl OnnxObject {
         &self.graph
     }
 
-    /// The first state tensor's values (tests, diagnostics).
+    /// The values of state pair `pair` (its `NAME_in`; tests, diagnostics).
     pub fn state(&self, pair: usize) -> &[f32] {
         match self.io.state.get(pair) {
             // SAFETY: the input tensor of that pair holds `len` floats owned by self.
