@@ -74,6 +74,8 @@ def main(argv: list[str]) -> int:
         "held-out test recording (2.1 N/s ramps) against the recorded RFOB force. The "
         "recommendation is chosen on the validation recording and re-ranked with the felt "
         "force of the study's ranking runs (another hand and seed), never on these.\n"),
+        ("The laws and their sources: docs/laws.md; an object whose law is an ONNX graph "
+         "(`law = \"onnx\"`) and how to write one: [onnx.md](onnx.md).\n"),
         "| law | model | felt | fast | free run | validation free run | flags |",
         "|---|---|---|---|---|---|---|",
     ]

@@ -73,16 +73,7 @@ fn rfob_follows_true_contact_force_on_a_slow_ramp() {
 fn force_control_tracks_the_command() {
     let cfg = short_cfg(2, 3.0, 4.0);
     let (rows, _) = run_rows(&cfg);
-    let ramps: Vec<_> = rows
-        .iter()
-        .filter(|r| r.phase == 1 || r.phase == 3)
-        .collect();
-    let rms = (ramps
-        .iter()
-        .map(|r| (r.rtob_force - r.f_ref).powi(2))
-        .sum::<f64>()
-        / ramps.len() as f64)
-        .sqrt();
+    let rms = common::ramp_tracking_rms(&rows);
     assert!(rms < 0.15, "tracking rms {rms}");
     let peak = rows.iter().map(|r| r.f_true).fold(0.0, f64::max);
     assert!(peak > 4.5, "the sponge really got pressed: {peak}");

@@ -277,6 +277,11 @@ impl Board for SimBoard {
                 }
             };
             self.advance(span_ns);
+            // An object that can no longer be stepped (an ONNX object's graph answered NaN or
+            // failed) stops the run with its reason, as a failing board would: 0 A at once.
+            if let Some(reason) = self.sponge.as_ref().and_then(|s| s.fault()) {
+                return Err(BoardStop::Fault(reason));
+            }
         }
         let counts = (self.x / self.cfg.meters_per_count).floor() as i32;
         let us = self.t_ns / 1000;

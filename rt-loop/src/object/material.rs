@@ -1,7 +1,7 @@
 //! The material file: everything that describes the simulated object, so a second object is a
 //! new TOML file, not new code. A file names its law (`law = "foam"`, the default for files
-//! written before there was a choice; `"bouc_wen"`, `"poroelastic"`) and gives that law's
-//! tables. Format documented in docs/rt-loop.md ("Material file"); `materials/sponge.toml` is
+//! written before there was a choice; `"bouc_wen"`, `"poroelastic"`, `"onnx"`) and gives that
+//! law's tables. An `onnx` file names a graph, opened (relative to the file) when the file is. Format documented in docs/rt-loop.md ("Material file"); `materials/sponge.toml` is
 //! the default.
 
 use crate::invalid::InvalidSetting;
@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 use super::bouc_wen::BoucWenParams;
+use super::onnx::{OnnxFile, OnnxParams};
 use super::poroelastic::PoroelasticParams;
 
 /// Maxwell branches a material may have: the simulated sponge keeps their state inline (fixed
@@ -16,7 +17,7 @@ use super::poroelastic::PoroelasticParams;
 pub const MAX_BRANCHES: usize = 6;
 
 /// The laws a material file may name (`law = "..."`).
-pub const LAWS: [&str; 3] = ["foam", "bouc_wen", "poroelastic"];
+pub const LAWS: [&str; 4] = ["foam", "bouc_wen", "poroelastic", "onnx"];
 
 /// A material file: its name and its law's parameters.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -36,6 +37,8 @@ pub enum LawParams {
     BoucWen(BoucWenParams),
     /// A poroelastic gel under a spherical indenter ([`super::poroelastic`]).
     Poroelastic(PoroelasticParams),
+    /// A stateful ONNX graph stepped through ONNX Runtime ([`super::onnx`]).
+    Onnx(OnnxParams),
 }
 
 impl LawParams {
@@ -45,6 +48,7 @@ impl LawParams {
             LawParams::Foam(_) => "foam",
             LawParams::BoucWen(_) => "bouc_wen",
             LawParams::Poroelastic(_) => "poroelastic",
+            LawParams::Onnx(_) => "onnx",
         }
     }
 }
@@ -123,7 +127,8 @@ impl Material {
             )
         })?;
         let path = found.as_path();
-        let m = Material::parse(&text)
+        let base = path.parent().unwrap_or(Path::new("."));
+        let m = Material::parse_in(&text, base)
             .map_err(|e| anyhow::anyhow!("material file {}: {e}", path.display()))?;
         Ok((m, text))
     }
@@ -151,8 +156,14 @@ impl Material {
     }
 
     /// Parses a material file: `name`, `law` (default `"foam"`) and that law's tables, every
-    /// other key refused.
+    /// other key refused. An `onnx` law's graph is opened relative to the working directory
+    /// ([`Material::load`] opens it relative to the file).
     pub fn parse(text: &str) -> anyhow::Result<Material> {
+        Material::parse_in(text, Path::new("."))
+    }
+
+    /// [`Material::parse`], an `onnx` law's graph opened relative to `base`.
+    pub fn parse_in(text: &str, base: &Path) -> anyhow::Result<Material> {
         let mut table: toml::Table = toml::from_str(text)?;
         let name = match table.remove("name") {
             Some(toml::Value::String(s)) => s,
@@ -171,6 +182,12 @@ impl Material {
             "foam" => LawParams::Foam(rest.try_into().map_err(line)?),
             "bouc_wen" => LawParams::BoucWen(rest.try_into().map_err(line)?),
             "poroelastic" => LawParams::Poroelastic(rest.try_into().map_err(line)?),
+            "onnx" => {
+                // checked before the graph is opened: a bad rate needs no ONNX Runtime
+                let file: OnnxFile = rest.try_into().map_err(line)?;
+                file.validate().map_err(|e| anyhow::anyhow!(e))?;
+                LawParams::Onnx(file.open(base)?)
+            }
             other => anyhow::bail!("unknown law {other:?} (known: {})", LAWS.join(", ")),
         };
         let m = Material { name, law };
@@ -183,6 +200,7 @@ impl Material {
             LawParams::Foam(f) => f.validate(),
             LawParams::BoucWen(b) => b.validate(),
             LawParams::Poroelastic(p) => p.validate(),
+            LawParams::Onnx(p) => p.file.validate(),
         }
     }
 }

@@ -71,6 +71,11 @@ impl ForceModel for OracleModel {
         }
         self.sponge.slow_update(x, self.period_s);
         self.x_prev = x;
+        if self.sponge.fault().is_some() {
+            // an ONNX object whose graph answered NaN or failed: no prediction (the ladder
+            // renders its fallback), never a made-up 0
+            return None;
+        }
         Some(self.scale * self.sponge.force())
     }
 }

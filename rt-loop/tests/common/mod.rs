@@ -41,6 +41,21 @@ pub fn run_rows(cfg: &RunConfig) -> (Vec<Row>, rt_loop::rig::Stop) {
     }
 }
 
+/// RMS of the force controller's tracking error (RFOB force against F_ref) over the ramps
+/// (phases 1 and 3) of an abstraction run.
+pub fn ramp_tracking_rms(rows: &[Row]) -> f64 {
+    let ramps: Vec<_> = rows
+        .iter()
+        .filter(|r| r.phase == 1 || r.phase == 3)
+        .collect();
+    (ramps
+        .iter()
+        .map(|r| (r.rtob_force - r.f_ref).powi(2))
+        .sum::<f64>()
+        / ramps.len() as f64)
+        .sqrt()
+}
+
 /// A test's own folder under the system's temp dir, removed when the test passes and kept when
 /// it fails (a panicking thread), so a failure leaves its recordings to look at while a passing
 /// run leaves nothing behind (each run's recordings are tens of MB).
