@@ -138,6 +138,14 @@ pub fn open_session_from_bytes(
         // no-allocation-per-step claim rests on them): with fixed shapes, intermediate tensors are
         // planned once and served from the arena on every later run.
         .with_memory_pattern(true)
+        .map_err(session_err)?
+        // The project's fused operators (fused-ops/: `ai.haptics`, one node per physics-shaped
+        // model): registered on every session, so models with and without them load alike.
+        .with_operators(
+            haptics_fused_ops::domain().map_err(|e| ModelError::Session {
+                reason: format!("the fused operators (ai.haptics): {e}"),
+            })?,
+        )
         .map_err(session_err)?;
     builder = with_memory_limit(rt, builder, cfg)?;
     builder

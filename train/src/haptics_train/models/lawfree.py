@@ -63,7 +63,7 @@ from ..data import SequenceInfo
 from ..features import KINEMATICS
 from ..metrics import loop_work
 from .base import ForceModel, check_sequences, step_dt
-from .lawfree_graph import lawfree_graph
+from .lawfree_graph import lawfree_fused, lawfree_graph
 from .structured import dahl
 
 LAWFREE_DEFAULT: dict = {
@@ -218,8 +218,9 @@ class LawFreeModel(ForceModel):
                                                           strict=True))  # fmt: skip
         return served + bench
 
-    def to_onnx(self) -> onnx.ModelProto:
+    def to_onnx(self, fused: bool = True) -> onnx.ModelProto:
+        """One `ai.haptics:LawFreeStep` node (the fused operator: needs libhaptics_fused_ops.so
+        where it runs), or with `fused=False` the multi-node graph (same state, same step)."""
         self._check_fitted()
-        return lawfree_graph(
-            self, np.exp(-self.dt_ / np.asarray(self.hyper["taus_s"], dtype=float))
-        )
+        decay = np.exp(-self.dt_ / np.asarray(self.hyper["taus_s"], dtype=float))
+        return (lawfree_fused if fused else lawfree_graph)(self, decay)
