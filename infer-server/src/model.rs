@@ -148,6 +148,14 @@ pub fn open_session_from_bytes(
         )
         .map_err(session_err)?;
     builder = with_memory_limit(rt, builder, cfg)?;
+    // One session created at a time in this process: ONNX Runtime adds a custom-op domain to a
+    // process-wide schema registry while it creates the session, unguarded, so two at once race
+    // (measured: "the domain is already exist" refusals with two test threads loading models).
+    // Loading is the control plane's work, never the inference thread's.
+    static CREATING: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _one_at_a_time = CREATING
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner());
     builder
         .commit_from_memory(bytes)
         .map_err(|e| ModelError::Corrupt {
