@@ -5,8 +5,21 @@
 //! Contract (docs/model-contract.md, stateful): inputs `features` [1, n] (x is feature 0),
 //! `h_in`, `c_in` [1, 1, H]; outputs `force` [1, 1], `h_out`, `c_out` [1, 1, H], with
 //! H = K + M + 3: `h` carries [q_1..q_K Maxwell branches, u_1..u_M Dahl states, set, largest
-//! depth, previous e], `c` the equilibrium force at the previous e in its first element (the
-//! rest 0): the same state layout as the multi-node graph, so either answers the same state.
+//! depth, previous e] as the multi-node graph's; `c` carries the equilibrium force at the
+//! previous e in its first element, as the graph's, and then the low parts of the states that
+//! integrate over millions of steps (below).
+//!
+//! Float-float state: a float32 state cannot hold the small steps of a slow integrator. The set
+//! grows by dt / tau_grow (3e-4 at 10 kHz) of its distance to the target per step, so within
+//! ulp(s) / 3e-4 of the target the float32 step rounds to nothing and the set stalls there
+//! (measured: the multi-node graph and a float32-state kernel drift 2-3e-3 N from `predict`
+//! over a 3-million-step recording). The previous e as well: a press held still moves e by the
+//! set's growth alone, far below float32's resolution of e, so the rounding of a float32 e
+//! turns the Dahl states' direction of motion into noise and they random-walk. `c` has
+//! H = K + M + 3 elements of which the graph uses one, so it carries each such value's low part,
+//! value - float32(value): `c` = [F_eq, F_eq low, set low, q_1 low..q_K low, previous e low
+//! (when M >= 1: the Dahl states are its only reader), 0..]; a state written by the graph (low
+//! parts 0) steps the same.
 //!
 //! The step is computed in f64 from the f32 state; the derived constants (decays
 //! exp(-dt / tau), the poles' linear continuation, the set law's gains) are computed in f64 once
@@ -195,9 +208,12 @@ impl StructuredParams {
     ) -> f32 {
         let (nk, nm) = (self.branches.len(), self.hysteresis.len());
         let x = f64::from(x);
-        let s = f64::from(h_in[nk + nm]);
+        // c = [F_eq, F_eq low, set low, q low..] (module doc: float-float state)
+        let s = f64::from(h_in[nk + nm]) + f64::from(c_in[C_SET_LO]);
         let md = f64::from(h_in[nk + nm + 1]).max(x);
-        let e_prev = f64::from(h_in[nk + nm + 2]);
+        let c_e_lo = C_Q_LO + nk; // < H when nm >= 1, the only case that reads it
+        let e_prev =
+            f64::from(h_in[nk + nm + 2]) + if nm > 0 { f64::from(c_in[c_e_lo]) } else { 0.0 };
         let s = match &self.set {
             None => s,
             Some(law) => {
@@ -214,12 +230,14 @@ impl StructuredParams {
         let ec = e.max(0.0);
         let contact = if ec > 0.0 { 1.0 } else { 0.0 };
         let fe = self.equilibrium(ec);
-        let dfeq = fe - f64::from(c_in[0]);
+        let dfeq = fe - (f64::from(c_in[C_FEQ]) + f64::from(c_in[C_FEQ_LO]));
+        c_out.fill(0.0);
 
         let mut f = fe;
         for (i, &(decay, g)) in self.branches.iter().enumerate() {
-            let q = decay * f64::from(h_in[i]) + dfeq;
-            h_out[i] = q as f32;
+            let q_prev = f64::from(h_in[i]) + f64::from(c_in[C_Q_LO + i]);
+            let q = decay * q_prev + dfeq;
+            (h_out[i], c_out[C_Q_LO + i]) = split(q);
             f += g * q;
         }
         let de = ec - e_prev.max(0.0);
@@ -236,13 +254,31 @@ impl StructuredParams {
             h_out[nk + m] = u as f32;
             f += h * fe * u;
         }
-        h_out[nk + nm] = s as f32;
+        (h_out[nk + nm], c_out[C_SET_LO]) = split(s);
         h_out[nk + nm + 1] = md as f32;
-        h_out[nk + nm + 2] = e as f32;
-        c_out.fill(0.0);
-        c_out[0] = fe as f32;
+        if nm > 0 {
+            (h_out[nk + nm + 2], c_out[c_e_lo]) = split(e);
+        } else {
+            h_out[nk + nm + 2] = e as f32;
+        }
+        (c_out[C_FEQ], c_out[C_FEQ_LO]) = split(fe);
         (f.max(0.0) * contact) as f32
     }
+}
+
+/// Where `c` holds F_eq at the previous e (as the multi-node graph), its low part, the set's
+/// low part and the branches' low parts (K of them), then the previous e's low part (with M >= 1
+/// Dahl states: H = K + M + 3 >= K + 4 leaves room).
+const C_FEQ: usize = 0;
+const C_FEQ_LO: usize = 1;
+const C_SET_LO: usize = 2;
+const C_Q_LO: usize = 3;
+
+/// `v` as float32 (hi) plus the float32 of what that leaves out (lo): hi + lo carries about
+/// 48 bits of `v`.
+fn split(v: f64) -> (f32, f32) {
+    let hi = v as f32;
+    (hi, (v - f64::from(hi)) as f32)
 }
 
 /// The operator ONNX Runtime registers (`ai.haptics:StructuredStep`).
@@ -274,17 +310,44 @@ mod tests {
 
     /// Steps `xs` from the zero state; the forces.
     fn run(p: &StructuredParams, xs: &[f32]) -> Vec<f32> {
+        run_state(p, xs).0
+    }
+
+    /// Steps `xs` from the zero state; the forces and the last `h`, `c`.
+    fn run_state(p: &StructuredParams, xs: &[f32]) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
         let h = p.state_size();
         let (mut hs, mut cs) = (vec![0.0f32; h], vec![0.0f32; h]);
         let (mut ho, mut co) = (vec![0.0f32; h], vec![0.0f32; h]);
-        xs.iter()
+        let forces = xs
+            .iter()
             .map(|&x| {
                 let f = p.step_x(x, &hs, &cs, &mut ho, &mut co);
                 std::mem::swap(&mut hs, &mut ho);
                 std::mem::swap(&mut cs, &mut co);
                 f
             })
-            .collect()
+            .collect();
+        (forces, hs, cs)
+    }
+
+    /// `simple()` with a set law of largest set `max_m` (reference 10 mm, linear), growing
+    /// with `tau_grow`, at the step `dt`.
+    fn with_set(dt: f32, max_m: f32, tau_grow: f32) -> StructuredParams {
+        let law = [
+            ("dt_s", vec![dt]),
+            ("set_max_m", vec![max_m]),
+            ("set_reference_m", vec![0.01]),
+            ("set_exponent", vec![1.0]),
+            ("set_tau_grow_s", vec![tau_grow]),
+            ("set_tau_recover_s", vec![100.0]),
+            ("set_loaded_fraction", vec![0.5]),
+            ("set_keep_fraction", vec![0.8]),
+        ];
+        let mut m = simple();
+        for (k, v) in law {
+            m = with(m, k, v);
+        }
+        StructuredParams::from_attrs(&m).unwrap()
     }
 
     #[test]
@@ -322,20 +385,7 @@ mod tests {
 
     #[test]
     fn the_set_law_moves_the_surface_only_when_present() {
-        let law = [
-            ("set_max_m", vec![0.002f32]),
-            ("set_reference_m", vec![0.01]),
-            ("set_exponent", vec![1.0]),
-            ("set_tau_grow_s", vec![0.01]),
-            ("set_tau_recover_s", vec![100.0]),
-            ("set_loaded_fraction", vec![0.5]),
-            ("set_keep_fraction", vec![0.8]),
-        ];
-        let mut m = simple();
-        for (k, v) in law {
-            m = with(m, k, v);
-        }
-        let p = StructuredParams::from_attrs(&m).unwrap();
+        let p = with_set(1e-3, 0.002, 0.01);
         let plain = StructuredParams::from_attrs(&simple()).unwrap();
         let xs = vec![0.01f32; 200];
         let (set, no_set) = (run(&p, &xs), run(&plain, &xs));
@@ -345,6 +395,27 @@ mod tests {
             "{} vs {}",
             set[199],
             no_set[199]
+        );
+    }
+
+    #[test]
+    fn a_slow_set_keeps_growing_where_a_float32_state_would_stall() {
+        // 10 kHz, tau_grow 30 s: each step moves the set by 3.3e-6 of its distance to the
+        // target, below float32's resolution within 0.4 % of it
+        let p = with_set(1e-4, 0.003, 30.0);
+        let (x, kg) = (0.01f32, f64::from(1e-4f32) / f64::from(30.0f32));
+        let target = f64::from(0.003f32) / f64::from(0.01f32) * f64::from(x);
+        let mut s_ref = 0.0f64;
+        for _ in 0..1_000_000 {
+            s_ref += kg * (target - s_ref);
+        }
+        let (_, hs, cs) = run_state(&p, &vec![x; 1_000_000]);
+        let h = p.state_size();
+        let s = f64::from(hs[h - 3]) + f64::from(cs[2]);
+        assert!((s - s_ref).abs() < 1e-12, "set {s} vs float64 {s_ref}");
+        assert!(
+            (target - s_ref) > 1e-6,
+            "still growing: the test exercises the slow tail"
         );
     }
 
