@@ -101,3 +101,11 @@ impl<M: StepModel> Kernel for StatefulKernel<M> {
         Ok(())
     }
 }
+
+/// `v` as float32 (hi) plus the float32 of what that leaves out (lo): hi + lo carries about
+/// 48 bits of `v`. The states that integrate small steps over millions of steps keep their low
+/// part in the contract's second state tensor `c` (structured.rs, lawfree.rs say which).
+pub(crate) fn split(v: f64) -> (f32, f32) {
+    let hi = v as f32;
+    (hi, (v - f64::from(hi)) as f32)
+}

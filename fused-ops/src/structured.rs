@@ -28,7 +28,7 @@
 //! in 1 - d as an f32).
 
 use crate::attrs::{AttrError, Attrs, Reader};
-use crate::stateful::{StatefulStep, StepModel};
+use crate::stateful::{split, StatefulStep, StepModel};
 
 const OP: &str = "StructuredStep";
 
@@ -273,13 +273,6 @@ const C_FEQ: usize = 0;
 const C_FEQ_LO: usize = 1;
 const C_SET_LO: usize = 2;
 const C_Q_LO: usize = 3;
-
-/// `v` as float32 (hi) plus the float32 of what that leaves out (lo): hi + lo carries about
-/// 48 bits of `v`.
-fn split(v: f64) -> (f32, f32) {
-    let hi = v as f32;
-    (hi, (v - f64::from(hi)) as f32)
-}
 
 /// The operator ONNX Runtime registers (`ai.haptics:StructuredStep`).
 pub type StructuredStep = StatefulStep<StructuredParams>;

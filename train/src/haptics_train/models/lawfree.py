@@ -41,7 +41,9 @@ reports the work the rendered object does over the training recordings (> 0: it 
 
 The state steps once per row at the training period `dt`, like `structured`. Exported as a
 stateful model (docs/model-contract.md): `h_in`/`h_out` carry [s_1..s_K, p_1..p_P]; `c_in`/
-`c_out` are passed through. The graph is built by hand (lawfree_graph.py): the state updates
+`c_out` are passed through by the multi-node graph; the fused node (the default export,
+fused-ops/src/lawfree.rs) carries the filters' low parts in `c` (a float32 state cannot hold
+the slow filters' steps). The graph is built by hand (lawfree_graph.py): the state updates
 and the readout as a few vector nodes. The filters' coefficients are rounded to float32 in
 `predict` too, so it agrees with the graph within float32 arithmetic.
 
