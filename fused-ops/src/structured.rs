@@ -208,7 +208,7 @@ impl StructuredParams {
     ) -> f32 {
         let (nk, nm) = (self.branches.len(), self.hysteresis.len());
         let x = f64::from(x);
-        // c = [F_eq, F_eq low, set low, q low..] (module doc: float-float state)
+        // c = [F_eq, F_eq low, set low, q low.., e low] (module doc: float-float state)
         let s = f64::from(h_in[nk + nm]) + f64::from(c_in[C_SET_LO]);
         let md = f64::from(h_in[nk + nm + 1]).max(x);
         let c_e_lo = C_Q_LO + nk; // < H when nm >= 1, the only case that reads it
