@@ -108,8 +108,13 @@ def test_a_missing_library_says_how_to_build_it(monkeypatch, train_x, tmp_path):
                                      "friction_lengths_m": [2e-5]})  # fmt: skip
     m.fit([train_x], [foam(train_x)], info=[info(len(train_x))])
     monkeypatch.setenv("HAPTICS_FUSED_OPS_LIB", str(tmp_path / "absent.so"))
-    with pytest.raises(FusedOpsMissing, match=r"run `cargo build --release -p haptics-fused-ops`"):
-        session(m.to_onnx())
+    fused = m.to_onnx()
+    onnx.save(fused, str(tmp_path / "lawfree.onnx"))
+    want = r"run `cargo build --release -p haptics-fused-ops`"
+    for model in (fused, fused.SerializeToString(), str(tmp_path / "lawfree.onnx")):
+        with pytest.raises(FusedOpsMissing, match=want) as e:
+            session(model)
+        assert "\n" not in str(e.value)  # one line
     session(m.to_onnx(fused=False))  # a model without the fused node needs no library
 
 
