@@ -12,5 +12,7 @@ unset _root
 # asked for, so building a different set (rt-loop alone, say) recompiles shared dependencies.
 haptics_build() {
   # s826-double: the C-ABI double of the Sensoray 826 library (test support; HAPTICS_BOARD=s826)
-  cargo build --release -p rt-loop -p infer-server -p hapticctl -p s826-double
+  # haptics-fused-ops: libhaptics_fused_ops.so, the fused ONNX operators Python onnxruntime
+  # registers (train's export parity and cost; infer-server links the same crate)
+  cargo build --release -p rt-loop -p infer-server -p hapticctl -p s826-double -p haptics-fused-ops
 }

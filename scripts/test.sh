@@ -103,8 +103,8 @@ run_counted() {
 step "generated name lists current (haptics-vocab --check: train/ vocab.py, web-ui/ vocab.ts)"
 run_counted vocab count_check cargo run --release -q -p haptics-proto --bin haptics-vocab -- --check
 
-step "the Sensoray 826 double (target/release/libs826_double.so: the system tests' --board s826)"
-cargo build --release -p s826-double
+step "the Sensoray 826 double (target/release/libs826_double.so: the system tests' --board s826) and the fused ONNX operators (target/release/libhaptics_fused_ops.so: train's parity tests)"
+cargo build --release -p s826-double -p haptics-fused-ops
 
 step "cargo test (workspace, release: real-time tests need optimised code)"
 run_counted rust count_rust cargo test --workspace --release --no-fail-fast

@@ -8,6 +8,9 @@ Usage: bench_models_prep.py DATASET OUT [--retrain]
   before and after a change of the export carry the same parameters; --retrain fits again);
 - exports each with the contract's metadata into OUT/families (`haptics_train.export`, which
   checks parity with `predict` on the first test recording: printed, and failing above 1e-4 N);
+- for the models exported as one fused node (structured, lawfree: fused-ops/), also writes
+  their multi-node graph of standard operators as OUT/families/NAME_graph.onnx (same fitted
+  model, same metadata), so one run measures the fused node against the graph it replaces;
 - writes OUT/families/identity.onnx: one node, the stateless contract's input and output (the
   floor of calling ONNX Runtime at all);
 - OUT/families/nodes.json: each graph's node count;
@@ -19,6 +22,7 @@ Parity above 1e-4 N is printed on stderr (not fatal: the benchmark measures cost
 
 from __future__ import annotations
 
+import inspect
 import json
 import shutil
 import sys
@@ -93,6 +97,11 @@ def main(argv: list[str]) -> int:
     bad = []
     for m, _ in models:
         shutil.copy(trained / f"{m.name}.onnx", fam / f"{m.name}.onnx")
+        if "fused" in inspect.signature(m.to_onnx).parameters:
+            graph = m.to_onnx(fused=False)  # the multi-node graph the fused node replaces
+            meta = onnx.load(str(fam / f"{m.name}.onnx")).metadata_props
+            graph.metadata_props.extend(meta)
+            onnx.save(graph, str(fam / f"{m.name}_graph.onnx"))
         p = results[m.name].get("parity", {})
         if not p or p["max_abs_diff"] > PARITY_N or not p["all_finite"]:
             bad.append(f"{m.name}: {p}")

@@ -94,6 +94,9 @@ fn bench_safe_run(path: &Path, steps: usize, samples: &mut Vec<u64>) -> (Percent
         .unwrap()
         .with_intra_op_spinning(false)
         .unwrap()
+        // the fused operators (ai.haptics), as infer-server registers them on every session
+        .with_operators(haptics_fused_ops::domain().unwrap())
+        .unwrap()
         .commit_from_file(path)
         .unwrap();
     let mut v = [0.0f64; 9];

@@ -138,8 +138,24 @@ pub fn open_session_from_bytes(
         // no-allocation-per-step claim rests on them): with fixed shapes, intermediate tensors are
         // planned once and served from the arena on every later run.
         .with_memory_pattern(true)
+        .map_err(session_err)?
+        // The project's fused operators (fused-ops/: `ai.haptics`, one node per physics-shaped
+        // model): registered on every session, so models with and without them load alike.
+        .with_operators(
+            haptics_fused_ops::domain().map_err(|e| ModelError::Session {
+                reason: format!("the fused operators (ai.haptics): {e}"),
+            })?,
+        )
         .map_err(session_err)?;
     builder = with_memory_limit(rt, builder, cfg)?;
+    // One session created at a time in this process: ONNX Runtime adds a custom-op domain to a
+    // process-wide schema registry while it creates the session, unguarded, so two at once race
+    // (measured: "the domain is already exist" refusals with two test threads loading models).
+    // Loading is the control plane's work, never the inference thread's.
+    static CREATING: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _one_at_a_time = CREATING
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner());
     builder
         .commit_from_memory(bytes)
         .map_err(|e| ModelError::Corrupt {

@@ -96,6 +96,15 @@ impl Runtime {
         if let Some(rt) = RUNTIME.get() {
             return Ok(rt);
         }
+        // One initialisation at a time: ONNX Runtime's environment is a process singleton that
+        // keeps the FIRST environment's logger, so a second one built by a racing thread and
+        // then dropped would leave it logging through a freed closure (measured: a segfault at
+        // the first error logged, with two test threads starting together).
+        static INIT: std::sync::Mutex<()> = std::sync::Mutex::new(());
+        let _one = INIT.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        if let Some(rt) = RUNTIME.get() {
+            return Ok(rt);
+        }
         let path = locate_library(explicit)?;
         let (version, probe) = probe_version(&path)?;
         let builder = ort::init_from(&path).map_err(|e| RuntimeError::Load {
@@ -126,7 +135,6 @@ impl Runtime {
             library: path,
             version,
         };
-        // Two threads racing here both loaded the same library (ort keeps the first); keep one.
         Ok(RUNTIME.get_or_init(|| rt))
     }
 

@@ -53,6 +53,18 @@ def synth(synth_root: Path) -> Dataset:
 
 
 @pytest.fixture(scope="session")
+def fused_ops() -> Path:
+    """The fused operators' library (fused-ops/: structured's and lawfree's default exports are
+    one node of it); a missing one is a failure under CI=true, a counted skip elsewhere."""
+    from haptics_train.ort_ops import PACKAGE, library_path
+
+    p = library_path()
+    if not p.is_file():
+        missing(f"{p} does not exist (cargo build --release -p {PACKAGE})")
+    return p
+
+
+@pytest.fixture(scope="session")
 def rt_loop() -> Path:
     p = binary("rt-loop", "HAPTICS_RT_LOOP")
     if p is None:

@@ -58,7 +58,9 @@ def train_x() -> np.ndarray:
 
 
 @pytest.mark.parametrize("set_max_m,every_column", [(0.0, False), (0.0025, False), (0.0025, True)])
-def test_structured_graph_matches_predict(train_x, set_max_m, every_column):
+def test_structured_graph_matches_predict(train_x, set_max_m, every_column, fused_ops):
+    """The fused node (the default export) and the multi-node graph each match `predict`
+    within 1e-4 N, and each other, stepped through ONNX Runtime."""
     small = {"yield_frac": [0.1, 0.2], "densification_frac": [1.1, 1.6],
              "densification_exponents": [1.0, 2.0, 3.0], "taus_s": [0.1, 1.0],
              "hysteresis_frac": [0.04, 0.16], "friction_lengths_m": [2e-5],
@@ -71,14 +73,49 @@ def test_structured_graph_matches_predict(train_x, set_max_m, every_column):
     m.set_max_m_ = set_max_m  # the set law's path, whatever the fit chose
     if every_column:  # every plateau and pole weighted: each exponent's path, the linear part
         m.a_ = m.a_ + 1e-3
-    om = to_contract_onnx(m, provenance(m, CFG, None, None))
-    check_graph(om, 60)
+    prov = provenance(m, CFG, None, None)
+    fused, graph = to_contract_onnx(m, prov), to_contract_onnx(m, prov, fused=False)
+    assert [(n.domain, n.op_type) for n in fused.graph.node] == [("ai.haptics", "StructuredStep")]
+    check_graph(graph, 60)
     X = presses([0.02, 0.01, 0.03, 0.005], 2.0)
     ref = served(m, X)
     assert ref.max() > 1.0  # in contact, deep enough for the densification
     if every_column:  # past 0.95 d of the shallowest pole: its linear continuation
         assert X[:, 0].max() > 0.95 * min(m.basis_["densification_m"])
-    np.testing.assert_allclose(stepped(om, X), ref, atol=PARITY_N)
+    got_fused, got_graph = stepped(fused, X), stepped(graph, X)
+    np.testing.assert_allclose(got_fused, ref, atol=PARITY_N)
+    np.testing.assert_allclose(got_graph, ref, atol=PARITY_N)
+    np.testing.assert_allclose(got_fused, got_graph, atol=PARITY_N)
+
+
+def test_a_fused_node_with_a_bad_attribute_fails_the_session_in_one_line(train_x, fused_ops):
+    m = make_model("structured", hyper={"yield_frac": [0.1], "densification_frac": [1.6],
+                                        "densification_exponents": [2.0], "taus_s": [0.1],
+                                        "hysteresis_frac": [0.04], "friction_lengths_m": [2e-5],
+                                        "set_frac": [0.0]})  # fmt: skip
+    m.fit([train_x], [foam(train_x)], info=[info(len(train_x))])
+    om = m.to_onnx()
+    next(a for a in om.graph.node[0].attribute if a.name == "taus_s").floats[0] = -0.1
+    want = r"StructuredStep: attribute `taus_s` = -0.1\d* is not positive"
+    with pytest.raises(Exception, match=want):
+        session(om)
+
+
+def test_a_missing_library_says_how_to_build_it(monkeypatch, train_x, tmp_path):
+    from haptics_train.ort_ops import FusedOpsMissing
+
+    m = make_model("lawfree", hyper={"taus_s": [0.1], "play_frac": [0.1],
+                                     "friction_lengths_m": [2e-5]})  # fmt: skip
+    m.fit([train_x], [foam(train_x)], info=[info(len(train_x))])
+    monkeypatch.setenv("HAPTICS_FUSED_OPS_LIB", str(tmp_path / "absent.so"))
+    fused = m.to_onnx()
+    onnx.save(fused, str(tmp_path / "lawfree.onnx"))
+    want = r"run `cargo build --release -p haptics-fused-ops`"
+    for model in (fused, fused.SerializeToString(), str(tmp_path / "lawfree.onnx")):
+        with pytest.raises(FusedOpsMissing, match=want) as e:
+            session(model)
+        assert "\n" not in str(e.value)  # one line
+    session(m.to_onnx(fused=False))  # a model without the fused node needs no library
 
 
 def test_prony_graph_matches_predict(train_x):

@@ -61,16 +61,23 @@ def test_lawfree_learns_a_law_it_does_not_share_and_renders_the_object_only(fitt
     assert np.sqrt(np.mean((served - obj) ** 2)) < 0.5 * rmse_sd
 
 
-def test_lawfree_onnx_steps_in_parity(fitted):
+def test_lawfree_onnx_steps_in_parity(fitted, fused_ops):
+    """The fused node (the default export) and the multi-node graph each match `predict`
+    within 1e-4 N, and each other, stepped through ONNX Runtime."""
     m = fitted
-    om = to_contract_onnx(m, provenance(m, TrainConfig(progress=False), None, None))
+    prov = provenance(m, TrainConfig(progress=False), None, None)
+    om, graph = to_contract_onnx(m, prov), to_contract_onnx(m, prov, fused=False)
     meta = validate_model(om)
     assert meta["haptics.kind"] == "stateful"
     assert meta["haptics.state_size"] == str(m.state_size)
-    ops = [n.op_type for n in om.graph.node if n.op_type != "Constant"]
-    assert len(ops) <= 40, ops  # a small graph: the model-cost budget is p50 <= 5 us
+    ops = [n.op_type for n in om.graph.node]
+    assert ops == ["LawFreeStep"], ops  # one fused node: the model-cost budget is p50 <= 5 us
+    assert len(graph.graph.node) <= 40, [n.op_type for n in graph.graph.node]
     x, v = presses([0.02, 0.03], 2.0)  # past the deepest training press too (w = min(u, 1))
     X = np.column_stack([x, v])
-    st = OnnxStepper(om)
-    got = np.array([st.step(r) for r in X.astype(np.float32)])
-    np.testing.assert_allclose(got, m.predict_served(X), atol=1e-4)
+    got, got_graph = (np.array([st.step(r) for r in X.astype(np.float32)])
+                      for st in (OnnxStepper(om), OnnxStepper(graph)))  # fmt: skip
+    ref = m.predict_served(X)
+    np.testing.assert_allclose(got, ref, atol=1e-4)
+    np.testing.assert_allclose(got_graph, ref, atol=1e-4)
+    np.testing.assert_allclose(got, got_graph, atol=1e-4)

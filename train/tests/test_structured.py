@@ -76,7 +76,7 @@ def test_structured_is_dissipative_and_identifies_the_friction(fitted):
     assert loop_work(x, served) > 0  # a press and release dissipates energy
 
 
-def test_structured_onnx_renders_the_object_in_parity(fitted):
+def test_structured_onnx_renders_the_object_in_parity(fitted, fused_ops):
     m = fitted
     om = to_contract_onnx(m, provenance(m, TrainConfig(progress=False), None, None))
     meta = validate_model(om)

@@ -32,6 +32,7 @@ from tqdm.auto import tqdm
 
 from .data import Recording, contact_thresholds
 from .features import F_PREVIOUS, FEEDBACK_FEATURES
+from .ort_ops import session_options_for
 
 
 class Stepper(Protocol):
@@ -53,7 +54,7 @@ class FunctionStepper:
 
 
 def session(model: onnx.ModelProto | bytes | str) -> ort.InferenceSession:
-    opts = ort.SessionOptions()
+    opts = session_options_for(model)  # the fused operators registered (ort_ops.py)
     opts.intra_op_num_threads = 1
     opts.inter_op_num_threads = 1
     opts.log_severity_level = 3

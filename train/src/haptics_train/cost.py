@@ -21,6 +21,8 @@ import numpy as np
 import onnx
 import onnxruntime as ort
 
+from .ort_ops import session_options_for
+
 COST_KEY = "haptics.cost"
 CALLS = 5000
 WARM = 500
@@ -39,7 +41,7 @@ def _cpu_model() -> str:
 
 def measure_cost(m: onnx.ModelProto, calls: int = CALLS) -> dict:
     """p50/p99/p99.9 of one call of `m` (us) on this machine; `calls` steps after a warm-up."""
-    so = ort.SessionOptions()
+    so = session_options_for(m)  # the fused operators registered (ort_ops.py)
     so.intra_op_num_threads = 1
     so.inter_op_num_threads = 1
     so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL

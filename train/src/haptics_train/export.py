@@ -70,8 +70,10 @@ def provenance(
     )  # type: ignore[return-value]
 
 
-def to_contract_onnx(model: ForceModel, prov: dict) -> onnx.ModelProto:
-    m = model.to_onnx()
+def to_contract_onnx(model: ForceModel, prov: dict, **onnx_kw: object) -> onnx.ModelProto:
+    """The model's ONNX with the contract's metadata; `onnx_kw` goes to its `to_onnx` (e.g.
+    `fused=False`: structured's and lawfree's multi-node graph instead of the fused node)."""
+    m = model.to_onnx(**onnx_kw)
     m.producer_name = "haptics-train"
     m.producer_version = __version__
     m.doc_string = f"haptics reaction-force model {model.name}"

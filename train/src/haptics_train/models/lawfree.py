@@ -41,7 +41,9 @@ reports the work the rendered object does over the training recordings (> 0: it 
 
 The state steps once per row at the training period `dt`, like `structured`. Exported as a
 stateful model (docs/model-contract.md): `h_in`/`h_out` carry [s_1..s_K, p_1..p_P]; `c_in`/
-`c_out` are passed through. The graph is built by hand (lawfree_graph.py): the state updates
+`c_out` are passed through by the multi-node graph; the fused node (the default export,
+fused-ops/src/lawfree.rs) carries the filters' low parts in `c` (a float32 state cannot hold
+the slow filters' steps). The graph is built by hand (lawfree_graph.py): the state updates
 and the readout as a few vector nodes. The filters' coefficients are rounded to float32 in
 `predict` too, so it agrees with the graph within float32 arithmetic.
 
@@ -63,7 +65,7 @@ from ..data import SequenceInfo
 from ..features import KINEMATICS
 from ..metrics import loop_work
 from .base import ForceModel, check_sequences, step_dt
-from .lawfree_graph import lawfree_graph
+from .lawfree_graph import lawfree_fused, lawfree_graph
 from .structured import dahl
 
 LAWFREE_DEFAULT: dict = {
@@ -218,8 +220,9 @@ class LawFreeModel(ForceModel):
                                                           strict=True))  # fmt: skip
         return served + bench
 
-    def to_onnx(self) -> onnx.ModelProto:
+    def to_onnx(self, fused: bool = True) -> onnx.ModelProto:
+        """One `ai.haptics:LawFreeStep` node (the fused operator: needs libhaptics_fused_ops.so
+        where it runs), or with `fused=False` the multi-node graph (same state, same step)."""
         self._check_fitted()
-        return lawfree_graph(
-            self, np.exp(-self.dt_ / np.asarray(self.hyper["taus_s"], dtype=float))
-        )
+        decay = np.exp(-self.dt_ / np.asarray(self.hyper["taus_s"], dtype=float))
+        return (lawfree_fused if fused else lawfree_graph)(self, decay)

@@ -14,6 +14,10 @@ state [s (K filters), p (P plays)] at once, so no node slices it:
   W = [w1 w2 w3]) times [1, w, w^2] (one Pow of w by [0, 1, 2], one MatMul), q = [u, v/V,
   u - state];
 - relu, times contact. `c` is passed through.
+
+`lawfree_fused` writes the same step as one node of the project's fused operator,
+`ai.haptics:LawFreeStep` (fused-ops/src/lawfree.rs): one dispatch instead of about 22. It is what
+`LawFreeModel.to_onnx()` exports; `to_onnx(fused=False)` keeps this multi-node graph.
 """
 
 from __future__ import annotations
@@ -22,8 +26,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import onnx
+from onnx import helper
 
-from .onnx_graph import Graph, row, stateful_model
+from .onnx_graph import Graph, floats_attr, fused_stateful_model, row, stateful_model
 
 if TYPE_CHECKING:
     from .lawfree import LawFreeModel
@@ -62,3 +67,20 @@ def lawfree_graph(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
     f = g.op("MatMul", c, powers)  # [1, 1, 1]
     force = g.op("Mul", g.op("Relu", f), contact)
     return stateful_model(g, len(m.features), k + p, force, state)
+
+
+def lawfree_fused(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
+    """The step as one `ai.haptics:LawFreeStep` node (attribute names: the kernel's,
+    fused-ops/src/lawfree.rs `from_attrs`); the filters' a = d and b = 1 - d rounded to
+    float32 as `predict` rounds them."""
+    widths = np.asarray(m.widths_, dtype=np.float64)
+    attrs = [
+        helper.make_attribute("depth_scale_m", float(m.depth_scale_m_)),
+        helper.make_attribute("speed_scale_mps", float(m.speed_scale_mps_)),
+        floats_attr("filter_decay", decay),
+        floats_attr("filter_gain", 1.0 - decay),
+        floats_attr("play_widths", widths),
+        floats_attr("readout", m.w_),
+    ]
+    state = len(decay) + len(widths)
+    return fused_stateful_model("LawFreeStep", attrs, len(m.features), state, "lawfree")

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import onnx
-from onnx import TensorProto, helper, numpy_helper
+from onnx import AttributeProto, TensorProto, helper, numpy_helper
 
 #: the opset the hand-built graphs use (Split/ReduceSum take sizes/axes as inputs from 13 on)
 OPSET = 17
@@ -110,6 +110,38 @@ def stateful_model(
     s = [1, 1, state]
     outs = [(force, "force", [1, 1]), (h_out, "h_out", s), (c_out, "c_out", s)]
     return g.model(stateful_io(n_features, state), outs)
+
+
+#: the project's fused operators' domain and its version (fused-ops/src/lib.rs `DOMAIN`)
+FUSED_DOMAIN = "ai.haptics"
+FUSED_VERSION = 1
+
+
+def floats_attr(name: str, values: object) -> onnx.AttributeProto:
+    """A FLOATS attribute, typed explicitly (`helper.make_attribute` cannot type an empty
+    list)."""
+    vals = [float(v) for v in np.ravel(np.asarray(values, dtype=np.float64))]
+    return helper.make_attribute(name, vals, attr_type=AttributeProto.FLOATS)
+
+
+def fused_stateful_model(
+    op_type: str, attrs: list[onnx.AttributeProto], n_features: int, state: int, name: str
+) -> onnx.ModelProto:
+    """The stateful contract's model as one node of the fused operators (fused-ops/): inputs
+    and outputs exactly those of the multi-node graphs, everything the model needs in `attrs`.
+    Runs where libhaptics_fused_ops.so is registered (ort_ops.py; infer-server always)."""
+    node = helper.make_node(op_type, ["features", "h_in", "c_in"], ["force", "h_out", "c_out"],
+                            domain=FUSED_DOMAIN, name=name)  # fmt: skip
+    node.attribute.extend(attrs)
+    s = [1, 1, state]
+    outs = [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape)
+            for n, shape in (("force", [1, 1]), ("h_out", s), ("c_out", s))]  # fmt: skip
+    g = helper.make_graph([node], name, stateful_io(n_features, state), outs)
+    opsets = [helper.make_opsetid("", OPSET), helper.make_opsetid(FUSED_DOMAIN, FUSED_VERSION)]
+    m = helper.make_model(g, opset_imports=opsets)
+    m.ir_version = 8
+    onnx.checker.check_model(m)
+    return m
 
 
 def stateless_model(g: Graph, n_features: int, force: str) -> onnx.ModelProto:

@@ -76,7 +76,7 @@ from scipy.signal import lfilter
 from ..data import SequenceInfo
 from ..features import KINEMATICS
 from .base import ForceModel, check_sequences, step_dt
-from .structured_graph import structured_graph
+from .structured_graph import structured_fused, structured_graph
 
 #: The grids (see the module docstring for each range and why). Lengths are fractions of the
 #: training data's depth scale D; times in seconds.
@@ -361,6 +361,9 @@ class StructuredModel(ForceModel):
         """The object's force alone: what the ONNX graph renders."""
         return self._parts(X)[0]
 
-    def to_onnx(self) -> onnx.ModelProto:
+    def to_onnx(self, fused: bool = True) -> onnx.ModelProto:
+        """One `ai.haptics:StructuredStep` node (the fused operator: needs
+        libhaptics_fused_ops.so where it runs), or with `fused=False` the multi-node graph
+        of standard operators (same state, same step)."""
         self._check_fitted()
-        return structured_graph(self)
+        return structured_fused(self) if fused else structured_graph(self)

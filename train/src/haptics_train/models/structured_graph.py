@@ -25,6 +25,13 @@ unary op ~0.19 us, a binary op ~0.27, MatMul ~0.34, Slice/Concat ~0.42, Split ~0
 comparison with Where ~1.1: the graph prefers MatMuls with constant selectors to slicing and
 arithmetic (Sign, products) to comparisons.
 
+`structured_fused` writes the same step as one node of the project's fused operator,
+`ai.haptics:StructuredStep` (fused-ops/src/structured.rs): one dispatch instead of 50-56, the
+fitted values as its attributes (raw, not derived: the kernel derives decays and gains in
+float64 once). It is what `StructuredModel.to_onnx()` exports; the multi-node graph stays
+(`to_onnx(fused=False)`) for ONNX Runtimes without the library and for the parity tests that
+compare the two.
+
 The graph reads what the fit resolved and chose (`m.basis_`: lengths in metres, one exponent
 per pole, the set law's shape; `m.set_max_m_`; the coefficients), never the grids' values, so
 it follows whatever the fit chose.
@@ -36,9 +43,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import onnx
-from onnx import TensorProto
+from onnx import TensorProto, helper
 
-from .onnx_graph import Graph, row, stateful_model
+from .onnx_graph import Graph, floats_attr, fused_stateful_model, row, stateful_model
 
 if TYPE_CHECKING:
     from .structured import StructuredModel
@@ -133,3 +140,34 @@ def structured_graph(m: StructuredModel) -> onnx.ModelProto:
     force = g.op("Mul", g.op("Relu", f), contact)
     h_out = g.op("Concat", q2, u2, s, md2, e, axis=2)
     return stateful_model(g, len(m.features), state, force, h_out, c_out)
+
+
+def structured_fused(m: StructuredModel) -> onnx.ModelProto:
+    """The step as one `ai.haptics:StructuredStep` node (attribute names: the kernel's,
+    fused-ops/src/structured.rs `from_attrs`). Columns whose fitted weight is exactly 0 are
+    left out (they add exactly 0), as in the multi-node graph."""
+    b = m.basis_
+    a = np.asarray(m.a_, dtype=np.float64)
+    j1 = len(b["yield_m"])
+    a_t, a_d = a[:j1], a[j1:]
+    kt, kd = a_t != 0.0, a_d != 0.0
+    nk, nm = len(m.g_), len(m.h_)
+    state = nk + nm + 3
+    attrs = [
+        helper.make_attribute("dt_s", float(m.dt_)),
+        floats_attr("yield_m", np.asarray(b["yield_m"])[kt]),
+        floats_attr("a_yield", a_t[kt]),
+        floats_attr("densification_m", np.asarray(b["densification_m"])[kd]),
+        floats_attr("densification_exponent", np.asarray(b["densification_exponent"])[kd]),
+        floats_attr("a_densification", a_d[kd]),
+        floats_attr("taus_s", b["taus_s"]),
+        floats_attr("branch_gains", m.g_),
+        floats_attr("hysteresis_m", b["hysteresis_lengths_m"]),
+        floats_attr("hysteresis_gains", m.h_),
+        helper.make_attribute("set_max_m", float(m.set_max_m_)),
+    ]
+    if float(m.set_max_m_) > 0.0:
+        attrs += [helper.make_attribute(k, float(b[k])) for k in (
+            "set_reference_m", "set_exponent", "set_tau_grow_s", "set_tau_recover_s",
+            "set_loaded_fraction", "set_keep_fraction")]  # fmt: skip
+    return fused_stateful_model("StructuredStep", attrs, len(m.features), state, "structured")

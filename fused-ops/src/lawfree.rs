@@ -1,0 +1,192 @@
+//! `ai.haptics:LawFreeStep`: one control step of train's `lawfree` model
+//! (train/src/haptics_train/models/lawfree.py, `predict_served`), the arithmetic of its
+//! hand-built graph (lawfree_graph.py) in one node.
+//!
+//! Contract (docs/model-contract.md, stateful): inputs `features` [1, n] (x, v the first two),
+//! `h_in`, `c_in` [1, 1, H]; outputs `force` [1, 1], `h_out`, `c_out` [1, 1, H], with H = K + P:
+//! `h` carries [s_1..s_K filters, p_1..p_P plays] (the multi-node graph's layout). The filters'
+//! coefficients arrive as the float32 values `predict` uses, the rest is computed in f64.
+//!
+//! `c`, which the multi-node graph passes through unused, carries the filters' low parts,
+//! s_k - float32(s_k) (then zeros): a slow filter (tau = 100 s at 10 kHz: a = 0.999999) moves by
+//! a millionth of its input per step, below float32's resolution of its state, so a float32
+//! state drifts from `predict` (measured: 7-10e-3 N over a 3-million-step recording).
+
+use crate::attrs::{AttrError, Attrs, Reader};
+use crate::stateful::{split, StatefulStep, StepModel};
+
+const OP: &str = "LawFreeStep";
+
+/// Everything one step needs, parsed once from the node's attributes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LawFreeParams {
+    inv_depth: f64,
+    inv_speed: f64,
+    /// (a_k, b_k): s' = a s + b u
+    filters: Vec<(f64, f64)>,
+    /// half-widths r (in units of u)
+    plays: Vec<f64>,
+    /// the readout's weights per input q_j: (w1, w2, w3), q = [u, v/V, u - s.., u - p..]
+    readout: Vec<[f64; 3]>,
+}
+
+impl StepModel for LawFreeParams {
+    const OP: &'static str = OP;
+    const MIN_FEATURES: usize = 2;
+
+    /// Reads and checks the attributes (names as lawfree_graph.py `lawfree_fused` writes them).
+    fn from_attrs<A: Attrs + ?Sized>(attrs: &A) -> Result<Self, AttrError> {
+        let r = Reader { op: OP, attrs };
+        let depth = r.positive("depth_scale_m")?;
+        let speed = r.positive("speed_scale_mps")?;
+        let a = r.list("filter_decay")?;
+        for &x in &a {
+            r.check("filter_decay", x, (0.0..=1.0).contains(&x), "outside 0..1")?;
+        }
+        let b = r.list("filter_gain")?;
+        r.paired("filter_gain", &b, "filter_decay", &a)?;
+        let plays = r.positive_list("play_widths")?;
+        let w = r.list("readout")?;
+        let n = 2 + a.len() + plays.len();
+        if w.len() != 3 * n {
+            return Err(AttrError::Length {
+                op: OP,
+                name: "readout",
+                got: w.len(),
+                other: "3 x (2 + filter_decay + play_widths)",
+                expected: 3 * n,
+            });
+        }
+        Ok(Self {
+            inv_depth: 1.0 / depth,
+            inv_speed: 1.0 / speed,
+            filters: a.into_iter().zip(b).collect(),
+            plays,
+            readout: (0..n).map(|j| [w[j], w[n + j], w[2 * n + j]]).collect(),
+        })
+    }
+
+    fn state_size(&self) -> usize {
+        self.filters.len() + self.plays.len()
+    }
+
+    /// Reads x, v (features[0..2]), `h_in` and the filters' low parts in `c_in`.
+    fn step(
+        &self,
+        features: &[f32],
+        h_in: &[f32],
+        c_in: &[f32],
+        h_out: &mut [f32],
+        c_out: &mut [f32],
+    ) -> f32 {
+        self.step_xv(features[0], features[1], h_in, c_in, h_out, c_out)
+    }
+}
+
+impl LawFreeParams {
+    /// One step from (x, v) and `h_in`; writes `h_out`, returns the force. Allocates nothing.
+    pub fn step_xv(
+        &self,
+        x: f32,
+        v: f32,
+        h_in: &[f32],
+        c_in: &[f32],
+        h_out: &mut [f32],
+        c_out: &mut [f32],
+    ) -> f32 {
+        let nk = self.filters.len();
+        let x = f64::from(x);
+        let contact = x > 0.0;
+        let u = x.max(0.0) * self.inv_depth;
+        let vn = if contact {
+            f64::from(v) * self.inv_speed
+        } else {
+            0.0
+        };
+        let w = u.min(1.0);
+        let term = |q: f64, c: &[f64; 3]| q * (c[0] + w * (c[1] + w * c[2]));
+        let mut f = term(u, &self.readout[0]) + term(vn, &self.readout[1]);
+        c_out.fill(0.0);
+        for (k, &(a, b)) in self.filters.iter().enumerate() {
+            let s = a * (f64::from(h_in[k]) + f64::from(c_in[k])) + b * u;
+            (h_out[k], c_out[k]) = split(s);
+            f += term(u - s, &self.readout[2 + k]);
+        }
+        for (j, &r) in self.plays.iter().enumerate() {
+            let p = f64::from(h_in[nk + j]).max(u - r).min(u + r);
+            h_out[nk + j] = p as f32;
+            f += term(u - p, &self.readout[2 + nk + j]);
+        }
+        if contact {
+            f.max(0.0) as f32
+        } else {
+            0.0
+        }
+    }
+}
+
+/// The operator ONNX Runtime registers (`ai.haptics:LawFreeStep`).
+pub type LawFreeStep = StatefulStep<LawFreeParams>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::attrs::tests::Map;
+
+    /// One filter (a 0.9, b 0.1), one play (r 0.1), depth 10 mm, speed 0.1 m/s; readout
+    /// q = [u, v/V, u - s, u - p] with weights w1 = [2, 0.5, 1, 3], w2 = [1, 0, 0, 0], w3 = 0.
+    fn simple() -> Map {
+        Map::of(&[
+            ("depth_scale_m", vec![0.01]),
+            ("speed_scale_mps", vec![0.1]),
+            ("filter_decay", vec![0.9]),
+            ("filter_gain", vec![0.1]),
+            ("play_widths", vec![0.1]),
+            (
+                "readout",
+                vec![2.0, 0.5, 1.0, 3.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            ),
+        ])
+    }
+
+    #[test]
+    fn a_step_matches_the_model_written_out_by_hand() {
+        let p = LawFreeParams::from_attrs(&simple()).unwrap();
+        let (mut h, mut ho) = (vec![0.0f32; 2], vec![0.0f32; 2]);
+        let (mut c, mut co) = (vec![0.0f32; 2], vec![0.0f32; 2]);
+        let (mut s, mut pl) = (0.0f64, 0.0f64);
+        for n in 0..300 {
+            let x = 0.008 * (n as f64 * 0.03).sin();
+            let v = 0.008 * 0.03 * 1000.0 * (n as f64 * 0.03).cos();
+            let got = p.step_xv(x as f32, v as f32, &h, &c, &mut ho, &mut co);
+            std::mem::swap(&mut h, &mut ho);
+            std::mem::swap(&mut c, &mut co);
+            let u = (x as f32 as f64).max(0.0) / 0.01;
+            s = 0.9 * s + 0.1 * u;
+            pl = pl.max(u - 0.1).min(u + 0.1);
+            let want = if x as f32 > 0.0 {
+                let vn = f64::from(v as f32) / 0.1;
+                (2.0 * u + u.min(1.0) * u + 0.5 * vn + (u - s) + 3.0 * (u - pl)).max(0.0)
+            } else {
+                0.0
+            };
+            assert!(
+                (f64::from(got) - want).abs() < 1e-4 * (1.0 + want),
+                "step {n}: {got} vs {want}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_bad_attribute_is_a_clear_error_not_a_panic() {
+        let cases = [
+            (simple().with("readout", vec![1.0; 11]), "attribute `readout` has 11 values, `3 x (2 + filter_decay + play_widths)` has 12: they pair up"),
+            (simple().with("filter_decay", vec![1.5]), "attribute `filter_decay` = 1.5 is outside 0..1"),
+            (simple().with("depth_scale_m", vec![0.0]), "attribute `depth_scale_m` = 0 is not positive"),
+        ];
+        for (attrs, want) in cases {
+            let err = LawFreeParams::from_attrs(&attrs).unwrap_err().to_string();
+            assert_eq!(err, format!("LawFreeStep: {want}"));
+        }
+    }
+}

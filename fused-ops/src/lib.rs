@@ -1,0 +1,43 @@
+//! ONNX Runtime custom operators for the haptics models: one fused node per physics-shaped
+//! model, in the custom-op domain [`DOMAIN`]: `StructuredStep` (train's `structured`) and
+//! `LawFreeStep` (`lawfree`).
+//!
+//! Why: ONNX Runtime 1.32 pays 0.2-0.5 us of dispatch per node whatever its size, and the
+//! hand-built graph of `structured` has 50-56 nodes for a few hundred flops (docs/infer-server.md,
+//! "Every model family"). One node computing the whole step costs one dispatch.
+//!
+//! Two consumers run the same kernels:
+//! - infer-server links this crate and adds [`domain`] to every session it opens, so models with
+//!   and without the operators load alike;
+//! - Python onnxruntime (train's parity check and cost measurement) loads the cdylib,
+//!   `libhaptics_fused_ops.so`, with `SessionOptions.register_custom_ops_library`, which calls
+//!   [`RegisterCustomOps`].
+//!
+//! Every constant a model needs travels as node attributes, parsed and checked once when ONNX
+//! Runtime creates the kernel (a bad attribute fails the session's creation with a one-line
+//! error); the kernels' `compute` allocates nothing (tensors read and written through the raw C
+//! API: the safe wrappers build shape vectors on every call).
+
+mod attrs;
+mod lawfree;
+mod register;
+mod stateful;
+mod structured;
+mod tensors;
+
+pub use attrs::{AttrError, Attrs};
+pub use lawfree::{LawFreeParams, LawFreeStep};
+pub use stateful::{StatefulStep, StepModel};
+pub use structured::{StructuredParams, StructuredStep};
+
+use ort::operator::OperatorDomain;
+
+/// The custom-op domain of every operator here (the node's `domain` in the ONNX file).
+pub const DOMAIN: &str = "ai.haptics";
+
+/// The domain with every operator, for `SessionBuilder::with_operators`.
+pub fn domain() -> ort::Result<OperatorDomain> {
+    OperatorDomain::new(DOMAIN)?
+        .add(StructuredStep::default())?
+        .add(LawFreeStep::default())
+}

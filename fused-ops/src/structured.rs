@@ -1,0 +1,473 @@
+//! `ai.haptics:StructuredStep`: one control step of train's `structured` model
+//! (train/src/haptics_train/models/structured.py, `_parts`), the same arithmetic as its
+//! hand-built graph (structured_graph.py) in one node.
+//!
+//! Contract (docs/model-contract.md, stateful): inputs `features` [1, n] (x is feature 0),
+//! `h_in`, `c_in` [1, 1, H]; outputs `force` [1, 1], `h_out`, `c_out` [1, 1, H], with
+//! H = K + M + 3: `h` carries [q_1..q_K Maxwell branches, u_1..u_M Dahl states, set, largest
+//! depth, previous e] as the multi-node graph's; `c` carries the equilibrium force at the
+//! previous e in its first element, as the graph's, and then the low parts of the states that
+//! integrate over millions of steps (below).
+//!
+//! Float-float state: a float32 state cannot hold the small steps of a slow integrator. The set
+//! grows by dt / tau_grow (3e-4 at 10 kHz) of its distance to the target per step, so within
+//! ulp(s) / 3e-4 of the target the float32 step rounds to nothing and the set stalls there
+//! (measured: the multi-node graph and a float32-state kernel drift 2-3e-3 N from `predict`
+//! over a 3-million-step recording). The previous e as well: a press held still moves e by the
+//! set's growth alone, far below float32's resolution of e, so the rounding of a float32 e
+//! turns the Dahl states' direction of motion into noise and they random-walk. `c` has
+//! H = K + M + 3 elements of which the graph uses one, so it carries each such value's low part,
+//! value - float32(value): `c` = [F_eq, F_eq low, set low, q_1 low..q_K low, previous e low
+//! (when M >= 1: the Dahl states are its only reader), 0..]; a state written by the graph (low
+//! parts 0) steps the same.
+//!
+//! The step is computed in f64 from the f32 state; the derived constants (decays
+//! exp(-dt / tau), the poles' linear continuation, the set law's gains) are computed in f64 once
+//! at kernel creation from the raw fitted values the attributes carry, where the multi-node
+//! graph stores them rounded to f32 (a decay of 0.999999 for tau = 100 s at 10 kHz is 6 % off
+//! in 1 - d as an f32).
+
+use crate::attrs::{AttrError, Attrs, Reader};
+use crate::stateful::{split, StatefulStep, StepModel};
+
+const OP: &str = "StructuredStep";
+
+/// The compression-set law (present when the fitted largest set is above 0).
+#[derive(Debug, Clone, PartialEq)]
+struct SetLaw {
+    /// target = c1 md^k
+    c1: f64,
+    k: f64,
+    keep: f64,
+    loaded_fraction: f64,
+    /// growth and recovery gains per step, min(dt / tau, 1)
+    kg: f64,
+    kr: f64,
+}
+
+/// One pole of the equilibrium: a (u^-n - 1) + lin relu(e - 0.95 d), u = max(1 - e/d, 0.05).
+#[derive(Debug, Clone, PartialEq)]
+struct Pole {
+    a: f64,
+    inv_d: f64,
+    neg_n: f64,
+    /// -n when n is a whole number (the grid's 1, 2, 3): powi is several times cheaper than powf
+    neg_n_int: Option<i32>,
+    cap: f64,
+    lin: f64,
+}
+
+/// Everything one step needs, parsed and derived once from the node's attributes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StructuredParams {
+    /// (weight, 1 / yield length) per plateau tanh(e / y)
+    plateaus: Vec<(f64, f64)>,
+    poles: Vec<Pole>,
+    /// (decay exp(-dt / tau), gain g) per Maxwell branch
+    branches: Vec<(f64, f64)>,
+    /// (-1 / length, gain h) per Dahl hysteresis state
+    hysteresis: Vec<(f64, f64)>,
+    set: Option<SetLaw>,
+}
+
+impl StepModel for StructuredParams {
+    const OP: &'static str = OP;
+    const MIN_FEATURES: usize = 1;
+
+    /// Reads and checks the attributes (names as train's exporter writes them:
+    /// structured_graph.py `structured_fused`).
+    fn from_attrs<A: Attrs + ?Sized>(attrs: &A) -> Result<Self, AttrError> {
+        let r = Reader { op: OP, attrs };
+        let dt = r.positive("dt_s")?;
+
+        let yield_m = r.positive_list("yield_m")?;
+        let a_yield = r.list("a_yield")?;
+        r.paired("a_yield", &a_yield, "yield_m", &yield_m)?;
+        let plateaus = a_yield
+            .iter()
+            .zip(&yield_m)
+            .map(|(&a, &y)| (a, 1.0 / y))
+            .collect();
+
+        let dens = r.positive_list("densification_m")?;
+        let dexp = r.list("densification_exponent")?;
+        let a_dens = r.list("a_densification")?;
+        r.paired("densification_exponent", &dexp, "densification_m", &dens)?;
+        r.paired("a_densification", &a_dens, "densification_m", &dens)?;
+        let poles = dens
+            .iter()
+            .zip(&dexp)
+            .zip(&a_dens)
+            .map(|((&d, &n), &a)| Pole {
+                a,
+                inv_d: 1.0 / d,
+                neg_n: -n,
+                neg_n_int: (n.fract() == 0.0 && n.abs() <= 16.0).then_some(-n as i32),
+                cap: 0.95 * d,
+                lin: a * n / d * 20f64.powf(n + 1.0),
+            })
+            .collect();
+
+        let taus = r.positive_list("taus_s")?;
+        let gains = r.list("branch_gains")?;
+        r.paired("branch_gains", &gains, "taus_s", &taus)?;
+        let branches = taus
+            .iter()
+            .zip(&gains)
+            .map(|(&t, &g)| ((-dt / t).exp(), g))
+            .collect();
+
+        let lengths = r.positive_list("hysteresis_m")?;
+        let hg = r.list("hysteresis_gains")?;
+        r.paired("hysteresis_gains", &hg, "hysteresis_m", &lengths)?;
+        let hysteresis = lengths
+            .iter()
+            .zip(&hg)
+            .map(|(&l, &h)| (-1.0 / l, h))
+            .collect();
+
+        let set_max = r.float("set_max_m")?;
+        r.check("set_max_m", set_max, set_max >= 0.0, "negative")?;
+        let set = if set_max > 0.0 {
+            let k = r.positive("set_exponent")?;
+            let keep = r.float("set_keep_fraction")?;
+            r.check(
+                "set_keep_fraction",
+                keep,
+                (0.0..=1.0).contains(&keep),
+                "outside 0..1",
+            )?;
+            let lf = r.float("set_loaded_fraction")?;
+            r.check(
+                "set_loaded_fraction",
+                lf,
+                (0.0..=1.0).contains(&lf),
+                "outside 0..1",
+            )?;
+            Some(SetLaw {
+                c1: set_max / r.positive("set_reference_m")?.powf(k),
+                k,
+                keep,
+                loaded_fraction: lf,
+                kg: (dt / r.positive("set_tau_grow_s")?).min(1.0),
+                kr: (dt / r.positive("set_tau_recover_s")?).min(1.0),
+            })
+        } else {
+            None
+        };
+        Ok(Self {
+            plateaus,
+            poles,
+            branches,
+            hysteresis,
+            set,
+        })
+    }
+
+    fn state_size(&self) -> usize {
+        self.branches.len() + self.hysteresis.len() + 3
+    }
+
+    /// Reads x (features[0]), `h_in`, `c_in`; writes the next state. Allocates nothing.
+    fn step(
+        &self,
+        features: &[f32],
+        h_in: &[f32],
+        c_in: &[f32],
+        h_out: &mut [f32],
+        c_out: &mut [f32],
+    ) -> f32 {
+        self.step_x(features[0], h_in, c_in, h_out, c_out)
+    }
+}
+
+impl StructuredParams {
+    /// F_eq at the compression `ec` >= 0.
+    fn equilibrium(&self, ec: f64) -> f64 {
+        let mut f = 0.0;
+        for &(a, inv_y) in &self.plateaus {
+            f += a * (ec * inv_y).tanh();
+        }
+        for p in &self.poles {
+            let u = (1.0 - ec * p.inv_d).max(0.05);
+            let pow = p.neg_n_int.map_or_else(|| u.powf(p.neg_n), |n| u.powi(n));
+            f += p.a * (pow - 1.0) + p.lin * (ec - p.cap).max(0.0);
+        }
+        f
+    }
+
+    /// One step at x: reads `h_in`, `c_in`; writes the next state, returns the force.
+    /// Allocates nothing. Slices have the lengths the contract gives (checked by the caller).
+    pub fn step_x(
+        &self,
+        x: f32,
+        h_in: &[f32],
+        c_in: &[f32],
+        h_out: &mut [f32],
+        c_out: &mut [f32],
+    ) -> f32 {
+        let (nk, nm) = (self.branches.len(), self.hysteresis.len());
+        let x = f64::from(x);
+        // c = [F_eq, F_eq low, set low, q low.., e low] (module doc: float-float state)
+        let s = f64::from(h_in[nk + nm]) + f64::from(c_in[C_SET_LO]);
+        let md = f64::from(h_in[nk + nm + 1]).max(x);
+        let c_e_lo = C_Q_LO + nk; // < H when nm >= 1, the only case that reads it
+        let e_prev =
+            f64::from(h_in[nk + nm + 2]) + if nm > 0 { f64::from(c_in[c_e_lo]) } else { 0.0 };
+        let s = match &self.set {
+            None => s,
+            Some(law) => {
+                let target = law.c1 * if law.k == 1.0 { md } else { md.powf(law.k) };
+                let loaded = x > (law.loaded_fraction * md).max(s);
+                if loaded {
+                    s + law.kg * (target - s).max(0.0)
+                } else {
+                    s - law.kr * (s - law.keep * target).max(0.0)
+                }
+            }
+        };
+        let e = x - s;
+        let ec = e.max(0.0);
+        let contact = if ec > 0.0 { 1.0 } else { 0.0 };
+        let fe = self.equilibrium(ec);
+        let dfeq = fe - (f64::from(c_in[C_FEQ]) + f64::from(c_in[C_FEQ_LO]));
+        c_out.fill(0.0);
+
+        let mut f = fe;
+        for (i, &(decay, g)) in self.branches.iter().enumerate() {
+            let q_prev = f64::from(h_in[i]) + f64::from(c_in[C_Q_LO + i]);
+            let q = decay * q_prev + dfeq;
+            (h_out[i], c_out[C_Q_LO + i]) = split(q);
+            f += g * q;
+        }
+        let de = ec - e_prev.max(0.0);
+        let sg = if de > 0.0 {
+            1.0
+        } else if de < 0.0 {
+            -1.0
+        } else {
+            0.0
+        };
+        for (m, &(neg_inv_l, h)) in self.hysteresis.iter().enumerate() {
+            let att = (de.abs() * neg_inv_l).exp();
+            let u = (sg + att * (f64::from(h_in[nk + m]) - sg)) * contact;
+            h_out[nk + m] = u as f32;
+            f += h * fe * u;
+        }
+        (h_out[nk + nm], c_out[C_SET_LO]) = split(s);
+        h_out[nk + nm + 1] = md as f32;
+        if nm > 0 {
+            (h_out[nk + nm + 2], c_out[c_e_lo]) = split(e);
+        } else {
+            h_out[nk + nm + 2] = e as f32;
+        }
+        (c_out[C_FEQ], c_out[C_FEQ_LO]) = split(fe);
+        (f.max(0.0) * contact) as f32
+    }
+}
+
+/// Where `c` holds F_eq at the previous e (as the multi-node graph), its low part, the set's
+/// low part and the branches' low parts (K of them), then the previous e's low part (with M >= 1
+/// Dahl states: H = K + M + 3 >= K + 4 leaves room).
+const C_FEQ: usize = 0;
+const C_FEQ_LO: usize = 1;
+const C_SET_LO: usize = 2;
+const C_Q_LO: usize = 3;
+
+/// The operator ONNX Runtime registers (`ai.haptics:StructuredStep`).
+pub type StructuredStep = StatefulStep<StructuredParams>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::attrs::tests::Map;
+
+    /// One plateau 2 tanh(e / 10 mm), one branch (tau 0.5 s, gain 0.3), one Dahl state,
+    /// no set, at 1 kHz.
+    fn simple() -> Map {
+        Map::of(&[
+            ("dt_s", vec![1e-3]),
+            ("yield_m", vec![0.01]),
+            ("a_yield", vec![2.0]),
+            ("taus_s", vec![0.5]),
+            ("branch_gains", vec![0.3]),
+            ("hysteresis_m", vec![0.002]),
+            ("hysteresis_gains", vec![0.1]),
+            ("set_max_m", vec![0.0]),
+        ])
+    }
+
+    fn with(m: Map, name: &'static str, v: Vec<f32>) -> Map {
+        m.with(name, v)
+    }
+
+    /// Steps `xs` from the zero state; the forces.
+    fn run(p: &StructuredParams, xs: &[f32]) -> Vec<f32> {
+        run_state(p, xs).0
+    }
+
+    /// Steps `xs` from the zero state; the forces and the last `h`, `c`.
+    fn run_state(p: &StructuredParams, xs: &[f32]) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+        let h = p.state_size();
+        let (mut hs, mut cs) = (vec![0.0f32; h], vec![0.0f32; h]);
+        let (mut ho, mut co) = (vec![0.0f32; h], vec![0.0f32; h]);
+        let forces = xs
+            .iter()
+            .map(|&x| {
+                let f = p.step_x(x, &hs, &cs, &mut ho, &mut co);
+                std::mem::swap(&mut hs, &mut ho);
+                std::mem::swap(&mut cs, &mut co);
+                f
+            })
+            .collect();
+        (forces, hs, cs)
+    }
+
+    /// `simple()` with a set law of largest set `max_m` (reference 10 mm, linear), growing
+    /// with `tau_grow`, at the step `dt`.
+    fn with_set(dt: f32, max_m: f32, tau_grow: f32) -> StructuredParams {
+        let law = [
+            ("dt_s", vec![dt]),
+            ("set_max_m", vec![max_m]),
+            ("set_reference_m", vec![0.01]),
+            ("set_exponent", vec![1.0]),
+            ("set_tau_grow_s", vec![tau_grow]),
+            ("set_tau_recover_s", vec![100.0]),
+            ("set_loaded_fraction", vec![0.5]),
+            ("set_keep_fraction", vec![0.8]),
+        ];
+        let mut m = simple();
+        for (k, v) in law {
+            m = with(m, k, v);
+        }
+        StructuredParams::from_attrs(&m).unwrap()
+    }
+
+    #[test]
+    fn a_step_matches_the_model_written_out_by_hand() {
+        let p = StructuredParams::from_attrs(&simple()).unwrap();
+        assert_eq!(p.state_size(), 5);
+        let xs: Vec<f32> = (0..400).map(|n| 0.004 * (n as f32 * 0.01).sin()).collect();
+        let got = run(&p, &xs);
+        // the same model, independently: f = fe + 0.3 q + 0.1 fe u, 0 out of contact
+        let (d, mut q, mut u, mut fe_prev, mut e_prev) =
+            ((-1e-3f64 / 0.5).exp(), 0.0, 0.0, 0.0, 0.0f64);
+        for (&x, &g) in xs.iter().zip(&got) {
+            let e = f64::from(x);
+            let ec = e.max(0.0);
+            let fe = 2.0 * (ec / 0.01).tanh();
+            q = d * q + fe - fe_prev;
+            fe_prev = fe;
+            let de = ec - e_prev.max(0.0);
+            e_prev = e;
+            if ec <= 0.0 {
+                u = 0.0;
+            } else if de != 0.0 {
+                let a = (-de.abs() / 0.002).exp();
+                u = a * u + (1.0 - a) * de.signum();
+            }
+            let want = if ec > 0.0 {
+                (fe + 0.3 * q + 0.1 * fe * u).max(0.0)
+            } else {
+                0.0
+            };
+            assert!((f64::from(g) - want).abs() < 1e-5, "x {x}: {g} vs {want}");
+        }
+        assert!(got.iter().any(|&f| f > 0.5) && got.contains(&0.0));
+    }
+
+    #[test]
+    fn the_set_law_moves_the_surface_only_when_present() {
+        let p = with_set(1e-3, 0.002, 0.01);
+        let plain = StructuredParams::from_attrs(&simple()).unwrap();
+        let xs = vec![0.01f32; 200];
+        let (set, no_set) = (run(&p, &xs), run(&plain, &xs));
+        // held at 10 mm: the set grows toward 2 mm, so the compression and force fall below
+        assert!(
+            set[199] < no_set[199] - 0.1,
+            "{} vs {}",
+            set[199],
+            no_set[199]
+        );
+    }
+
+    #[test]
+    fn a_slow_set_keeps_growing_where_a_float32_state_would_stall() {
+        // 10 kHz, tau_grow 30 s: each step moves the set by 3.3e-6 of its distance to the
+        // target, below float32's resolution within 0.4 % of it
+        let p = with_set(1e-4, 0.003, 30.0);
+        let (x, kg) = (0.01f32, f64::from(1e-4f32) / f64::from(30.0f32));
+        let target = f64::from(0.003f32) / f64::from(0.01f32) * f64::from(x);
+        let mut s_ref = 0.0f64;
+        for _ in 0..1_000_000 {
+            s_ref += kg * (target - s_ref);
+        }
+        let (_, hs, cs) = run_state(&p, &vec![x; 1_000_000]);
+        let h = p.state_size();
+        let s = f64::from(hs[h - 3]) + f64::from(cs[2]);
+        assert!((s - s_ref).abs() < 1e-12, "set {s} vs float64 {s_ref}");
+        assert!(
+            (target - s_ref) > 1e-6,
+            "still growing: the test exercises the slow tail"
+        );
+    }
+
+    #[test]
+    fn a_bad_attribute_is_a_clear_error_not_a_panic() {
+        let cases = [
+            (
+                with(simple(), "taus_s", vec![-1.0]),
+                "attribute `taus_s` = -1 is not positive",
+            ),
+            (
+                with(simple(), "dt_s", vec![]),
+                "attribute `dt_s` is missing or not a float",
+            ),
+            (
+                with(simple(), "branch_gains", vec![0.3, 0.2]),
+                "attribute `branch_gains` has 2 values, `taus_s` has 1: they pair up",
+            ),
+            (
+                with(simple(), "a_yield", vec![f32::NAN]),
+                "attribute `a_yield` = NaN is not finite",
+            ),
+            (
+                with(simple(), "set_max_m", vec![0.001]),
+                "attribute `set_exponent` is missing or not a float",
+            ),
+            (
+                with(simple(), "set_max_m", vec![-0.001]),
+                "attribute `set_max_m` = -0.0010000000474974513 is negative",
+            ),
+        ];
+        for (attrs, want) in cases {
+            let err = StructuredParams::from_attrs(&attrs)
+                .unwrap_err()
+                .to_string();
+            assert_eq!(err, format!("StructuredStep: {want}"));
+        }
+    }
+
+    #[test]
+    fn absent_lists_are_empty_columns() {
+        let mut m = simple();
+        m.0.remove("yield_m");
+        m.0.remove("a_yield");
+        let m = with(
+            with(
+                with(m, "densification_m", vec![0.02]),
+                "densification_exponent",
+                vec![2.0],
+            ),
+            "a_densification",
+            vec![0.5],
+        );
+        let p = StructuredParams::from_attrs(&m).unwrap();
+        // past 0.95 d the pole continues linearly: finite, rising
+        let f = run(&p, &[0.015, 0.0195, 0.025, 0.03]);
+        assert!(
+            f.iter().all(|v| v.is_finite()) && f.windows(2).all(|w| w[1] > w[0]),
+            "{f:?}"
+        );
+    }
+}
