@@ -113,8 +113,10 @@ def onnx_predict(
 def parity(
     model: ForceModel, m: onnx.ModelProto, rec: Recording, stateful_limit: int = 20_000
 ) -> dict:
-    """Max |ONNX - framework| over the test recording (a prefix for stepped stateful models)."""
-    limit = stateful_limit if model.kind == "stateful" else None
+    """Max |ONNX - framework| over the test recording (a prefix for stepped stateful models:
+    the approach before the first contact, then `stateful_limit` rows in contact, so that the
+    comparison covers forces and not only the zeros before the probe touches the object)."""
+    limit = _stateful_prefix(model, rec, stateful_limit) if model.kind == "stateful" else None
     # a model whose graph renders only part of what it predicts (structured: the object, not
     # the bench's friction) is compared on that part
     ref = getattr(model, "predict_served", model.predict)(rec.matrix(model.features)[:limit])
@@ -122,10 +124,21 @@ def parity(
     diff = np.abs(got - ref)
     return {
         "rows": int(len(ref)),
+        "rows_with_force": int(np.count_nonzero(np.abs(np.nan_to_num(ref)) >= 0.01)),
         "max_abs_diff": float(np.nanmax(diff)) if len(diff) else 0.0,
         "mean_abs_diff": float(np.nanmean(diff)) if len(diff) else 0.0,
         "all_finite": bool(np.isfinite(got).all()),
     }
+
+
+def _stateful_prefix(model: ForceModel, rec: Recording, rows: int) -> int:
+    """Rows up to `rows` past the first one the model answers a force on (>= 0.01 N): stepping
+    in Python costs tens of us a row, so the whole recording would take minutes."""
+    probe = min(len(rec), 200_000)
+    f = np.abs(model.predict(rec.matrix(model.features)[:probe]))
+    touched = np.flatnonzero(np.nan_to_num(f) >= 0.01)
+    start = int(touched[0]) if len(touched) else 0
+    return min(len(rec), start + rows)
 
 
 def save_onnx(m: onnx.ModelProto, path: str | Path) -> Path:
