@@ -204,7 +204,7 @@ if [ -s "$work/families.txt" ]; then
     run_loop "page_$fam" realtime "$((family_secs + 1))" &
     loop=$!
     sleep 1
-    target/release/hapticctl swap --addr "http://$grpc" --json "family_$fam" >/dev/null ||
+    target/release/hapticctl swap --addr "http://$grpc" --instance "$instance" --json "family_$fam" >/dev/null ||
       echo "bench-loaded: could not swap to the family $fam" >&2
     wait "$loop" || true
   done <"$work/families.txt"
