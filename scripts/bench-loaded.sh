@@ -325,7 +325,9 @@ sw = rows["swap"]
 print(f"swaps: {sw['swaps_done']} done, {sw['swaps_in_run']} inside the run; lost steps {sw['lost']}; misses per step within 50 ms of a swap {sw['miss_near']:.2e}, away {sw['miss_away']:.2e}")
 if page_cpu is not None:
     print(f"page: headless Chromium used {page_cpu:.3f} CPU-s per s")
-maxstep = [r["max_step_n"] for r in rows.values() if r["max_step_n"] is not None]
+# issue 14's key covers the product's conditions (the served model); the family rows (small
+# models of every family, swapped in) have their own
+maxstep = [r["max_step_n"] for n, r in rows.items() if r["max_step_n"] is not None and not n.startswith("page_")]
 out = {
     "floor_miss_pm": floor["floor_miss_pm"],
     "inprocess_p50_us": floor["inprocess_p50_us"],
@@ -340,6 +342,7 @@ out = {
     "model": served,
     "idle_late_fraction": rows["idle"]["late_fraction"],
     "family_page_late_fraction": {f: rows[f"page_{f}"]["late_fraction"] for f in families},
+    "family_max_transition_step_n": {f: rows[f"page_{f}"]["max_step_n"] for f in families},
 }
 print(json.dumps(out))
 PY
