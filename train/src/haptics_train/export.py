@@ -116,10 +116,21 @@ def parity(
     """Max |ONNX - framework| over the test recording (a prefix for stepped stateful models:
     the approach before the first contact, then `stateful_limit` rows in contact, so that the
     comparison covers forces and not only the zeros before the probe touches the object)."""
-    limit = _stateful_prefix(model, rec, stateful_limit) if model.kind == "stateful" else None
     # a model whose graph renders only part of what it predicts (structured: the object, not
     # the bench's friction) is compared on that part
-    ref = getattr(model, "predict_served", model.predict)(rec.matrix(model.features)[:limit])
+    predict = getattr(model, "predict_served", model.predict)
+    x = rec.matrix(model.features)
+    if model.kind == "stateful":
+        # stepping in Python costs tens of us a row, so the whole recording would take minutes;
+        # the framework's answer on a causal prefix is the prefix of its answer, so one call
+        # finds the first force and gives the reference
+        ref = predict(x[: min(len(x), _CONTACT_SEARCH_ROWS + stateful_limit)])
+        touched = np.flatnonzero(np.abs(np.nan_to_num(ref)) >= 0.01)
+        limit = min(len(ref), (int(touched[0]) if len(touched) else 0) + stateful_limit)
+        ref = ref[:limit]
+    else:
+        limit = None
+        ref = predict(x)
     got = onnx_predict(m, rec, model.features, limit)
     diff = np.abs(got - ref)
     return {
@@ -131,14 +142,8 @@ def parity(
     }
 
 
-def _stateful_prefix(model: ForceModel, rec: Recording, rows: int) -> int:
-    """Rows up to `rows` past the first one the model answers a force on (>= 0.01 N): stepping
-    in Python costs tens of us a row, so the whole recording would take minutes."""
-    probe = min(len(rec), 200_000)
-    f = np.abs(model.predict(rec.matrix(model.features)[:probe]))
-    touched = np.flatnonzero(np.nan_to_num(f) >= 0.01)
-    start = int(touched[0]) if len(touched) else 0
-    return min(len(rec), start + rows)
+#: How far into a recording a stateful model's parity looks for its first force (rows).
+_CONTACT_SEARCH_ROWS = 200_000
 
 
 def save_onnx(m: onnx.ModelProto, path: str | Path) -> Path:
