@@ -5,6 +5,8 @@
 #   - haptics-proto (the vocabulary) on shm-ring only;
 #   - the two processes never depend on each other: rt-loop not on infer-server or
 #     control-plane, infer-server and control-plane not on rt-loop;
+#   - haptics-fused-ops on no crate of this workspace, haptics-ort-host (ONNX Runtime hosted
+#     for both processes) on haptics-fused-ops only;
 #   - hapticctl not on control-plane (the generated gRPC types come from haptics-proto);
 #   - no shipped crate on a test-support crate.
 # Dev-dependencies (tests, benches) are listed but not held to the layers.
@@ -36,6 +38,8 @@ TEST_SUPPORT = {"haptics-system-tests", "shm-ring-testing", "control-plane-sim",
 FORBIDDEN = {
     "shm-ring": ours - {"shm-ring"},
     "haptics-proto": ours - {"haptics-proto", "shm-ring"},
+    "haptics-fused-ops": ours - {"haptics-fused-ops"},
+    "haptics-ort-host": ours - {"haptics-ort-host", "haptics-fused-ops"},
     "rt-loop": {"infer-server", "control-plane", "hapticctl"},
     "infer-server": {"rt-loop", "hapticctl"},
     "control-plane": {"rt-loop", "infer-server", "hapticctl"},

@@ -86,19 +86,10 @@ fn bench_safe_run(path: &Path, steps: usize, samples: &mut Vec<u64>) -> (Percent
     use ort::session::Session;
     use ort::value::Tensor;
     let rt = Runtime::init(None).unwrap();
-    let mut session = Session::builder(rt.environment())
-        .unwrap()
-        .with_intra_threads(1)
-        .unwrap()
-        .with_inter_threads(1)
-        .unwrap()
-        .with_intra_op_spinning(false)
-        .unwrap()
-        // the fused operators (ai.haptics), as infer-server registers them on every session
-        .with_operators(haptics_fused_ops::domain().unwrap())
-        .unwrap()
-        .commit_from_file(path)
-        .unwrap();
+    // the product's session (ort-host: the fused operators registered), run through ort's safe API
+    let builder = haptics_ort_host::session::builder(rt.environment(), Default::default()).unwrap();
+    let mut session: Session =
+        haptics_ort_host::session::commit(builder, &std::fs::read(path).unwrap()).unwrap();
     let mut v = [0.0f64; 9];
     let mut run = |t: usize| -> f32 {
         input_at(t, &mut v);

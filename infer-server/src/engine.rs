@@ -18,8 +18,9 @@ use std::ptr;
 use std::sync::atomic::{AtomicU8, AtomicUsize, Ordering};
 use std::sync::{mpsc, Arc};
 
+use haptics_ort_host::Binding;
 use ort::session::{RunOptions, Session};
-use ort::sys::{OrtIoBinding, OrtRunOptions, OrtStatus, OrtValue};
+use ort::sys::{OrtRunOptions, OrtStatus, OrtValue};
 use ort::value::Tensor;
 use ort::AsPointer;
 
@@ -151,38 +152,14 @@ pub struct StepEngine {
     run_options: *mut OrtRunOptions,
     /// With `SessionConfig::io_binding`: inputs and outputs bound once per phase,
     /// `RunWithBinding` per step.
-    binding: [*mut OrtIoBinding; 2],
+    binding: [Option<Binding>; 2],
 }
 
 impl Drop for StepEngine {
     fn drop(&mut self) {
-        // Before the fields (session, tensors) go: the binding refers to both.
-        let api = ort::api();
-        // SAFETY: created in `load` by ONNX Runtime, released exactly once here (the run
-        // options are `_run_options_owner`'s, released when the last `Arc` goes).
-        unsafe {
-            for b in self.binding {
-                if !b.is_null() {
-                    (api.ReleaseIoBinding)(b);
-                }
-            }
-        }
+        // Before the fields (session, tensors) go: the bindings refer to both.
+        self.binding = [None, None];
     }
-}
-
-/// Turns a status from a set-up call into a `ModelError` (allocates; not for the hot path).
-fn setup_status(what: &str, status: ort::sys::OrtStatusPtr) -> Result<(), ModelError> {
-    if status.0.is_null() {
-        return Ok(());
-    }
-    let mut text = ErrorText {
-        buf: [0; 256],
-        len: 0,
-    };
-    let e = text.take_status(status.0);
-    Err(ModelError::Session {
-        reason: format!("{what}: {e}: {}", text.as_str()),
-    })
 }
 
 impl std::fmt::Debug for StepEngine {
@@ -384,28 +361,24 @@ impl StepEngine {
             },
             run_options: run_options.ptr().cast_mut(),
             _run_options_owner: run_options,
-            binding: [ptr::null_mut(); 2],
+            binding: [None, None],
         };
-        let api = ort::api();
-        // SAFETY: plain ONNX Runtime C calls; every pointer passed is owned by `engine` and
-        // outlives the objects created (released in Drop before the session and tensors).
-        unsafe {
-            if cfg.io_binding {
-                let phases = if engine.state.is_some() { 2 } else { 1 };
-                for p in 0..phases {
-                    let mut binding = ptr::null_mut();
-                    setup_status(
-                        "CreateIoBinding",
-                        (api.CreateIoBinding)(engine.session.ptr().cast_mut(), &mut binding),
-                    )?;
-                    engine.binding[p] = binding;
-                    for (name, value) in engine.in_names.iter().zip(engine.in_values[p].iter()) {
-                        setup_status("BindInput", (api.BindInput)(binding, *name, *value))?;
-                    }
-                    for (name, value) in engine.out_names.iter().zip(engine.out_values[p].iter()) {
-                        setup_status("BindOutput", (api.BindOutput)(binding, *name, *value))?;
-                    }
+        if cfg.io_binding {
+            let phases = if engine.state.is_some() { 2 } else { 1 };
+            for p in 0..phases {
+                let ins = engine.in_names.iter().copied();
+                let outs = engine.out_names.iter().copied();
+                // SAFETY: the session, the names and every value bound are owned by `engine`
+                // and outlive the binding (dropped first, in Drop).
+                let b = unsafe {
+                    Binding::new(
+                        engine.session.ptr().cast_mut(),
+                        ins.zip(engine.in_values[p].iter().copied()),
+                        outs.zip(engine.out_values[p].iter().copied()),
+                    )
                 }
+                .map_err(|reason| ModelError::Session { reason })?;
+                engine.binding[p] = Some(b);
             }
         }
         let times = engine.warm_up(cfg.warmup_runs.max(1))?;
@@ -504,16 +477,10 @@ impl StepEngine {
 
     #[inline]
     fn run_raw(&mut self) -> Result<(), StepError> {
-        let binding = self.binding[self.phase];
-        if !binding.is_null() {
-            // SAFETY: as below; the binding holds our input and output values, bound at load.
-            let status = unsafe {
-                (ort::api().RunWithBinding)(
-                    self.session.ptr().cast_mut(),
-                    self.run_options,
-                    binding,
-                )
-            };
+        if let Some(binding) = self.binding[self.phase].as_mut() {
+            // SAFETY: the binding was made for this session, which is alive as long as self;
+            // it holds our input and output values, bound at load; `&mut self`: no other run.
+            let status = unsafe { binding.run(self.session.ptr().cast_mut(), self.run_options) };
             return if status.0.is_null() {
                 Ok(())
             } else {

@@ -5,7 +5,6 @@
 
 use std::path::{Path, PathBuf};
 
-use ort::session::builder::GraphOptimizationLevel;
 use ort::session::Session;
 use ort::value::{TensorElementType, ValueType};
 
@@ -114,54 +113,26 @@ pub fn open_session_from_bytes(
     label: &Path,
     cfg: &SessionConfig,
 ) -> Result<Session, ModelError> {
-    let path = label;
-    let session_err = |e: ort::Error<ort::session::builder::SessionBuilder>| ModelError::Session {
+    let session_err = |e: haptics_ort_host::SessionError| ModelError::Session {
         reason: e.to_string(),
     };
-    let mut builder = Session::builder(rt.environment())
-        .map_err(|e| ModelError::Session {
-            reason: e.to_string(),
-        })?
-        .with_intra_threads(cfg.intra_threads.max(1))
-        .map_err(session_err)?
-        .with_inter_threads(1)
-        .map_err(session_err)?
-        .with_parallel_execution(false)
-        .map_err(session_err)?
-        .with_intra_op_spinning(cfg.spinning)
-        .map_err(session_err)?
-        .with_inter_op_spinning(cfg.spinning)
-        .map_err(session_err)?
-        .with_optimization_level(GraphOptimizationLevel::All)
-        .map_err(session_err)?
-        // Memory patterns and the CPU arena (both ONNX Runtime defaults, stated here because the
-        // no-allocation-per-step claim rests on them): with fixed shapes, intermediate tensors are
-        // planned once and served from the arena on every later run.
-        .with_memory_pattern(true)
-        .map_err(session_err)?
-        // The project's fused operators (fused-ops/: `ai.haptics`, one node per physics-shaped
-        // model): registered on every session, so models with and without them load alike.
-        .with_operators(
-            haptics_fused_ops::domain().map_err(|e| ModelError::Session {
-                reason: format!("the fused operators (ai.haptics): {e}"),
-            })?,
-        )
-        .map_err(session_err)?;
-    builder = with_memory_limit(rt, builder, cfg)?;
-    // One session created at a time in this process: ONNX Runtime adds a custom-op domain to a
-    // process-wide schema registry while it creates the session, unguarded, so two at once race
-    // (measured: "the domain is already exist" refusals with two test threads loading models).
-    // Loading is the control plane's work, never the inference thread's.
-    static CREATING: std::sync::Mutex<()> = std::sync::Mutex::new(());
-    let _one_at_a_time = CREATING
-        .lock()
-        .unwrap_or_else(|poisoned| poisoned.into_inner());
-    builder
-        .commit_from_memory(bytes)
-        .map_err(|e| ModelError::Corrupt {
-            path: path.to_path_buf(),
-            reason: e.to_string(),
-        })
+    // The product's one way to build a session (ort-host/src/session.rs: the caller's thread,
+    // nothing spinning, every optimisation, memory patterns, the fused operators registered).
+    let settings = haptics_ort_host::SessionSettings {
+        intra_threads: cfg.intra_threads,
+        spinning: cfg.spinning,
+    };
+    let builder =
+        haptics_ort_host::session::builder(rt.environment(), settings).map_err(session_err)?;
+    let builder = with_memory_limit(rt, builder, cfg)?;
+    // one session created at a time in the process (ort-host says why)
+    haptics_ort_host::session::commit(builder, bytes).map_err(|e| match e {
+        haptics_ort_host::SessionError::Graph(reason) => ModelError::Corrupt {
+            path: label.to_path_buf(),
+            reason,
+        },
+        other => session_err(other),
+    })
 }
 
 /// Makes the session allocate from the bounded arena when `cfg.memory_limit` is set.

@@ -25,8 +25,8 @@
 use std::ptr;
 use std::sync::Arc;
 
+use haptics_ort_host::Binding;
 use ort::session::RunOptions;
-use ort::sys::{OrtIoBinding, OrtValue};
 use ort::value::Tensor;
 use ort::AsPointer;
 use serde::{Deserialize, Serialize};
@@ -112,6 +112,8 @@ impl OnnxFile {
 
 /// One copy's tensors: the graph's inputs and outputs, allocated once and bound once.
 struct Io {
+    /// First: fields drop in declaration order, and the binding refers to the tensors below.
+    binding: Binding,
     // The tensors own the memory the raw pointers below point into (their data lives on the
     // heap: moving the object moves nothing the pointers see); never replaced after `new`.
     _inputs: Vec<Tensor<f32>>,
@@ -121,7 +123,6 @@ struct Io {
     /// Per state pair: (input data, output data, elements).
     state: Box<[(*mut f32, *const f32, usize)]>,
     run_options: RunOptions,
-    binding: *mut OrtIoBinding,
 }
 
 fn zeros(shape: &[i64], len: usize) -> Result<Tensor<f32>, String> {
@@ -129,30 +130,7 @@ fn zeros(shape: &[i64], len: usize) -> Result<Tensor<f32>, String> {
         .map_err(|e| format!("cannot allocate a tensor of shape {shape:?}: {e}"))
 }
 
-/// Releases a failed run's status without reading it (the real-time path formats nothing).
-fn release(s: ort::sys::OrtStatusPtr) {
-    if !s.0.is_null() {
-        // SAFETY: a non-null status from ONNX Runtime, released exactly once.
-        unsafe { (ort::api().ReleaseStatus)(s.0) };
-    }
-}
-
-/// Takes a status from ONNX Runtime: Ok when null, else its message (released).
-fn status(s: ort::sys::OrtStatusPtr) -> Result<(), String> {
-    if s.0.is_null() {
-        return Ok(());
-    }
-    let api = ort::api();
-    // SAFETY: a non-null status just returned by ONNX Runtime; its message is copied out
-    // before the status is released, exactly once.
-    unsafe {
-        let msg = std::ffi::CStr::from_ptr((api.GetErrorMessage)(s.0))
-            .to_string_lossy()
-            .into_owned();
-        (api.ReleaseStatus)(s.0);
-        Err(super::ort_runtime::one_line(&msg))
-    }
-}
+pub(super) use haptics_ort_host::binding::{message as status, release};
 
 impl Io {
     /// Allocates and binds one copy's tensors (off the real-time path).
@@ -176,31 +154,27 @@ impl Io {
             })
             .collect();
         let run_options = RunOptions::new().map_err(|e| e.to_string())?;
-        let mut io = Io {
+        let ins: Vec<_> = inputs.iter().map(|t| t.ptr()).collect();
+        let outs: Vec<_> = outputs.iter_mut().map(|t| t.ptr_mut()).collect();
+        // SAFETY: the session outlives the binding (the object drops its `Io` before its
+        // `Arc<OnnxGraph>`), and the values bound are owned by the `Io` built below, which
+        // releases the binding before they go.
+        let binding = unsafe {
+            Binding::new(
+                g.session.ptr().cast_mut(),
+                g.in_name_ptrs().zip(ins),
+                g.out_name_ptrs().zip(outs),
+            )
+        }?;
+        let io = Io {
+            binding,
             _inputs: inputs,
             _outputs: outputs,
             features,
             force,
             state,
             run_options,
-            binding: ptr::null_mut(),
         };
-        let api = ort::api();
-        // SAFETY: plain ONNX Runtime C calls; the session outlives the binding (the object
-        // drops its `Io` before its `Arc<OnnxGraph>`), and the values bound are owned by `io`.
-        unsafe {
-            status((api.CreateIoBinding)(
-                g.session.ptr().cast_mut(),
-                &mut io.binding,
-            ))?;
-            for (name, t) in g.in_name_ptrs().zip(io._inputs.iter()) {
-                status((api.BindInput)(io.binding, name, t.ptr()))?;
-            }
-            for (name, t) in g.out_name_ptrs().zip(io._outputs.iter_mut()) {
-                let value: *mut OrtValue = t.ptr_mut();
-                status((api.BindOutput)(io.binding, name, value))?;
-            }
-        }
         Ok(io)
     }
 
@@ -223,11 +197,8 @@ impl Io {
         // SAFETY: the session is alive (the object holds its Arc); the binding holds this
         // copy's input and output values; `&mut self` means no other Run uses this binding.
         let s = unsafe {
-            (ort::api().RunWithBinding)(
-                g.session.ptr().cast_mut(),
-                self.run_options.ptr(),
-                self.binding,
-            )
+            self.binding
+                .run(g.session.ptr().cast_mut(), self.run_options.ptr())
         };
         if !s.0.is_null() {
             return Err(s);
@@ -247,15 +218,6 @@ impl Io {
         for (&(to, _, len), &(from, _, _)) in self.state.iter().zip(other.state.iter()) {
             // SAFETY: both copies come from the same graph: the same pairs, the same lengths.
             unsafe { ptr::copy_nonoverlapping(from.cast_const(), to, len) };
-        }
-    }
-}
-
-impl Drop for Io {
-    fn drop(&mut self) {
-        if !self.binding.is_null() {
-            // SAFETY: created in `new`, released once; the tensors go after this.
-            unsafe { (ort::api().ReleaseIoBinding)(self.binding) };
         }
     }
 }

@@ -12,7 +12,6 @@
 use std::ffi::{c_char, CString};
 use std::path::{Path, PathBuf};
 
-use ort::session::builder::GraphOptimizationLevel;
 use ort::session::Session;
 use ort::value::{TensorElementType, ValueType};
 
@@ -104,27 +103,13 @@ impl OnnxGraph {
             path: path.to_path_buf(),
             reason: one_line(&e),
         };
-        // As infer-server opens its sessions (infer-server/src/model.rs): all the work on the
-        // caller's thread (one intra-op thread, no pool, nothing spinning), every graph
-        // optimisation, memory patterns so the intermediate tensors are planned once.
-        let e = |e: ort::Error<ort::session::builder::SessionBuilder>| corrupt(e.to_string());
-        let session = Session::builder(env)
-            .map_err(|e| corrupt(e.to_string()))?
-            .with_intra_threads(1)
-            .map_err(e)?
-            .with_inter_threads(1)
-            .map_err(e)?
-            .with_parallel_execution(false)
-            .map_err(e)?
-            .with_intra_op_spinning(false)
-            .map_err(e)?
-            .with_inter_op_spinning(false)
-            .map_err(e)?
-            .with_optimization_level(GraphOptimizationLevel::All)
-            .map_err(e)?
-            .with_memory_pattern(true)
-            .map_err(e)?
-            .commit_from_memory(&bytes)
+        // As infer-server opens its sessions (ort-host/src/session.rs): all the work on the
+        // caller's thread, every graph optimisation, memory patterns, and the fused operators
+        // registered, so an exported `structured` or `lawfree` model (one `ai.haptics` node) is
+        // an object as it is.
+        let builder = haptics_ort_host::session::builder(env, Default::default())
+            .map_err(|e| OnnxObjectError::Runtime(e.to_string()))?;
+        let session = haptics_ort_host::session::commit(builder, &bytes)
             .map_err(|e| corrupt(e.to_string()))?;
         let contract = |detail: String| OnnxObjectError::Contract {
             path: path.to_path_buf(),
