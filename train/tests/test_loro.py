@@ -92,6 +92,17 @@ def test_report_computes_class_notes_and_goals() -> None:
         notes = class_notes(["sd_poly2", "structured", "lawfree"], law)
         assert notes["no_class_shared"] == (law in ("bouc-wen", "gel", "hunt-crossley"))
     assert class_notes(["structured"], "foam")["shares"] == ["structured"]
+    reports = {}
+    for law, rec in (("qlv", 0.5), ("bouc-wen", 0.25)):
+        out = _fake_run(law, rec, 0.6)
+        out["goals"] = loro.goals(out, SPECS)
+        out["class_notes"] = class_notes(["sd_poly2", "prony", "structured", "lawfree"], law)
+        reports[law] = out
+    s = loro.summary(reports)
+    assert "| bouc-wen | **none** | rate_8 | 1.0000 | `prony` 0.2500 | 4.00x met | 0.6000 | " \
+           "1.67x missed |" in s
+    assert "| qlv | `prony`, `structured` | rate_0.5 | 1.0000 | `prony` 0.5000 | 2.00x " \
+           "missed |" in s
 
 
 def test_loro_runs_end_to_end_quick(rt_loop: Path, tmp_path: Path) -> None:

@@ -243,6 +243,26 @@ def table(out: dict, specs: tuple[str, ...]) -> str:
     return "\n".join(md)
 
 
+def summary(reports: dict[str, dict]) -> str:
+    """One table over the generators' reports (their .json, with `goals` and `class_notes`):
+    per held-out rate, the recommended model and the law-free learner against sd_poly2."""
+    rows = []
+    for gen, out in reports.items():
+        notes = out["class_notes"]
+        shared = ", ".join(f"`{m}`" for m in notes["shares"] + notes["near"]) or "**none**"
+        for k, g in out["goals"].items():
+            r, lf = g.get("recommended"), g.get("lawfree")
+            rows.append([gen, shared, k, _f(g["sd_poly2"]),
+                         f"`{r['model']}` {_f(r['test'])}" if r else "-",
+                         f"{r['ratio']:.2f}x {'met' if r['met'] else 'missed'}" if r else "-",
+                         _f(lf["test"]) if lf else "-",
+                         f"{lf['ratio']:.2f}x {'met' if lf['met'] else 'missed'}" if lf else "-",
+                         ])  # fmt: skip
+    return md_table(["generator", "models sharing or near its class", "held out", "sd_poly2",
+                     "recommended (on validation)", "vs sd_poly2 (goal 3x)", "lawfree",
+                     "vs sd_poly2 (goal 2x)"], rows)  # fmt: skip
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--generator", default="qlv", choices=sorted(GENERATORS),
@@ -255,7 +275,14 @@ def main() -> None:
     p.add_argument("--quick", action="store_true", help="small models (a smoke run)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--from-json", help="re-render the table from a previous run's .json")
+    p.add_argument("--summary", action="store_true",
+                   help="one table over every generator's report (docs/report/)")  # fmt: skip
     a = p.parse_args()
+    if a.summary:
+        reports = {g: json.loads(Path(f"docs/report/{v.report}.json").read_text())
+                   for g, v in GENERATORS.items()}  # fmt: skip
+        print(summary(reports))
+        return
     import torch
 
     torch.set_num_threads(1)
