@@ -103,6 +103,8 @@ def test_report_computes_class_notes_and_goals() -> None:
            "1.67x missed |" in s
     assert "| qlv | `prony`, `structured` | rate_0.5 | 1.0000 | `prony` 0.5000 | 2.00x " \
            "missed |" in s
+    assert "On every law: the recommended model meets the 3x goal in 3 of 6 folds." in s
+    assert "On the laws no model shares: the law-free learner meets the 2x goal in 0 of 3" in s
 
 
 def test_loro_runs_end_to_end_quick(rt_loop: Path, tmp_path: Path) -> None:

@@ -258,9 +258,19 @@ def summary(reports: dict[str, dict]) -> str:
                          _f(lf["test"]) if lf else "-",
                          f"{lf['ratio']:.2f}x {'met' if lf['met'] else 'missed'}" if lf else "-",
                          ])  # fmt: skip
-    return md_table(["generator", "models sharing or near its class", "held out", "sd_poly2",
-                     "recommended (on validation)", "vs sd_poly2 (goal 3x)", "lawfree",
-                     "vs sd_poly2 (goal 2x)"], rows)  # fmt: skip
+    md = [md_table(["generator", "models sharing or near its class", "held out", "sd_poly2",
+                    "recommended (on validation)", "vs sd_poly2 (goal 3x)", "lawfree",
+                    "vs sd_poly2 (goal 2x)"], rows), ""]  # fmt: skip
+    unshared = [o for o in reports.values() if o["class_notes"]["no_class_shared"]]
+    for scope, outs in (("every law", list(reports.values())),
+                        ("the laws no model shares", unshared)):  # fmt: skip
+        gs = [g for o in outs for g in o["goals"].values()]
+        for key, goal, what in (("recommended", GOAL_RECOMMENDED, "recommended model"),
+                                ("lawfree", GOAL_LAWFREE, "law-free learner")):  # fmt: skip
+            have = [g[key]["met"] for g in gs if key in g]
+            md.append(f"- On {scope}: the {what} meets the {goal:g}x goal in {sum(have)} of "
+                      f"{len(have)} folds.")
+    return "\n".join(md)
 
 
 def main() -> None:
