@@ -21,6 +21,7 @@ pub fn run(cmd: &Cmd, shutdown: &Shutdown) -> Result<ExitCode> {
         Cmd::IdentifyFriction(a) => identify_friction(a),
         Cmd::Fit(a) => fit(a),
         Cmd::Board(b) => board(b),
+        Cmd::ObjectForce(a) => crate::object_force::run(a).map(|()| ExitCode::SUCCESS),
     }
 }
 

@@ -50,6 +50,9 @@ pub enum Cmd {
     /// (writes the rig file every command takes with --rig), `clear-safe-mode`.
     #[command(subcommand)]
     Board(BoardCmd),
+    /// Drive a material's object (any law) along a motion CSV (t_s, x_m) and write its force
+    /// (the oracle's path without the loop): what the leave-one-rate-out generators use.
+    ObjectForce(crate::object_force::ObjectForceArgs),
 }
 
 #[derive(Subcommand)]

@@ -8,7 +8,7 @@
 //! [`clock`], [`config`], [`run`] (one run; its per-step output to a [`sink`]), [`daemon`]
 //! (`rt-loop serve`), [`shm_io`]/[`shm_model`]/[`shm_renew`] (the shared-memory side),
 //! [`stop`], [`percentiles`], [`invalid`], [`lstsq`] (small shared leaves), [`import`] (the
-//! `features` subcommand), [`cli`] and [`app`] (the command line and what it runs; `main` only
+//! `features` subcommand), [`object_force`] (the `object-force` subcommand), [`cli`] and [`app`] (the command line and what it runs; `main` only
 //! parses and calls [`app::run`]). See docs/rt-loop.md, "Layout".
 
 pub mod app;
@@ -31,6 +31,7 @@ pub mod ladder;
 pub mod lstsq;
 pub mod model;
 pub mod object;
+pub mod object_force;
 pub mod params;
 pub mod passivity;
 pub mod percentiles;

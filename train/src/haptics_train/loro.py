@@ -4,12 +4,18 @@ others, every choice is made on validation tests at rates outside all three (one
 faster: so the choice is one for extrapolation in rate), and the held-out rate is scored once,
 free run first, beside persistence, the mean and sd_poly2.
 
-With no real multi-rate public data available here (docs/train.md), the input is the SYNTHETIC
-elastomer of `viscoelastic` (three rates and two validation rates, 50 Hz, mm/N CSV); it says
-so. Everything goes through the product's own commands' code: `import_series` (rt-loop
-features), a TOML manifest per fold, `train_models`, `evaluate_models`.
+With no real multi-rate public data available here (docs/train.md), the input is SYNTHETIC
+(three rates and two validation rates, 50 Hz, mm/N CSV), from one of the generators of
+`loro_laws` (`--generator`): the QLV elastomer of `viscoelastic` (`qlv`, the default), or the
+bench's own laws driven by `rt-loop object-force` (`bouc-wen`, `gel`, `hunt-crossley`: laws no
+model here shares); it says so. Everything goes through the product's own commands' code:
+`import_series` (rt-loop features), a TOML manifest per fold, `train_models`,
+`evaluate_models`. Each report holds the computed class notes (which model shares a class with
+which law) and the issue's goals per fold: the recommended model (chosen on validation) at
+least 3x better than sd_poly2 on the held-out rate, the law-free learner at least 2x.
 
-    python -m haptics_train.loro --work data/elastomer --out docs/report/elastomer-loro.md
+    python -m haptics_train.loro --generator gel     # docs/report/gel-loro.md (+ .json)
+    python -m haptics_train.loro                     # qlv: docs/report/elastomer-loro.md
 """
 
 from __future__ import annotations
@@ -25,13 +31,18 @@ from .analysis import md_table
 from .data import load_manifest, write_manifest_entry
 from .evaluate import BASELINES
 from .importer import describe_import, import_series
+from .loro_laws import GENERATORS, LAWS, class_notes
 from .models import TrainConfig
 from .pipeline import evaluate_models, train_models
-from .viscoelastic import RATES_MM_S, VALIDATION_RATES_MM_S, Elastomer, write_tests
+from .viscoelastic import RATES_MM_S, VALIDATION_RATES_MM_S
 
 #: the learned models compared (sd_poly2 is trained too: it is the baseline of record)
 SPECS: tuple[str, ...] = ("sd_poly2", "prony", "rf:xva", "dnn:xva", "lstm:xva", "rf:six",
-                          "dnn_fb:six", "lstm_fb:six")  # fmt: skip
+                          "dnn_fb:six", "lstm_fb:six", "structured", "lawfree")  # fmt: skip
+
+#: the issue's goals on the held-out rate: recommended and law-free learner vs sd_poly2
+GOAL_RECOMMENDED = 3.0
+GOAL_LAWFREE = 2.0
 
 
 #: feedback-noise fractions tried on the validation test
@@ -44,11 +55,14 @@ def _f(v: float | None) -> str:
     return f"{v:.4f}" if np.isfinite(v) else "diverged"
 
 
-def run(work: Path, specs: tuple[str, ...], quick: bool = False, seed: int = 0) -> dict:
-    """Imports the tests, runs one fold per held-out rate; returns the table's numbers."""
+def run(work: Path, specs: tuple[str, ...], quick: bool = False, seed: int = 0,
+        generator: str = "qlv") -> dict:  # fmt: skip
+    """Writes the generator's tests, imports them, runs one fold per held-out rate; returns the
+    table's numbers."""
     t0 = time.perf_counter()
+    gen = GENERATORS[generator]
     work.mkdir(parents=True, exist_ok=True)
-    csvs = write_tests(work / "csv")
+    csvs = gen.write_tests(work / "csv")
     imported = {}
     for c in csvs:
         rec = import_series(c, work / "imported" / f"{c.stem}.parquet", "time", "displacement",
@@ -67,7 +81,7 @@ def run(work: Path, specs: tuple[str, ...], quick: bool = False, seed: int = 0) 
         fold = work / f"fold_{name}"
         man = fold / "dataset.toml"
         man.unlink(missing_ok=True)
-        src = "SYNTHETIC QLV elastomer (haptics_train.viscoelastic), 50 Hz CSV"
+        src = f"SYNTHETIC {LAWS[gen.law].title} ({LAWS[gen.law].source}), 50 Hz CSV"
         for r in RATES_MM_S:
             n = f"rate_{r:g}"
             write_manifest_entry(man, n, work / "imported" / f"{n}.parquet",
@@ -92,8 +106,77 @@ def run(work: Path, specs: tuple[str, ...], quick: bool = False, seed: int = 0) 
             "one_step_persistence": pooled(base["persistence"], "test", "one_step"),
             "range_n": float(np.ptp(ds.test[0].target())),
         }
-    return {"folds": folds, "seconds": round(time.perf_counter() - t0, 1),
-            "material": Elastomer().__dict__, "validation": ", ".join(vals)}  # fmt: skip
+    return {"generator": generator, "law": gen.law, "folds": folds, "quick": quick,
+            "hyper": hyper, "seconds": round(time.perf_counter() - t0, 1),
+            "material": gen.params(), "validation": ", ".join(vals)}  # fmt: skip
+
+
+def _ratio(sd: float | None, t: float | None) -> float:
+    """sd_poly2's error over the model's (NaN when either is missing or diverged)."""
+    if t is None or sd is None or not (np.isfinite(t) and np.isfinite(sd)) or t <= 0:
+        return float("nan")
+    return sd / t
+
+
+def goals(out: dict, specs: tuple[str, ...]) -> dict[str, dict]:
+    """Per fold: the model recommended on validation (learned models only, the lowest pooled
+    free-run RMSE over the validation rates) and the law-free learner, each on the held-out
+    rate against sd_poly2, and whether the issue's goals are met."""
+    learned = [s.replace(":", "_") for s in specs if s.replace(":", "_") not in BASELINES]
+    res = {}
+    for k, f in out["folds"].items():
+        val = {n: v for n, v in f["validation"].items() if n in learned and v is not None}
+        sd = f["test"].get("sd_poly2")
+        g: dict = {"sd_poly2": sd}
+        if val:
+            best = min(val, key=lambda n: val[n] if np.isfinite(val[n]) else np.inf)
+            r = _ratio(sd, f["test"].get(best))
+            g["recommended"] = {"model": best, "validation": val[best],
+                                "test": f["test"].get(best), "ratio": r,
+                                "met": bool(r >= GOAL_RECOMMENDED)}  # fmt: skip
+        if "lawfree" in f["test"]:
+            r = _ratio(sd, f["test"]["lawfree"])
+            g["lawfree"] = {"test": f["test"]["lawfree"], "ratio": r,
+                            "met": bool(r >= GOAL_LAWFREE)}  # fmt: skip
+        res[k] = g
+    return res
+
+
+def _met(g: dict, goal: float) -> str:
+    r = g["ratio"]
+    if not np.isfinite(r):
+        return f"**misses** the {goal:g}x goal: no finite ratio"
+    if g["met"]:
+        return f"meets the {goal:g}x goal"
+    return f"**misses** the {goal:g}x goal by a factor {goal / r:.2f}"
+
+
+def _intro(out: dict) -> str:
+    law = LAWS[out.get("law", "qlv")]
+    common = (
+        f"one loading-unloading cycle per CSV (`time [s]`, `displacement [mm]`, `force [N]`, "
+        f"50 Hz), imported with `haptics-train import`. Validation (every choice), at rates "
+        f"outside the three: `{out['validation']}`. Each column holds one rate out (test), the "
+        "models train on the other two."
+    )
+    if out.get("generator", "qlv") == "qlv":
+        return (
+            "**Synthetic stand-in, not a measurement**: no public dataset of loading-unloading "
+            "tests of one material at several rates, with a licence that allows a sample, could "
+            "be obtained here (the one real curve found, an AFM approach-retract curve, has a "
+            "single rate: docs/train.md). The tests are the `haptics_train.viscoelastic` "
+            "elastomer (Fung quasi-linear viscoelasticity: a cubic instantaneous spring with a "
+            "two-term Prony relaxation function; near the classes of `prony` and `structured`, "
+            f"see the class notes), parameters `{json.dumps(out['material'])}`, " + common
+        )
+    return (
+        "**Synthetic, not a measurement**: the tests are the bench's own object of law "
+        f"*{law.title}*, {law.source}, driven along the loading-unloading motion by "
+        "`rt-loop object-force` (the study's oracle path: a fresh object stepped at 10 kHz with "
+        "the bench's sub-steps, corners of the motion exact) with Gaussian force noise added "
+        f"(`{json.dumps(out['material'])}`), the same rates as the QLV elastomer "
+        "(docs/report/elastomer-loro.md), " + common
+    )
 
 
 def table(out: dict, specs: tuple[str, ...]) -> str:
@@ -101,21 +184,13 @@ def table(out: dict, specs: tuple[str, ...]) -> str:
     folds = out["folds"]
     learned = [s.replace(":", "_") for s in specs if s.replace(":", "_") not in BASELINES]
     names = [*BASELINES, *learned]
-    md = ["# Leave-one-rate-out on loading-unloading tests (SYNTHETIC data)", ""]
-    md.append(
-        "**Synthetic stand-in, not a measurement**: no public dataset of loading-unloading "
-        "tests of one material at several rates, with a licence that allows a sample, could be "
-        "obtained here (the one real curve found, an AFM approach-retract curve, has a single "
-        "rate: docs/train.md). The tests are the "
-        "`haptics_train.viscoelastic` elastomer (Fung quasi-linear viscoelasticity: a cubic "
-        "instantaneous spring with a two-term Prony relaxation function; not the class of the "
-        f"`prony` model), parameters `{json.dumps(out['material'])}`, one loading-unloading "
-        "cycle per CSV "
-        "(`time [s]`, `displacement [mm]`, `force [N]`, 50 Hz), imported with "
-        f"`haptics-train import`. Validation (every choice), at rates outside the three: "
-        f"`{out['validation']}`. Each column "
-        "holds one rate out (test), the models train on the other two."
-    )
+    gen = out.get("generator", "qlv")
+    law = out.get("law", "qlv")
+    md = [f"# Leave-one-rate-out on loading-unloading tests: {gen} (SYNTHETIC data)", "",
+          _intro(out)]  # fmt: skip
+    if out.get("quick"):
+        md += ["", f"**Quick run** (smoke-sized models: `{json.dumps(out.get('hyper'))}`); "
+               "not the figures of record."]  # fmt: skip
     md += ["", "Free-run RMSE on the held-out rate, N:", ""]
     rows = []
     for n in names:
@@ -124,47 +199,119 @@ def table(out: dict, specs: tuple[str, ...]) -> str:
     rows.append(["force range of the held-out test", *[f"{f['range_n']:.3f}" for f in
                                                        folds.values()]])  # fmt: skip
     md.append(md_table(["model", *[f"held out: {k}" for k in folds]], rows))
-    md += [""]
+    notes = class_notes(["sd_poly2", *learned], law)
+    md += ["", f"Class notes (computed from `loro_laws.MODEL_CLASSES`): which model shares a "
+           f"class with which law; this report's law is **{law}** ({LAWS[law].title}).", ""]
+    crow = [[f"`{m}`", r["class"], *[r[k] for k in LAWS]] for m, r in notes["rows"].items()]
+    md.append(md_table(["model", "its class", *[(f"**{k}**" if k == law else k) for k in LAWS]],
+                       crow))  # fmt: skip
+    md.append("")
+    if notes["no_class_shared"]:
+        md.append(f"- **No model shares this law's class** ({law}): no model here contains it "
+                  "or is one element away; every figure above is out of class.")
+    else:
+        md.append(f"- Models sharing this law's class: "
+                  f"{', '.join(f'`{m}`' for m in notes['shares']) or 'none'}; one element "
+                  f"away: {', '.join(f'`{m}`' for m in notes['near']) or 'none'}.")
+    md += ["", "Goals per fold (the recommendation is chosen on validation only; the held-out "
+           "rate is scored once):", ""]
+    g = goals(out, specs)
     for k, f in folds.items():
-        val = {n: v for n, v in f["validation"].items() if n in learned and v is not None}
-        if not val:
-            continue
-        best = min(val, key=lambda n: val[n] if np.isfinite(val[n]) else np.inf)
-        t, sd = f["test"].get(best), f["test"].get("sd_poly2")
-        ratio = sd / t if t and sd and np.isfinite(t) else float("nan")
-        md.append(
-            f"- held out {k}: recommended on validation `{best}` ({_f(val[best])} N there); on "
-            f"the held-out rate {_f(t)} N vs sd_poly2 {_f(sd)} N: {ratio:.2f}x"
-            f" ({'meets' if ratio >= 2 else 'misses'} the 2x goal); persistence one-step "
-            f"{_f(f['one_step_persistence'])} N."
-        )
+        gk = g[k]
+        line = f"- held out {k}:"
+        if "recommended" in gk:
+            r = gk["recommended"]
+            line += (f" recommended on validation `{r['model']}` ({_f(r['validation'])} N "
+                     f"there); on the held-out rate {_f(r['test'])} N vs sd_poly2 "
+                     f"{_f(gk['sd_poly2'])} N: {r['ratio']:.2f}x ("
+                     f"{_met(r, GOAL_RECOMMENDED)}).")  # fmt: skip
+        if "lawfree" in gk:
+            lf = gk["lawfree"]
+            line += (f" Law-free learner `lawfree` {_f(lf['test'])} N: {lf['ratio']:.2f}x "
+                     f"({_met(lf, GOAL_LAWFREE)}).")  # fmt: skip
+        line += f" Persistence one-step {_f(f['one_step_persistence'])} N."
+        md.append(line)
+    for key, goal, what in (("recommended", GOAL_RECOMMENDED, "recommended model"),
+                            ("lawfree", GOAL_LAWFREE, "law-free learner")):  # fmt: skip
+        have = [gk[key] for gk in g.values() if key in gk]
+        if have:
+            met = sum(h["met"] for h in have)
+            md.append(f"- The {what} meets the {goal:g}x goal in {met} of {len(have)} folds.")
+    flag = " --quick" if out.get("quick") else ""
     md += ["", f"Run time: {out['seconds']:.0f} s. Reproduce: `.venv/bin/python -m "
-           "haptics_train.loro --work data/elastomer --out docs/report/elastomer-loro.md`.",
-           ""]  # fmt: skip
+           f"haptics_train.loro --generator {gen}{flag}`.", ""]  # fmt: skip
+    return "\n".join(md)
+
+
+def summary(reports: dict[str, dict]) -> str:
+    """One table over the generators' reports (their .json, with `goals` and `class_notes`):
+    per held-out rate, the recommended model and the law-free learner against sd_poly2."""
+    rows = []
+    for gen, out in reports.items():
+        notes = out["class_notes"]
+        shared = ", ".join(f"`{m}`" for m in notes["shares"] + notes["near"]) or "**none**"
+        for k, g in out["goals"].items():
+            r, lf = g.get("recommended"), g.get("lawfree")
+            rows.append([gen, shared, k, _f(g["sd_poly2"]),
+                         f"`{r['model']}` {_f(r['test'])}" if r else "-",
+                         f"{r['ratio']:.2f}x {'met' if r['met'] else 'missed'}" if r else "-",
+                         _f(lf["test"]) if lf else "-",
+                         f"{lf['ratio']:.2f}x {'met' if lf['met'] else 'missed'}" if lf else "-",
+                         ])  # fmt: skip
+    md = [md_table(["generator", "models sharing or near its class", "held out", "sd_poly2",
+                    "recommended (on validation)", "vs sd_poly2 (goal 3x)", "lawfree",
+                    "vs sd_poly2 (goal 2x)"], rows), ""]  # fmt: skip
+    unshared = [o for o in reports.values() if o["class_notes"]["no_class_shared"]]
+    for scope, outs in (("every law", list(reports.values())),
+                        ("the laws no model shares", unshared)):  # fmt: skip
+        gs = [g for o in outs for g in o["goals"].values()]
+        for key, goal, what in (("recommended", GOAL_RECOMMENDED, "recommended model"),
+                                ("lawfree", GOAL_LAWFREE, "law-free learner")):  # fmt: skip
+            have = [g[key]["met"] for g in gs if key in g]
+            md.append(f"- On {scope}: the {what} meets the {goal:g}x goal in {sum(have)} of "
+                      f"{len(have)} folds.")
     return "\n".join(md)
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--work", default="data/elastomer")
-    p.add_argument("--out", default="docs/report/elastomer-loro.md")
+    p.add_argument("--generator", default="qlv", choices=sorted(GENERATORS),
+                   help="the law the tests are generated from (default qlv)")  # fmt: skip
+    p.add_argument("--work", help="working folder (default data/loro-GENERATOR; qlv: "
+                   "data/elastomer)")  # fmt: skip
+    p.add_argument("--out", help="the report (default docs/report/<generator>-loro.md; qlv: "
+                   "docs/report/elastomer-loro.md); its .json beside it")  # fmt: skip
     p.add_argument("--models", default=",".join(SPECS))
     p.add_argument("--quick", action="store_true", help="small models (a smoke run)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--from-json", help="re-render the table from a previous run's .json")
+    p.add_argument("--summary", action="store_true",
+                   help="one table over every generator's report (docs/report/)")  # fmt: skip
     a = p.parse_args()
+    if a.summary:
+        reports = {g: json.loads(Path(f"docs/report/{v.report}.json").read_text())
+                   for g, v in GENERATORS.items()}  # fmt: skip
+        print(summary(reports))
+        return
     import torch
 
     torch.set_num_threads(1)
     specs = tuple(s.strip() for s in a.models.split(",") if s.strip())
+    gen = GENERATORS[a.generator]
+    default_work = "data/elastomer" if a.generator == "qlv" else f"data/loro-{a.generator}"
+    work = Path(a.work or default_work)
+    out = Path(a.out or f"docs/report/{gen.report}.md")
     if a.from_json:
         res = json.loads(Path(a.from_json).read_text())
     else:
-        res = run(Path(a.work), specs, a.quick, a.seed)
+        res = run(work, specs, a.quick, a.seed, a.generator)
+    learned = [s.replace(":", "_") for s in specs if s.replace(":", "_") not in BASELINES]
+    res["class_notes"] = class_notes(["sd_poly2", *learned], res.get("law", "qlv"))
+    res["goals"] = goals(res, specs)
     text = table(res, specs)
-    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(a.out).write_text(text)
-    Path(a.out).with_suffix(".json").write_text(json.dumps(res, indent=1, default=float))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    out.with_suffix(".json").write_text(json.dumps(res, indent=1, default=float))
     print(text)
 
 

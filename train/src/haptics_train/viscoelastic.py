@@ -53,6 +53,23 @@ RATES_MM_S: tuple[float, ...] = (0.5, 2.0, 8.0)
 VALIDATION_RATES_MM_S: tuple[float, ...] = (0.25, 16.0)
 
 
+def triangle_knots(rate_mm_s: float, depth_mm: float = 10.0,
+                   hold_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """The corners of one loading-unloading cycle: times (s) and displacements (mm)."""
+    ramp = depth_mm / rate_mm_s
+    total = 2 * hold_s + 2 * ramp
+    return (np.array([0, hold_s, hold_s + ramp, hold_s + 2 * ramp, total]),
+            np.array([0, 0, depth_mm, 0, 0], dtype=float))  # fmt: skip
+
+
+def triangle(rate_mm_s: float, depth_mm: float = 10.0, sample_hz: float = 50.0,
+             hold_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """The cycle's motion sampled at `sample_hz`: time (s), displacement (mm)."""
+    kt, kx = triangle_knots(rate_mm_s, depth_mm, hold_s)
+    t = np.arange(int(np.floor(kt[-1] * sample_hz)) + 1) / sample_hz
+    return t, np.interp(t, kt, kx)
+
+
 def loading_unloading(
     rate_mm_s: float,
     depth_mm: float = 10.0,
@@ -63,11 +80,7 @@ def loading_unloading(
 ) -> dict[str, np.ndarray]:
     """One cycle: `hold_s` at rest, load at `rate_mm_s` to `depth_mm`, unload at the same
     rate, `hold_s` at rest. Returns time (s), displacement (mm), force (N)."""
-    ramp = depth_mm / rate_mm_s
-    total = 2 * hold_s + 2 * ramp
-    t = np.arange(int(np.floor(total * sample_hz)) + 1) / sample_hz
-    x = np.interp(t, [0, hold_s, hold_s + ramp, hold_s + 2 * ramp, total],
-                  [0, 0, depth_mm, 0, 0])  # fmt: skip
+    t, x = triangle(rate_mm_s, depth_mm, sample_hz, hold_s)
     fe = np.asarray(mat.elastic(x))
     q = np.zeros(len(mat.g))
     f = np.zeros(len(t))
@@ -95,11 +108,13 @@ def write_csv(path: str | Path, series: dict[str, np.ndarray]) -> Path:
     return path
 
 
-def write_tests(out: str | Path, sample_hz: float = 50.0) -> list[Path]:
-    """The three rates plus the validation rates, one CSV each (seeds differ per file)."""
+def write_tests(out: str | Path, sample_hz: float = 50.0,
+                rates: tuple[float, ...] | None = None) -> list[Path]:  # fmt: skip
+    """The three rates plus the validation rates (or `rates`), one CSV each (seeds differ per
+    file)."""
     out = Path(out)
     paths = []
-    for i, r in enumerate((*RATES_MM_S, *VALIDATION_RATES_MM_S)):
+    for i, r in enumerate(rates or (*RATES_MM_S, *VALIDATION_RATES_MM_S)):
         paths.append(write_csv(out / f"rate_{r:g}.csv",
                                loading_unloading(r, sample_hz=sample_hz, seed=i + 1)))  # fmt: skip
     return paths
