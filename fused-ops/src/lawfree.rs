@@ -72,7 +72,7 @@ impl StepModel for LawFreeParams {
 
     /// Reads x, v (features[0..2]), `h_in` and the filters' low parts in `c_in`.
     fn step(
-        &self,
+        &mut self,
         features: &[f32],
         h_in: &[f32],
         c_in: &[f32],

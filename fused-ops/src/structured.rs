@@ -170,7 +170,7 @@ impl StepModel for StructuredParams {
 
     /// Reads x (features[0]), `h_in`, `c_in`; writes the next state. Allocates nothing.
     fn step(
-        &self,
+        &mut self,
         features: &[f32],
         h_in: &[f32],
         c_in: &[f32],

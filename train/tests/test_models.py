@@ -24,7 +24,7 @@ SMALL = {
 
 
 @pytest.fixture(scope="module")
-def trained(synth):
+def trained(synth, fused_ops):  # the networks' default export is a fused node (fused-ops/)
     out = {}
     for algo, fs in [("sd_poly2", "x_v"), ("lr", "six"), ("svr", "six"), ("rf", "six"),
                      ("dnn", "six"), ("lstm", "six"), ("dnn", "xva_f")]:  # fmt: skip
