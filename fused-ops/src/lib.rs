@@ -1,7 +1,7 @@
 //! ONNX Runtime custom operators for the haptics models: one fused node per physics-shaped
 //! model, in the custom-op domain [`DOMAIN`]: `StructuredStep` (train's `structured`),
 //! `LawFreeStep` (`lawfree`), `DenseStep` (`dnn`, `dnn_fb`),
-//! `PronyStep` (`prony`) and `LstmStep` (`lstm`, `lstm_fb`).
+//! `PronyStep` (`prony`), `LstmStep` (`lstm`, `lstm_fb`) and `SlowLstmStep` (`lstm_slow`).
 //!
 //! Why: ONNX Runtime 1.32 pays 0.2-0.5 us of dispatch per node whatever its size, and the
 //! hand-built graph of `structured` has 50-56 nodes for a few hundred flops (docs/infer-server.md,
@@ -27,6 +27,7 @@ mod math;
 mod prony;
 mod register;
 mod scaler;
+mod slow_lstm;
 mod stateful;
 mod structured;
 mod tensors;
@@ -36,6 +37,7 @@ pub use dense::{DenseParams, DenseStep};
 pub use lawfree::{LawFreeParams, LawFreeStep};
 pub use lstm::{LstmParams, LstmStep};
 pub use prony::{PronyParams, PronyStep};
+pub use slow_lstm::{SlowLstmParams, SlowLstmStep};
 pub use stateful::{StatefulStep, StepModel};
 pub use structured::{StructuredParams, StructuredStep};
 
@@ -51,5 +53,6 @@ pub fn domain() -> ort::Result<OperatorDomain> {
         .add(LawFreeStep::default())?
         .add(DenseStep)?
         .add(PronyStep::default())?
-        .add(LstmStep::default())
+        .add(LstmStep::default())?
+        .add(SlowLstmStep::default())
 }

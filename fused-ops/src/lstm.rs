@@ -116,14 +116,8 @@ impl StepModel for LstmParams {
 
     fn from_attrs<A: Attrs + ?Sized>(attrs: &A) -> Result<Self, AttrError> {
         let r = Reader { op: OP, attrs };
-        let n = r.list("soft_scale")?.len();
-        r.check(
-            "soft_scale",
-            n as f64,
-            n >= 1,
-            "empty (one value per feature)",
-        )?;
-        let scaler = SoftScaler::from_attrs(&r, n, "the features")?;
+        let scaler = SoftScaler::networks(&r)?;
+        let n = scaler.len();
         let cell = LstmCell::from_attrs(&r, n)?;
         let head = r.list_of("head_weights", cell.hidden(), "H")?;
         Ok(Self {

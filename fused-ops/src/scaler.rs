@@ -39,6 +39,18 @@ impl SoftScaler {
         })
     }
 
+    /// A network's scaler: its width (the network's input) is `soft_scale`'s, at least 1.
+    pub fn networks<A: Attrs + ?Sized>(r: &Reader<'_, A>) -> Result<Self, AttrError> {
+        let n = r.list("soft_scale")?.len();
+        r.check(
+            "soft_scale",
+            n as f64,
+            n >= 1,
+            "empty (one value per feature)",
+        )?;
+        Self::from_attrs(r, n, "the features")
+    }
+
     /// The features it reads.
     pub fn len(&self) -> usize {
         self.inv.len()

@@ -58,6 +58,7 @@ fn stepping_allocates_nothing_on_the_rust_side() {
         "dense_fused",
         "prony_fused",
         "lstm_fused",
+        "slow_lstm_fused",
     ];
     for name in names {
         let mut engine = StepEngine::load(
