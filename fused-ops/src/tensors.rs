@@ -110,6 +110,9 @@ pub(crate) fn output<'a>(
     let mut data: *mut c_void = ptr::null_mut();
     // SAFETY: a float output tensor just created with `len` elements.
     check(unsafe { (api().GetTensorMutableData)(value, &mut data) })?;
+    if len == 0 {
+        return Ok(&mut []); // an empty batch: its data pointer may be null
+    }
     // SAFETY: as above; each output index is a distinct tensor.
     Ok(unsafe { core::slice::from_raw_parts_mut(data.cast::<f32>(), len) })
 }

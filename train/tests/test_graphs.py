@@ -196,6 +196,8 @@ def test_dense_fused_node_matches_the_graph_and_predict(hyper, fused_ops):
     np.testing.assert_allclose(got_fused, got_graph, atol=PARITY_N)
     one = session(fused).run(None, {"features": Xt[:1].astype(np.float32)})[0]
     assert one.shape == (1, 1) and abs(one[0, 0] - ref[0]) < PARITY_N
+    none = session(fused).run(None, {"features": Xt[:0].astype(np.float32)})[0]
+    assert none.shape == (0, 1)
 
 
 def test_dense_fused_node_with_a_bad_attribute_fails_in_one_line(fused_ops):
