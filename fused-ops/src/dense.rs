@@ -23,7 +23,7 @@ use ort::operator::{
 use ort::value::TensorElementType;
 
 use crate::attrs::{AttrError, Attrs, Reader};
-use crate::math::{self, Activation};
+use crate::math::{self, Activation, Madd};
 use crate::scaler::SoftScaler;
 use crate::tensors;
 
@@ -117,14 +117,14 @@ impl DenseParams {
 
     /// The force of one row of features. Allocates nothing (`a`, `b`: [`DenseParams::scratch`]).
     #[inline(always)]
-    pub fn forward(&self, x: &[f32], a: &mut [f32], b: &mut [f32]) -> f32 {
+    pub fn forward<M: Madd>(&self, x: &[f32], a: &mut [f32], b: &mut [f32]) -> f32 {
         let (mut cur, mut next) = (a, b);
         let mut width = self.scaler.len();
         self.scaler.apply(x, &mut cur[..width]);
         for layer in &self.layers {
             let out = layer.b.len();
             let y = &mut next[..out];
-            math::affine(&layer.w_t, &layer.b, &cur[..width], y);
+            math::affine::<M>(&layer.w_t, &layer.b, &cur[..width], y);
             layer.act.apply(y);
             std::mem::swap(&mut cur, &mut next);
             width = out;
@@ -178,14 +178,11 @@ impl Kernel for DenseKernel {
         let force = tensors::output(ctx, 0, &[rows as i64, 1], rows)?;
         let [a, b] = &mut self.scratch;
         let net = &self.net;
-        math::fast(
-            #[inline(always)]
-            || {
-                for (f, row) in force.iter_mut().zip(x.chunks_exact(n)) {
-                    *f = net.forward(row, a, b);
-                }
-            },
-        );
+        math::fast!(M => {
+            for (f, row) in force.iter_mut().zip(x.chunks_exact(n)) {
+                *f = net.forward::<M>(row, a, b);
+            }
+        });
         Ok(())
     }
 }
@@ -219,12 +216,12 @@ mod tests {
             let h1 = (z[0] + 0.5 * z[1] + 0.1).tanh();
             let h2 = (-z[0] + 2.0 * z[1] - 0.2).tanh();
             let want = 2.0 * (3.0 * h1 - h2 + 0.5) + 1.0;
-            let got = p.forward(&[x as f32, r as f32], &mut a, &mut b);
+            let got = p.forward::<math::Split>(&[x as f32, r as f32], &mut a, &mut b);
             assert!(
                 (f64::from(got) - want).abs() < 1e-5,
                 "{x}, {r}: {got} vs {want}"
             );
-            let fast = math::fast(|| p.forward(&[x as f32, r as f32], &mut a, &mut b));
+            let fast = math::fast!(M => p.forward::<M>(&[x as f32, r as f32], &mut a, &mut b));
             assert!(
                 (f64::from(fast) - want).abs() < 1e-5,
                 "{x}, {r}: {fast} vs {want}"

@@ -36,6 +36,7 @@ pub use attrs::{AttrError, Attrs};
 pub use dense::{DenseParams, DenseStep};
 pub use lawfree::{LawFreeParams, LawFreeStep};
 pub use lstm::{LstmParams, LstmStep};
+pub use math::{Fused, Madd, Split};
 pub use prony::{PronyParams, PronyStep};
 pub use slow_lstm::{SlowLstmParams, SlowLstmStep};
 pub use stateful::{StatefulStep, StepModel};

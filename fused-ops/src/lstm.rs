@@ -16,7 +16,7 @@
 //! element, vectorised, AVX2 where the CPU has it) and 5H exps, in float32 as torch's.
 
 use crate::attrs::{AttrError, Attrs, Reader};
-use crate::math;
+use crate::math::{self, Madd};
 use crate::scaler::SoftScaler;
 use crate::stateful::{StatefulStep, StepModel};
 
@@ -73,7 +73,7 @@ impl LstmCell {
     /// One step from input `x`, state (`h_in`, `c_in`) to (`h_out`, `c_out`), each H long.
     /// Allocates nothing.
     #[inline(always)]
-    pub fn step(
+    pub fn step<M: Madd>(
         &mut self,
         x: &[f32],
         h_in: &[f32],
@@ -82,8 +82,8 @@ impl LstmCell {
         c_out: &mut [f32],
     ) {
         let h = self.hidden;
-        math::affine(&self.w_ih_t, &self.b, x, &mut self.gates);
-        math::add_product(&self.w_hh_t, h_in, &mut self.gates);
+        math::affine::<M>(&self.w_ih_t, &self.b, x, &mut self.gates);
+        math::add_product::<M>(&self.w_hh_t, h_in, &mut self.gates);
         let (ifg, o) = self.gates.split_at_mut(3 * h);
         let (i_f, g) = ifg.split_at_mut(2 * h);
         math::Activation::Sigmoid.apply(i_f);
@@ -138,7 +138,7 @@ impl StepModel for LstmParams {
     }
 
     #[inline(always)]
-    fn step(
+    fn step<M: Madd>(
         &mut self,
         features: &[f32],
         h_in: &[f32],
@@ -147,7 +147,7 @@ impl StepModel for LstmParams {
         c_out: &mut [f32],
     ) -> f32 {
         self.scaler.apply(features, &mut self.z);
-        self.cell.step(&self.z, h_in, c_in, h_out, c_out);
+        self.cell.step::<M>(&self.z, h_in, c_in, h_out, c_out);
         let dot: f32 = h_out.iter().zip(&self.head).map(|(&h, &w)| h * w).sum();
         dot + self.head_bias
     }
@@ -190,7 +190,7 @@ mod tests {
         for n in 0..200 {
             let x = [(n as f32 * 0.1).sin(), 30.0 * (n as f32 * 0.07).cos()];
             let (mut ho, mut co) = ([0.0f32; 2], [0.0f32; 2]);
-            let got = math::fast(|| p.step(&x, &h, &c, &mut ho, &mut co));
+            let got = math::fast!(M => p.step::<M>(&x, &h, &c, &mut ho, &mut co));
             (h, c) = (ho, co);
             let z = [f64::from(x[0]), (f64::from(x[1]) / 0.5).asinh()];
             let gate = |k: usize| {

@@ -1,37 +1,92 @@
 //! The networks' arithmetic in loops the compiler vectorises: a matrix-vector product written
 //! as a sum of scaled columns (each an axpy over the output, no reduction to reorder), and
 //! exp/sigmoid/tanh/SiLU as a branch-free polynomial (libm's `expf` is a call per element,
-//! which no loop vectorises). [`fast`] runs a kernel's step compiled for AVX2 when the CPU has
-//! it (detected once by std, a load per call); every function here is `#[inline(always)]` so
-//! that it is compiled into that caller.
+//! which no loop vectorises). [`fast!`] runs a kernel's step compiled for AVX2 and FMA when
+//! the CPU has them (detected once by std, a load per call), its multiply-adds fused
+//! ([`Madd`]); every function here is `#[inline(always)]` so that it is compiled into that
+//! caller.
 //!
 //! Accuracy: `exp` is Cephes' `expf` polynomial (relative error about 2e-7 over the clamped
 //! range), so sigmoid/tanh/SiLU are within a few float32 ulps of torch's.
 
-/// Runs `f` compiled with AVX2 where the CPU has it (x86-64), else as it is.
-#[inline(always)]
-pub(crate) fn fast<R>(f: impl FnOnce() -> R) -> R {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2 (checked just above).
-        return unsafe { avx2(f) };
-    }
-    f()
+/// `a b + c` (`madd(a, b, c)`), the way a kernel compiled for a CPU does it: [`Fused`] (one rounding, the FMA
+/// instruction) where the CPU has FMA, [`Split`] elsewhere (a software `fmaf` would be a call
+/// per element).
+pub trait Madd {
+    fn madd(a: f32, b: f32, c: f32) -> f32;
 }
 
-/// `f` inlined into a function compiled for AVX2: its loops get 8-wide vectors.
+pub struct Fused;
+pub struct Split;
+
+impl Madd for Fused {
+    #[inline(always)]
+    fn madd(a: f32, b: f32, c: f32) -> f32 {
+        a.mul_add(b, c)
+    }
+}
+
+impl Madd for Split {
+    #[inline(always)]
+    fn madd(a: f32, b: f32, c: f32) -> f32 {
+        a * b + c
+    }
+}
+
+/// `fast!(M => expr)`: evaluates `expr` with the type `M` (a [`Madd`]) chosen for this CPU,
+/// compiled with AVX2 and FMA where the CPU has both (x86-64), else as it is.
+macro_rules! fast {
+    ($m:ident => $body:expr) => {{
+        #[cfg(target_arch = "x86_64")]
+        let r = if $crate::math::has_avx2_fma() {
+            #[allow(dead_code)]
+            type $m = $crate::math::Fused;
+            // SAFETY: the CPU has AVX2 and FMA (checked just above).
+            unsafe {
+                $crate::math::avx2_fma(
+                    #[inline(always)]
+                    || $body,
+                )
+            }
+        } else {
+            #[allow(dead_code)]
+            type $m = $crate::math::Split;
+            $body
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let r = {
+            #[allow(dead_code)]
+            type $m = $crate::math::Split;
+            $body
+        };
+        r
+    }};
+}
+pub(crate) use fast;
+
+/// Whether this CPU has AVX2 and FMA (std caches the detection: a load per call).
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn avx2<R>(f: impl FnOnce() -> R) -> R {
+#[inline(always)]
+pub(crate) fn has_avx2_fma() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+/// `f` inlined into a function compiled for AVX2 and FMA: its loops get 8-wide vectors.
+///
+/// # Safety
+/// The CPU must have AVX2 and FMA ([`has_avx2_fma`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+pub(crate) unsafe fn avx2_fma<R>(f: impl FnOnce() -> R) -> R {
     f()
 }
 
 /// `y = b + W x` with `w_t` the transposed matrix, [x.len()][y.len()] row-major (the columns
 /// of W contiguous: each step of the outer loop is one vectorised axpy over `y`).
 #[inline(always)]
-pub(crate) fn affine(w_t: &[f32], b: &[f32], x: &[f32], y: &mut [f32]) {
+pub(crate) fn affine<M: Madd>(w_t: &[f32], b: &[f32], x: &[f32], y: &mut [f32]) {
     y.copy_from_slice(b);
-    add_product(w_t, x, y);
+    add_product::<M>(w_t, x, y);
 }
 
 /// Outputs per block of [`add_product`]: 8 AVX2 registers of accumulators (enough independent
@@ -43,7 +98,7 @@ const BLOCK: usize = 64;
 /// `y` once per input: measured, that made the LSTM's 400 x 100 product the step's cost); the
 /// rest of `y`, column by column.
 #[inline(always)]
-pub(crate) fn add_product(w_t: &[f32], x: &[f32], y: &mut [f32]) {
+pub(crate) fn add_product<M: Madd>(w_t: &[f32], x: &[f32], y: &mut [f32]) {
     let n = y.len();
     let full = n - n % BLOCK;
     for start in (0..full).step_by(BLOCK) {
@@ -55,7 +110,7 @@ pub(crate) fn add_product(w_t: &[f32], x: &[f32], y: &mut [f32]) {
             };
             let col: &[f32; BLOCK] = col.try_into().unwrap_or(&[0.0; BLOCK]);
             for (a, &w) in acc.iter_mut().zip(col) {
-                *a += w * xi;
+                *a = M::madd(w, xi, *a);
             }
         }
         y[start..start + BLOCK].copy_from_slice(&acc);
@@ -64,7 +119,7 @@ pub(crate) fn add_product(w_t: &[f32], x: &[f32], y: &mut [f32]) {
         let rest = &mut y[full..];
         for (col, &xi) in w_t.chunks_exact(n).zip(x) {
             for (yj, &wj) in rest.iter_mut().zip(&col[full..]) {
-                *yj += wj * xi;
+                *yj = M::madd(wj, xi, *yj);
             }
         }
     }
@@ -185,7 +240,7 @@ mod tests {
         let b: Vec<f32> = (0..rows).map(|i| i as f32 * 0.01).collect();
         let w_t = transpose(&w, rows, cols);
         let mut y = vec![0.0; rows];
-        fast(|| affine(&w_t, &b, &x, &mut y));
+        fast!(M => affine::<M>(&w_t, &b, &x, &mut y));
         for r in 0..rows {
             let want: f64 = f64::from(b[r])
                 + (0..cols)
@@ -204,9 +259,9 @@ mod tests {
         // W = [[1, 2, 3], [4, 5, 6]] (2 x 3), x = [1, -1, 2], b = [0.5, -0.5]
         let w_t = transpose(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0], 2, 3);
         let mut y = [0.0; 2];
-        affine(&w_t, &[0.5, -0.5], &[1.0, -1.0, 2.0], &mut y);
+        affine::<Split>(&w_t, &[0.5, -0.5], &[1.0, -1.0, 2.0], &mut y);
         assert_eq!(y, [0.5 + 1.0 - 2.0 + 6.0, -0.5 + 4.0 - 5.0 + 12.0]);
-        fast(|| affine(&w_t, &[0.5, -0.5], &[1.0, 0.0, 0.0], &mut y));
+        fast!(M => affine::<M>(&w_t, &[0.5, -0.5], &[1.0, 0.0, 0.0], &mut y));
         assert_eq!(y, [1.5, 3.5]);
     }
 }

@@ -13,6 +13,7 @@
 //! computed in f64 once, from the raw fitted values the attributes carry.
 
 use crate::attrs::{AttrError, Attrs, Reader};
+use crate::math::Madd;
 use crate::stateful::{split, StatefulStep, StepModel};
 
 const OP: &str = "PronyStep";
@@ -56,7 +57,7 @@ impl StepModel for PronyParams {
     }
 
     /// Reads x, v (features[0..2]), the branches in `h_in` and their low parts in `c_in`.
-    fn step(
+    fn step<M: Madd>(
         &mut self,
         features: &[f32],
         h_in: &[f32],
@@ -103,7 +104,7 @@ mod tests {
         for n in 0..20_000 {
             let x = f64::from((0.01 * (n as f64 * 0.002).sin()) as f32);
             let v = f64::from((0.02 * (n as f64 * 0.002).cos()) as f32);
-            let got = p.step(&[x as f32, v as f32], &h, &c, &mut ho, &mut co);
+            let got = p.step::<crate::math::Split>(&[x as f32, v as f32], &h, &c, &mut ho, &mut co);
             std::mem::swap(&mut h, &mut ho);
             std::mem::swap(&mut c, &mut co);
             for (si, tau) in s.iter_mut().zip([0.01f64, 100.0]) {

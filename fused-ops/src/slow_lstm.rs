@@ -18,7 +18,7 @@
 
 use crate::attrs::{AttrError, Attrs, Reader};
 use crate::lstm::LstmCell;
-use crate::math::{self, Activation};
+use crate::math::{self, Activation, Madd};
 use crate::scaler::SoftScaler;
 use crate::stateful::{StatefulStep, StepModel};
 
@@ -95,7 +95,7 @@ impl StepModel for SlowLstmParams {
     }
 
     #[inline(always)]
-    fn step(
+    fn step<M: Madd>(
         &mut self,
         features: &[f32],
         h_in: &[f32],
@@ -111,7 +111,7 @@ impl StepModel for SlowLstmParams {
             let v = *z * a + b;
             *z = if v.abs() < Z_LIMIT { v } else { 0.0 };
         }
-        math::affine(&self.head_t, &self.head_b, &self.hz, &mut self.pre);
+        math::affine::<M>(&self.head_t, &self.head_b, &self.hz, &mut self.pre);
         Activation::Tanh.apply(&mut self.pre);
         let dot: f32 = self.pre.iter().zip(&self.out_w).map(|(&p, &w)| p * w).sum();
         let force = dot + self.out_b;
@@ -125,7 +125,7 @@ impl StepModel for SlowLstmParams {
                 *m = (acc + z) / cnt;
             }
             self.cell
-                .step(&self.mean, &h_in[..hid], &c_in[..hid], h_out, c_out);
+                .step::<M>(&self.mean, &h_in[..hid], &c_in[..hid], h_out, c_out);
             h_out[hid..].fill(0.0);
             c_out[hid..].copy_from_slice(&c_in[hid..]);
         } else {
@@ -188,7 +188,7 @@ mod tests {
         let mut hk = 0.0f64;
         for (n, &x) in xs.iter().enumerate() {
             let (mut ho, mut co) = ([0.0f32; 3], [0.0f32; 3]);
-            let got = p.step(&[x], &h, &c, &mut ho, &mut co);
+            let got = p.step::<math::Split>(&[x], &h, &c, &mut ho, &mut co);
             let want = 3.0 * (hk + 0.5 * f64::from(zs[n])).tanh() + 0.25;
             assert!(
                 (f64::from(got) - want).abs() < 1e-4,

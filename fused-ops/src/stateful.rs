@@ -11,6 +11,7 @@ use ort::operator::{
 use ort::value::TensorElementType;
 
 use crate::attrs::{AttrError, Attrs};
+use crate::math::Madd;
 use crate::tensors;
 
 /// A model's parameters (parsed once from the node's attributes) and its one step.
@@ -35,8 +36,9 @@ pub trait StepModel: Sized + Send + 'static {
     /// One step: writes `h_out` and `c_out` (each H long) and returns the force. Must not
     /// allocate (it runs on infer-server's inference thread); `&mut self` for scratch space
     /// the model allocated when it was created. Runs compiled for AVX2 where the CPU has it
-    /// (math.rs `fast`): whatever it calls should be `#[inline]` to be compiled so.
-    fn step(
+    /// and FMA where the CPU has them (math.rs `fast!`, `M` its multiply-add): whatever it
+    /// calls should be `#[inline]` to be compiled so.
+    fn step<M: Madd>(
         &mut self,
         features: &[f32],
         h_in: &[f32],
@@ -114,10 +116,7 @@ impl<M: StepModel> Kernel for StatefulKernel<M> {
         let h_out = tensors::output(ctx, 1, &self.state_dims, h)?;
         let c_out = tensors::output(ctx, 2, &self.state_dims, h)?;
         let model = &mut self.model;
-        force[0] = crate::math::fast(
-            #[inline(always)]
-            || model.step(features, h_in, c_in, h_out, c_out),
-        );
+        force[0] = crate::math::fast!(M => model.step::<M>(features, h_in, c_in, h_out, c_out));
         Ok(())
     }
 }
