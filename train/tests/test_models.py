@@ -59,6 +59,9 @@ def test_onnx_parity_with_the_framework(trained, synth):
         assert p["max_abs_diff"] < tol.get(name, 1e-4), (name, p)
         # the comparison covers forces, not only the zeros before the first contact
         assert p["rows_with_force"] > 1000, (name, p)
+        if m.kind == "stateful":  # the stepped prefix reaches past the probe's first contact
+            x = synth.test[0].column("position_x")
+            assert p["rows"] > p["first_contact_row"] and x[p["first_contact_row"]] > 0, p
 
 
 def test_forest_trained_on_float32_takes_identical_branches(trained, synth):
