@@ -17,15 +17,10 @@
 //! The weights are float32, as the graph's; the kernel keeps each W transposed, so that a
 //! layer is a sum of scaled columns (math.rs: vectorised, AVX2 where the CPU has it).
 
-use ort::operator::{
-    ComputeContext, Kernel, KernelContext, Operator, OperatorInput, OperatorOutput,
-};
-use ort::value::TensorElementType;
-
 use crate::attrs::{AttrError, Attrs, Reader};
 use crate::math::{self, Activation, Madd};
 use crate::scaler::SoftScaler;
-use crate::tensors;
+use crate::stateless::{RowModel, StatelessStep};
 
 const OP: &str = "DenseStep";
 
@@ -44,13 +39,13 @@ pub struct DenseParams {
     layers: Vec<Layer>,
     out_scale: f32,
     out_offset: f32,
-    /// the widest layer (the scratch rows' length)
-    widest: usize,
+    /// scratch: two rows of the widest layer
+    scratch: [Vec<f32>; 2],
 }
 
 impl DenseParams {
     /// Reads and checks the attributes.
-    pub fn from_attrs<A: Attrs + ?Sized>(attrs: &A) -> Result<Self, AttrError> {
+    fn read<A: Attrs + ?Sized>(attrs: &A) -> Result<Self, AttrError> {
         let r = Reader { op: OP, attrs };
         let widths = r.sizes("widths")?;
         if widths.len() < 2 || widths[widths.len() - 1] != 1 {
@@ -101,23 +96,30 @@ impl DenseParams {
             layers,
             out_scale: r.float("out_scale")? as f32,
             out_offset: r.float("out_offset")? as f32,
-            widest: widths.iter().copied().max().unwrap_or(1),
+            scratch: {
+                let widest = widths.iter().copied().max().unwrap_or(1);
+                [vec![0.0; widest], vec![0.0; widest]]
+            },
         })
     }
+}
 
-    /// The features per row.
-    pub fn inputs(&self) -> usize {
+impl RowModel for DenseParams {
+    const OP: &'static str = OP;
+
+    fn from_attrs<A: Attrs + ?Sized>(attrs: &A) -> Result<Self, AttrError> {
+        Self::read(attrs)
+    }
+
+    fn inputs(&self) -> usize {
         self.scaler.len()
     }
 
-    /// Scratch for [`DenseParams::forward`]: two rows of the widest layer.
-    pub fn scratch(&self) -> [Vec<f32>; 2] {
-        [vec![0.0; self.widest], vec![0.0; self.widest]]
-    }
-
-    /// The force of one row of features. Allocates nothing (`a`, `b`: [`DenseParams::scratch`]).
+    /// The force of one row of features. Allocates nothing (two scratch rows of the widest
+    /// layer, made at creation).
     #[inline(always)]
-    pub fn forward<M: Madd>(&self, x: &[f32], a: &mut [f32], b: &mut [f32]) -> f32 {
+    fn row<M: Madd>(&mut self, x: &[f32]) -> f32 {
+        let [a, b] = &mut self.scratch;
         let (mut cur, mut next) = (a, b);
         let mut width = self.scaler.len();
         self.scaler.apply(x, &mut cur[..width]);
@@ -134,58 +136,7 @@ impl DenseParams {
 }
 
 /// The operator ONNX Runtime registers (`ai.haptics:DenseStep`).
-#[derive(Default)]
-pub struct DenseStep;
-
-/// One node's kernel: the network and its scratch rows.
-pub struct DenseKernel {
-    net: DenseParams,
-    scratch: [Vec<f32>; 2],
-}
-
-impl Operator for DenseStep {
-    type Kernel<'attr> = DenseKernel;
-
-    fn name(&self) -> &str {
-        OP
-    }
-
-    fn inputs(&self) -> impl IntoIterator<Item = OperatorInput> {
-        [OperatorInput::required(TensorElementType::Float32)]
-    }
-
-    fn outputs(&self) -> impl IntoIterator<Item = OperatorOutput> {
-        [OperatorOutput::required(TensorElementType::Float32)]
-    }
-
-    fn create_kernel<'attr>(&self, info: &KernelContext<'attr>) -> ort::Result<DenseKernel> {
-        let err = |e: AttrError| ort::Error::new(e.to_string());
-        let net = DenseParams::from_attrs(info).map_err(err)?;
-        tensors::check_rows(OP, info, 0, "features", net.inputs()).map_err(err)?;
-        Ok(DenseKernel {
-            scratch: net.scratch(),
-            net,
-        })
-    }
-}
-
-impl Kernel for DenseKernel {
-    /// Runs on infer-server's inference thread: no allocation, no lock (only the error path,
-    /// which fails the call, allocates its message).
-    fn compute(&mut self, ctx: &ComputeContext) -> ort::Result<()> {
-        let n = self.net.inputs();
-        let (rows, x) = tensors::input_rows(ctx, 0, n)?;
-        let force = tensors::output(ctx, 0, &[rows as i64, 1], rows)?;
-        let [a, b] = &mut self.scratch;
-        let net = &self.net;
-        math::fast!(M => {
-            for (f, row) in force.iter_mut().zip(x.chunks_exact(n)) {
-                *f = net.forward::<M>(row, a, b);
-            }
-        });
-        Ok(())
-    }
-}
+pub type DenseStep = StatelessStep<DenseParams>;
 
 #[cfg(test)]
 mod tests {
@@ -209,19 +160,18 @@ mod tests {
 
     #[test]
     fn a_row_matches_the_network_written_out_by_hand() {
-        let p = DenseParams::from_attrs(&simple()).unwrap();
-        let [mut a, mut b] = p.scratch();
+        let mut p = DenseParams::from_attrs(&simple()).unwrap();
         for (x, r) in [(0.3f64, -5.0f64), (0.0, 0.0), (-1.0, 1e6), (2.0, 0.01)] {
             let z = [x, (r / 2.0).asinh()];
             let h1 = (z[0] + 0.5 * z[1] + 0.1).tanh();
             let h2 = (-z[0] + 2.0 * z[1] - 0.2).tanh();
             let want = 2.0 * (3.0 * h1 - h2 + 0.5) + 1.0;
-            let got = p.forward::<math::Split>(&[x as f32, r as f32], &mut a, &mut b);
+            let got = p.row::<math::Split>(&[x as f32, r as f32]);
             assert!(
                 (f64::from(got) - want).abs() < 1e-5,
                 "{x}, {r}: {got} vs {want}"
             );
-            let fast = math::fast!(M => p.forward::<M>(&[x as f32, r as f32], &mut a, &mut b));
+            let fast = math::fast!(M => p.row::<M>(&[x as f32, r as f32]));
             assert!(
                 (f64::from(fast) - want).abs() < 1e-5,
                 "{x}, {r}: {fast} vs {want}"

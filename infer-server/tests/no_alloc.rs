@@ -59,6 +59,7 @@ fn stepping_allocates_nothing_on_the_rust_side() {
         "prony_fused",
         "lstm_fused",
         "slow_lstm_fused",
+        "svr_fused",
     ];
     for name in names {
         let mut engine = StepEngine::load(

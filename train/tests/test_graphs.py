@@ -246,3 +246,27 @@ def test_lstm_fused_node_with_a_bad_attribute_fails_in_one_line(train_x, fused_o
     want = r"LstmStep: attribute `head_weights` has 3 values, `H` has 4: they pair up"
     with pytest.raises(Exception, match=want):
         session(om)
+
+
+def test_svr_fused_node_matches_predict_and_the_graph(fused_ops):
+    """The fused RBF SVR (the default export, any number of rows) matches scikit-learn's
+    float64 `predict` within 1e-4 N, closer than skl2onnx's float32 graph (kept by
+    `fused=False`), and a bad attribute refuses the session in one line."""
+    X = _dense_rows(3000)
+    y = 50 * X[:, 0] + 2 * np.tanh(X[:, 1] / 0.01)
+    m = make_model("svr", "six", hyper={"max_rows": 800})
+    m.fit(X, y)
+    prov = provenance(m, CFG, None, None)
+    fused, graph = to_contract_onnx(m, prov), to_contract_onnx(m, prov, fused=False)
+    assert [(n.domain, n.op_type) for n in fused.graph.node] == [("ai.haptics", "SvrStep")]
+    Xt = _dense_rows(2000, seed=1)
+    ref = m.predict(Xt)
+    feats = {"features": Xt.astype(np.float32)}
+    got_fused = session(fused).run(None, feats)[0][:, 0]
+    got_graph = session(graph).run(None, feats)[0][:, 0]
+    assert len(m.estimator_[-1].support_) > 100
+    np.testing.assert_allclose(got_fused, ref, atol=PARITY_N)
+    np.testing.assert_allclose(got_graph, ref, atol=5e-3)
+    next(a for a in fused.graph.node[0].attribute if a.name == "gamma").f = -1.0
+    with pytest.raises(Exception, match=r"SvrStep: attribute `gamma` = -1 is not positive"):
+        session(fused)
