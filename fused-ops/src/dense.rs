@@ -84,7 +84,7 @@ impl DenseParams {
             })?;
             let wl: Vec<f32> = w[wo..wo + inp * out].iter().map(|&v| v as f32).collect();
             layers.push(Layer {
-                w_t: math::transpose(&wl, out, inp),
+                w_t: math::columns(&wl, out, inp),
                 b: b[bo..bo + out].iter().map(|&v| v as f32).collect(),
                 act,
             });

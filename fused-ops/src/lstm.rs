@@ -59,8 +59,8 @@ impl LstmCell {
         let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
         Ok(Self {
             hidden,
-            w_ih_t: math::transpose(&f32s(&w_ih), g, n_in),
-            w_hh_t: math::transpose(&f32s(&w_hh), g, hidden),
+            w_ih_t: math::columns(&f32s(&w_ih), g, n_in),
+            w_hh_t: math::columns(&f32s(&w_hh), g, hidden),
             b: f32s(&b),
             gates: vec![0.0; g],
         })

@@ -81,8 +81,7 @@ pub(crate) unsafe fn avx2_fma<R>(f: impl FnOnce() -> R) -> R {
     f()
 }
 
-/// `y = b + W x` with `w_t` the transposed matrix, [x.len()][y.len()] row-major (the columns
-/// of W contiguous: each step of the outer loop is one vectorised axpy over `y`).
+/// `y = b + W x` with `w_t` W's columns in blocks ([`columns`]).
 #[inline(always)]
 pub(crate) fn affine<M: Madd>(w_t: &[f32], b: &[f32], x: &[f32], y: &mut [f32]) {
     y.copy_from_slice(b);
@@ -93,36 +92,54 @@ pub(crate) fn affine<M: Madd>(w_t: &[f32], b: &[f32], x: &[f32], y: &mut [f32]) 
 /// additions in flight to hide the add's latency), held in registers across all the inputs.
 const BLOCK: usize = 64;
 
-/// `y += W x` with `w_t` as in [`affine`]. Blocks of [`BLOCK`] outputs each accumulate over
-/// every input before being stored (a column at a time over all of `y` would store and reload
-/// `y` once per input: measured, that made the LSTM's 400 x 100 product the step's cost); the
-/// rest of `y`, column by column.
+/// `y += W x` with `w_t` W's columns in blocks ([`columns`]). Blocks of [`BLOCK`] outputs
+/// each accumulate over every input before being stored (a column at a time over all of `y`
+/// would store and reload `y` once per input: measured, that made the LSTM's 400 x 100 product
+/// the step's cost), reading their weights in one contiguous run; the rest of `y`, column by
+/// column.
 #[inline(always)]
 pub(crate) fn add_product<M: Madd>(w_t: &[f32], x: &[f32], y: &mut [f32]) {
-    let n = y.len();
+    let (n, m) = (y.len(), x.len());
     let full = n - n % BLOCK;
-    for start in (0..full).step_by(BLOCK) {
+    for (panel, out) in w_t[..full * m]
+        .chunks_exact(BLOCK * m)
+        .zip(y[..full].chunks_exact_mut(BLOCK))
+    {
         let mut acc = [0.0f32; BLOCK];
-        acc.copy_from_slice(&y[start..start + BLOCK]);
-        for (i, &xi) in x.iter().enumerate() {
-            let Some(col) = w_t.get(i * n + start..i * n + start + BLOCK) else {
-                break; // (never: w_t is [x.len()][n], checked at kernel creation)
-            };
+        acc.copy_from_slice(out);
+        for (col, &xi) in panel.chunks_exact(BLOCK).zip(x) {
             let col: &[f32; BLOCK] = col.try_into().unwrap_or(&[0.0; BLOCK]);
             for (a, &w) in acc.iter_mut().zip(col) {
                 *a = M::madd(w, xi, *a);
             }
         }
-        y[start..start + BLOCK].copy_from_slice(&acc);
+        out.copy_from_slice(&acc);
     }
-    if full < n {
-        let rest = &mut y[full..];
-        for (col, &xi) in w_t.chunks_exact(n).zip(x) {
-            for (yj, &wj) in rest.iter_mut().zip(&col[full..]) {
+    let rest = n - full;
+    if rest > 0 {
+        for (col, &xi) in w_t[full * m..].chunks_exact(rest).zip(x) {
+            for (yj, &wj) in y[full..].iter_mut().zip(col) {
                 *yj = M::madd(wj, xi, *yj);
             }
         }
     }
+}
+
+/// W [rows][cols] (row-major) in the layout of [`add_product`]: for each block of [`BLOCK`]
+/// rows, its columns one after the other (each `BLOCK` long), then the remaining rows'
+/// columns (each `rows % BLOCK` long).
+pub(crate) fn columns(w: &[f32], rows: usize, cols: usize) -> Vec<f32> {
+    let full = rows - rows % BLOCK;
+    let mut out = Vec::with_capacity(w.len());
+    for start in (0..full).step_by(BLOCK) {
+        for c in 0..cols {
+            out.extend((start..start + BLOCK).map(|r| w[r * cols + c]));
+        }
+    }
+    for c in 0..cols {
+        out.extend((full..rows).map(|r| w[r * cols + c]));
+    }
+    out
 }
 
 /// e^x, branch-free (Cephes expf): x clamped to [-87, 88] (the float32 range; e^-87 is 1.6e-38,
@@ -238,7 +255,7 @@ mod tests {
             .collect();
         let x: Vec<f32> = (0..cols).map(|i| i as f32 * 0.3 - 0.9).collect();
         let b: Vec<f32> = (0..rows).map(|i| i as f32 * 0.01).collect();
-        let w_t = transpose(&w, rows, cols);
+        let w_t = columns(&w, rows, cols);
         let mut y = vec![0.0; rows];
         fast!(M => affine::<M>(&w_t, &b, &x, &mut y));
         for r in 0..rows {
@@ -257,7 +274,7 @@ mod tests {
     #[test]
     fn the_column_product_is_the_matrix_product() {
         // W = [[1, 2, 3], [4, 5, 6]] (2 x 3), x = [1, -1, 2], b = [0.5, -0.5]
-        let w_t = transpose(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0], 2, 3);
+        let w_t = columns(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0], 2, 3);
         let mut y = [0.0; 2];
         affine::<Split>(&w_t, &[0.5, -0.5], &[1.0, -1.0, 2.0], &mut y);
         assert_eq!(y, [0.5 + 1.0 - 2.0 + 6.0, -0.5 + 4.0 - 5.0 + 12.0]);

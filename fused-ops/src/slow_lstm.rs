@@ -74,7 +74,7 @@ impl StepModel for SlowLstmParams {
             scaler,
             scale: f32s(&scale),
             offset: f32s(&offset),
-            head_t: math::transpose(&f32s(&head), k, hid + f),
+            head_t: math::columns(&f32s(&head), k, hid + f),
             head_b: f32s(&head_b),
             out_w: f32s(&out_w),
             out_b: r.float("out_bias")? as f32,
