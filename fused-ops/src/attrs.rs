@@ -43,6 +43,10 @@ pub trait Attrs {
     /// A FLOATS attribute; `None` when absent (an absent list is read as empty by the callers
     /// that allow it: ONNX cannot write an empty list without its type).
     fn floats(&self, name: &str) -> Option<Vec<f32>>;
+    /// An INTS attribute.
+    fn ints(&self, name: &str) -> Option<Vec<i64>>;
+    /// A STRING attribute.
+    fn string(&self, name: &str) -> Option<String>;
 }
 
 impl Attrs for KernelContext<'_> {
@@ -51,6 +55,12 @@ impl Attrs for KernelContext<'_> {
     }
     fn floats(&self, name: &str) -> Option<Vec<f32>> {
         self.get::<Vec<f32>>(name)
+    }
+    fn ints(&self, name: &str) -> Option<Vec<i64>> {
+        self.get::<Vec<i64>>(name)
+    }
+    fn string(&self, name: &str) -> Option<String> {
+        self.get::<String>(name)
     }
 }
 
@@ -83,6 +93,51 @@ impl<A: Attrs + ?Sized> Reader<'_, A> {
         v.into_iter()
             .map(|x| self.finite(name, f64::from(x)))
             .collect()
+    }
+
+    /// A required float list of exactly `len` values, every value finite.
+    pub fn list_of(
+        &self,
+        name: &'static str,
+        len: usize,
+        what: &'static str,
+    ) -> Result<Vec<f64>, AttrError> {
+        let v = self.list(name)?;
+        if v.len() != len {
+            return Err(AttrError::Length {
+                op: self.op,
+                name,
+                got: v.len(),
+                other: what,
+                expected: len,
+            });
+        }
+        Ok(v)
+    }
+
+    /// A required list of sizes (INTS), every one at least 1.
+    pub fn sizes(&self, name: &'static str) -> Result<Vec<usize>, AttrError> {
+        let v = self.attrs.ints(name).ok_or(AttrError::Missing {
+            op: self.op,
+            name,
+            kind: "list of ints",
+        })?;
+        v.into_iter()
+            .map(|n| {
+                self.check(name, n as f64, n >= 1, "not a size (>= 1)")
+                    .map(|_| n as usize)
+            })
+            .collect()
+    }
+
+    /// A required comma-separated list of names (a STRING).
+    pub fn names(&self, name: &'static str) -> Result<Vec<String>, AttrError> {
+        let v = self.attrs.string(name).ok_or(AttrError::Missing {
+            op: self.op,
+            name,
+            kind: "string",
+        })?;
+        Ok(v.split(',').map(|s| s.trim().to_string()).collect())
     }
 
     /// A float list whose values are all > 0.
@@ -144,15 +199,23 @@ pub(crate) mod tests {
 
     use super::Attrs;
 
-    /// Attributes from a map: one value is a FLOAT, several (or none) FLOATS.
-    pub(crate) struct Map(pub HashMap<&'static str, Vec<f32>>);
+    /// Attributes from a map: one value is a FLOAT, several (or none) FLOATS; the same values
+    /// read as INTS where whole; strings apart.
+    pub(crate) struct Map(
+        pub HashMap<&'static str, Vec<f32>>,
+        pub HashMap<&'static str, String>,
+    );
 
     impl Map {
         pub fn of(pairs: &[(&'static str, Vec<f32>)]) -> Self {
-            Self(pairs.iter().cloned().collect())
+            Self(pairs.iter().cloned().collect(), HashMap::new())
         }
         pub fn with(mut self, name: &'static str, v: Vec<f32>) -> Self {
             self.0.insert(name, v);
+            self
+        }
+        pub fn with_str(mut self, name: &'static str, v: &str) -> Self {
+            self.1.insert(name, v.to_string());
             self
         }
     }
@@ -163,6 +226,14 @@ pub(crate) mod tests {
         }
         fn floats(&self, name: &str) -> Option<Vec<f32>> {
             self.0.get(name).cloned()
+        }
+        fn ints(&self, name: &str) -> Option<Vec<i64>> {
+            self.0
+                .get(name)
+                .map(|v| v.iter().map(|&x| x as i64).collect())
+        }
+        fn string(&self, name: &str) -> Option<String> {
+            self.1.get(name).cloned()
         }
     }
 }

@@ -13,6 +13,7 @@
 //! state drifts from `predict` (measured: 7-10e-3 N over a 3-million-step recording).
 
 use crate::attrs::{AttrError, Attrs, Reader};
+use crate::math::Madd;
 use crate::stateful::{split, StatefulStep, StepModel};
 
 const OP: &str = "LawFreeStep";
@@ -71,8 +72,8 @@ impl StepModel for LawFreeParams {
     }
 
     /// Reads x, v (features[0..2]), `h_in` and the filters' low parts in `c_in`.
-    fn step(
-        &self,
+    fn step<M: Madd>(
+        &mut self,
         features: &[f32],
         h_in: &[f32],
         c_in: &[f32],

@@ -1,6 +1,8 @@
 //! ONNX Runtime custom operators for the haptics models: one fused node per physics-shaped
-//! model, in the custom-op domain [`DOMAIN`]: `StructuredStep` (train's `structured`) and
-//! `LawFreeStep` (`lawfree`).
+//! model, in the custom-op domain [`DOMAIN`]: `StructuredStep` (train's `structured`),
+//! `LawFreeStep` (`lawfree`), `DenseStep` (`dnn`, `dnn_fb`),
+//! `PronyStep` (`prony`), `LstmStep` (`lstm`, `lstm_fb`), `SlowLstmStep` (`lstm_slow`) and
+//! `SvrStep` (`svr`).
 //!
 //! Why: ONNX Runtime 1.32 pays 0.2-0.5 us of dispatch per node whatever its size, and the
 //! hand-built graph of `structured` has 50-56 nodes for a few hundred flops (docs/infer-server.md,
@@ -19,16 +21,31 @@
 //! API: the safe wrappers build shape vectors on every call).
 
 mod attrs;
+mod dense;
 mod lawfree;
+mod lstm;
+mod math;
+mod prony;
 mod register;
+mod scaler;
+mod slow_lstm;
 mod stateful;
+mod stateless;
 mod structured;
+mod svr;
 mod tensors;
 
 pub use attrs::{AttrError, Attrs};
+pub use dense::{DenseParams, DenseStep};
 pub use lawfree::{LawFreeParams, LawFreeStep};
+pub use lstm::{LstmParams, LstmStep};
+pub use math::{Fused, Madd, Split};
+pub use prony::{PronyParams, PronyStep};
+pub use slow_lstm::{SlowLstmParams, SlowLstmStep};
 pub use stateful::{StatefulStep, StepModel};
+pub use stateless::{RowModel, StatelessStep};
 pub use structured::{StructuredParams, StructuredStep};
+pub use svr::{SvrParams, SvrStep};
 
 use ort::operator::OperatorDomain;
 
@@ -39,5 +56,10 @@ pub const DOMAIN: &str = "ai.haptics";
 pub fn domain() -> ort::Result<OperatorDomain> {
     OperatorDomain::new(DOMAIN)?
         .add(StructuredStep::default())?
-        .add(LawFreeStep::default())
+        .add(LawFreeStep::default())?
+        .add(DenseStep::default())?
+        .add(PronyStep::default())?
+        .add(LstmStep::default())?
+        .add(SlowLstmStep::default())?
+        .add(SvrStep::default())
 }

@@ -11,6 +11,7 @@ use ort::operator::{
 use ort::value::TensorElementType;
 
 use crate::attrs::{AttrError, Attrs};
+use crate::math::Madd;
 use crate::tensors;
 
 /// A model's parameters (parsed once from the node's attributes) and its one step.
@@ -26,10 +27,19 @@ pub trait StepModel: Sized + Send + 'static {
     /// H: the state's length.
     fn state_size(&self) -> usize;
 
+    /// The exact number of features the parameters were fitted on, where they fix it (a
+    /// network's input width); `None`: at least `MIN_FEATURES`, the rest unread.
+    fn features(&self) -> Option<usize> {
+        None
+    }
+
     /// One step: writes `h_out` and `c_out` (each H long) and returns the force. Must not
-    /// allocate (it runs on infer-server's inference thread).
-    fn step(
-        &self,
+    /// allocate (it runs on infer-server's inference thread); `&mut self` for scratch space
+    /// the model allocated when it was created. Runs compiled for AVX2 where the CPU has it
+    /// and FMA where the CPU has them (math.rs `fast!`, `M` its multiply-add): whatever it
+    /// calls should be `#[inline]` to be compiled so.
+    fn step<M: Madd>(
+        &mut self,
         features: &[f32],
         h_in: &[f32],
         c_in: &[f32],
@@ -73,8 +83,16 @@ impl<M: StepModel> Operator for StatefulStep<M> {
         let err = |e: AttrError| ort::Error::new(e.to_string());
         let model = M::from_attrs(info).map_err(err)?;
         let state_dims = [1, 1, model.state_size() as i64];
-        let n_features =
-            tensors::row_width(M::OP, info, 0, "features", M::MIN_FEATURES).map_err(err)?;
+        let min = model.features().unwrap_or(M::MIN_FEATURES);
+        let n_features = tensors::row_width(M::OP, info, 0, "features", min).map_err(err)?;
+        if let Some(n) = model.features().filter(|&n| n != n_features) {
+            return Err(err(AttrError::Shape {
+                op: M::OP,
+                name: "features",
+                expected: format!("[1, {n}] (the features the weights take)"),
+                got: format!("[1, {n_features}]"),
+            }));
+        }
         for (idx, name) in [(1, "h_in"), (2, "c_in")] {
             tensors::check_shape(M::OP, info, idx, name, &state_dims).map_err(err)?;
         }
@@ -97,7 +115,8 @@ impl<M: StepModel> Kernel for StatefulKernel<M> {
         let force = tensors::output(ctx, 0, &[1, 1], 1)?;
         let h_out = tensors::output(ctx, 1, &self.state_dims, h)?;
         let c_out = tensors::output(ctx, 2, &self.state_dims, h)?;
-        force[0] = self.model.step(features, h_in, c_in, h_out, c_out);
+        let model = &mut self.model;
+        force[0] = crate::math::fast!(M => model.step::<M>(features, h_in, c_in, h_out, c_out));
         Ok(())
     }
 }

@@ -28,6 +28,7 @@
 //! in 1 - d as an f32).
 
 use crate::attrs::{AttrError, Attrs, Reader};
+use crate::math::Madd;
 use crate::stateful::{split, StatefulStep, StepModel};
 
 const OP: &str = "StructuredStep";
@@ -169,8 +170,8 @@ impl StepModel for StructuredParams {
     }
 
     /// Reads x (features[0]), `h_in`, `c_in`; writes the next state. Allocates nothing.
-    fn step(
-        &self,
+    fn step<M: Madd>(
+        &mut self,
         features: &[f32],
         h_in: &[f32],
         c_in: &[f32],

@@ -49,6 +49,40 @@ pub(crate) fn input(ctx: &ComputeContext, idx: usize, len: usize) -> ort::Result
     Ok(unsafe { core::slice::from_raw_parts(data.cast::<f32>(), len) })
 }
 
+/// Input `idx` of rows `width` floats wide (a free first dimension): its row count and its
+/// floats. The element count comes from ONNX Runtime's shape info (created and released in its
+/// own allocator: nothing Rust allocates).
+pub(crate) fn input_rows(
+    ctx: &ComputeContext,
+    idx: usize,
+    width: usize,
+) -> ort::Result<(usize, &[f32])> {
+    let mut value: *const sys::OrtValue = ptr::null();
+    // SAFETY: ctx is the live kernel context of this compute call.
+    check(unsafe { (api().KernelContext_GetInput)(ctx.ptr(), idx, &mut value) })?;
+    if value.is_null() {
+        return Err(ort::Error::new(format!("input {idx} is missing")));
+    }
+    let mut info: *mut sys::OrtTensorTypeAndShapeInfo = ptr::null_mut();
+    // SAFETY: a live tensor value; the info is released below on every path.
+    check(unsafe { (api().GetTensorTypeAndShape)(value, &mut info) })?;
+    let mut count = 0usize;
+    // SAFETY: info was just created.
+    let counted = check(unsafe { (api().GetTensorShapeElementCount)(info, &mut count) });
+    // SAFETY: created above, released once.
+    unsafe { (api().ReleaseTensorTypeAndShapeInfo)(info) };
+    counted?;
+    let mut data: *mut c_void = ptr::null_mut();
+    // SAFETY: a float tensor input (declared float32), only read.
+    check(unsafe { (api().GetTensorMutableData)(value.cast_mut(), &mut data) })?;
+    if count == 0 {
+        return Ok((0, &[]));
+    }
+    // SAFETY: `count` elements, as ONNX Runtime reports; alive for the compute call.
+    let all = unsafe { core::slice::from_raw_parts(data.cast::<f32>(), count) };
+    Ok((count / width, all))
+}
+
 /// Output `idx`, created with the shape `dims`, as its `len` (= product of `dims`) floats.
 #[allow(clippy::mut_from_ref)] // each output is a distinct tensor ONNX Runtime owns
 pub(crate) fn output<'a>(
@@ -76,6 +110,9 @@ pub(crate) fn output<'a>(
     let mut data: *mut c_void = ptr::null_mut();
     // SAFETY: a float output tensor just created with `len` elements.
     check(unsafe { (api().GetTensorMutableData)(value, &mut data) })?;
+    if len == 0 {
+        return Ok(&mut []); // an empty batch: its data pointer may be null
+    }
     // SAFETY: as above; each output index is a distinct tensor.
     Ok(unsafe { core::slice::from_raw_parts_mut(data.cast::<f32>(), len) })
 }
@@ -117,6 +154,21 @@ pub(crate) fn check_shape(
     match declared_shape(info, idx) {
         Some(dims) if dims == expected => Ok(()),
         other => Err(shape_error(op, name, format!("{expected:?}"), other)),
+    }
+}
+
+/// Checks, at kernel creation, that input `idx` is declared as rows of exactly `width` values
+/// ([N, width], N free or fixed).
+pub(crate) fn check_rows(
+    op: &'static str,
+    info: &KernelContext<'_>,
+    idx: usize,
+    name: &'static str,
+    width: usize,
+) -> Result<(), AttrError> {
+    match declared_shape(info, idx) {
+        Some(dims) if dims.len() == 2 && dims[1] == width as i64 => Ok(()),
+        other => Err(shape_error(op, name, format!("[N, {width}]"), other)),
     }
 }
 

@@ -8,7 +8,8 @@ Usage: bench_models_prep.py DATASET OUT [--retrain]
   before and after a change of the export carry the same parameters; --retrain fits again);
 - exports each with the contract's metadata into OUT/families (`haptics_train.export`, which
   checks parity with `predict` on the first test recording: printed, and failing above 1e-4 N);
-- for the models exported as one fused node (structured, lawfree: fused-ops/), also writes
+- for the models exported as one fused node (fused-ops/: structured, lawfree, prony, the dense
+  networks, the LSTMs, lstm_slow, svr), also writes
   their multi-node graph of standard operators as OUT/families/NAME_graph.onnx (same fitted
   model, same metadata), so one run measures the fused node against the graph it replaces;
 - writes OUT/families/identity.onnx: one node, the stateless contract's input and output (the
@@ -114,8 +115,8 @@ def main(argv: list[str]) -> int:
     np.ascontiguousarray(rows[start : start + ROWS], dtype="<f8").tofile(fam / "features.f64")
     print(f"[bench-models] {len(nodes)} graphs in {fam}: {nodes}", flush=True)
     if bad:
-        # reported, not fatal: skl2onnx's float32 SVR differs from scikit-learn's float64 by
-        # ~5e-4 N (its export is not built here); the cost of its call is measured all the same
+        # reported, not fatal: the benchmark measures cost (skl2onnx's float32 SVR graph, the
+        # export before the fused SvrStep, differed from scikit-learn's float64 by ~8e-4 N)
         print("[bench-models] parity with predict above 1e-4 N:\n  " + "\n  ".join(bad),
               file=sys.stderr)  # fmt: skip
     return 0

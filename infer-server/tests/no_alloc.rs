@@ -48,9 +48,20 @@ fn stepping_allocates_nothing_on_the_rust_side() {
     let rt = common::runtime();
     let schema = FeatureSchema::standard();
     let (mut recorder, reader) = latency::histogram();
-    // structured_fused: one node of the fused operators (fused-ops/), whose kernel is Rust code
+    // *_fused: one node of the fused operators (fused-ops/), whose kernels are Rust code
     // counted here too
-    for name in ["linear", "tree", "lstm", "structured_fused"] {
+    let names = [
+        "linear",
+        "tree",
+        "lstm",
+        "structured_fused",
+        "dense_fused",
+        "prony_fused",
+        "lstm_fused",
+        "slow_lstm_fused",
+        "svr_fused",
+    ];
+    for name in names {
         let mut engine = StepEngine::load(
             rt,
             &dir.join(format!("{name}.onnx")),
@@ -75,5 +86,5 @@ fn stepping_allocates_nothing_on_the_rust_side() {
         assert!(sum.is_finite());
         assert_eq!(during, 0, "{name}: {during} Rust allocations in 5000 steps");
     }
-    assert_eq!(reader.snapshot().samples(), 20_000);
+    assert_eq!(reader.snapshot().samples(), 5_000 * names.len() as u64);
 }

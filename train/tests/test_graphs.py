@@ -118,13 +118,32 @@ def test_a_missing_library_says_how_to_build_it(monkeypatch, train_x, tmp_path):
     session(m.to_onnx(fused=False))  # a model without the fused node needs no library
 
 
-def test_prony_graph_matches_predict(train_x):
+def test_prony_fused_node_and_graph_match_predict(train_x, fused_ops):
+    """The fused node (the default export) and the multi-node graph each match `predict`
+    within 1e-4 N stepped as infer-server steps them, and each other."""
     m = make_model("prony")
     m.fit([train_x], [foam(train_x)], info=[info(len(train_x))])
-    om = to_contract_onnx(m, provenance(m, CFG, None, None))
-    check_graph(om, 12)
+    prov = provenance(m, CFG, None, None)
+    fused, graph = to_contract_onnx(m, prov), to_contract_onnx(m, prov, fused=False)
+    assert [(n.domain, n.op_type) for n in fused.graph.node] == [("ai.haptics", "PronyStep")]
+    check_graph(graph, 12)
     X = presses([0.02, 0.01], 2.0)
-    np.testing.assert_allclose(stepped(om, X), m.predict(X), atol=PARITY_N)
+    ref = m.predict(X)
+    got_fused, got_graph = stepped(fused, X), stepped(graph, X)
+    assert (ref > 0.5).sum() > 1000  # the check compares pressed rows, not zeros
+    np.testing.assert_allclose(got_fused, ref, atol=PARITY_N)
+    np.testing.assert_allclose(got_graph, ref, atol=PARITY_N)
+    np.testing.assert_allclose(got_fused, got_graph, atol=PARITY_N)
+
+
+def test_prony_fused_node_with_a_bad_attribute_fails_in_one_line(train_x, fused_ops):
+    m = make_model("prony")
+    m.fit([train_x], [foam(train_x)], info=[info(len(train_x))])
+    om = m.to_onnx()
+    next(a for a in om.graph.node[0].attribute if a.name == "branch_weights").floats.pop()
+    want = r"PronyStep: attribute `branch_weights` has 5 values, `taus_s` has 6: they pair up"
+    with pytest.raises(Exception, match=want):
+        session(om)
 
 
 @pytest.mark.parametrize("algo", ["sd_const", "sd_poly1", "sd_poly2"])
@@ -136,3 +155,118 @@ def test_spring_damper_graph_matches_predict(train_x, algo):
     X = presses([0.03], 1.0)
     got = session(om).run(None, {"features": X.astype(np.float32)})[0][:, 0]
     np.testing.assert_allclose(got, m.predict(X), atol=PARITY_N)
+
+
+def _dense_rows(n: int, seed: int = 0) -> np.ndarray:
+    """The six features as the loop computes them: x, v, a and the previous force over each
+    (huge near zero divisors, zero rows among them)."""
+    rng = np.random.default_rng(seed)
+    x, v = rng.uniform(-0.002, 0.03, n), rng.normal(0, 0.02, n)
+    a, f = rng.normal(0, 0.5, n), rng.uniform(0, 14, n)
+    v[::50] = 1e-25
+    x[::70] = 0.0
+    return np.column_stack([x, v, a, _ratios(f, np.column_stack([x, v, a]))])
+
+
+def _ratios(f: np.ndarray, kin: np.ndarray) -> np.ndarray:
+    """F / each kinematic column, 0 where it is 0."""
+    safe = np.where(kin != 0, kin, 1.0)
+    return np.where(kin != 0, f[:, None] / safe, 0.0)
+
+
+@pytest.mark.parametrize("hyper", [{"hidden": [24, 16, 8], "epochs": 2},
+                                   {"arch": "thesis", "epochs": 1}])  # fmt: skip
+def test_dense_fused_node_matches_the_graph_and_predict(hyper, fused_ops):
+    """The fused node (the default export, any number of rows) and the multi-node graph each
+    match `predict` within 1e-4 N, and each other; the thesis network (sigmoid output, the
+    target scaling not foldable into a Linear) as well as the default SiLU one."""
+    X = _dense_rows(3000)
+    y = 50 * X[:, 0] + 2 * np.tanh(X[:, 1] / 0.01)
+    m = make_model("dnn", "six", hyper=hyper)
+    m.fit(X, y)
+    prov = provenance(m, CFG, None, None)
+    fused, graph = to_contract_onnx(m, prov), to_contract_onnx(m, prov, fused=False)
+    assert [(n.domain, n.op_type) for n in fused.graph.node] == [("ai.haptics", "DenseStep")]
+    Xt = _dense_rows(2000, seed=1)
+    ref = m.predict(Xt)
+    feats = {"features": Xt.astype(np.float32)}
+    got_fused = session(fused).run(None, feats)[0][:, 0]
+    got_graph = session(graph).run(None, feats)[0][:, 0]
+    np.testing.assert_allclose(got_fused, ref, atol=PARITY_N)
+    np.testing.assert_allclose(got_fused, got_graph, atol=PARITY_N)
+    one = session(fused).run(None, {"features": Xt[:1].astype(np.float32)})[0]
+    assert one.shape == (1, 1) and abs(one[0, 0] - ref[0]) < PARITY_N
+    none = session(fused).run(None, {"features": Xt[:0].astype(np.float32)})[0]
+    assert none.shape == (0, 1)
+
+
+def test_dense_fused_node_with_a_bad_attribute_fails_in_one_line(fused_ops):
+    X = _dense_rows(500)
+    m = make_model("dnn", "six", hyper={"hidden": [8], "epochs": 1})
+    m.fit(X, X[:, 0])
+    om = m.to_onnx()
+    next(a for a in om.graph.node[0].attribute if a.name == "activations").s = b"silu,gelu"
+    want = r"DenseStep: attribute `activations` = 1 is the index of a name other than"
+    with pytest.raises(Exception, match=want):
+        session(om)
+
+
+@pytest.mark.parametrize("fset", ["x_v", "six"])
+def test_lstm_fused_node_matches_the_graph_and_predict(train_x, fset, fused_ops):
+    """The fused LSTM step (the default export) and the multi-node graph (ONNX's LSTM op) each
+    match `predict` within 1e-4 N stepped as infer-server steps them, and each other; with
+    `six` the ratio features go through the kernel's asinh."""
+    X = train_x if fset == "x_v" else _press_six(train_x)
+    m = make_model("lstm", fset, hyper={"iterations": 30, "streams": 8, "chunk": 20,
+                                         "hidden": 24})  # fmt: skip
+    m.fit([X], [foam(train_x)], [info(len(X))])
+    prov = provenance(m, CFG, None, None)
+    fused, graph = to_contract_onnx(m, prov), to_contract_onnx(m, prov, fused=False)
+    assert [(n.domain, n.op_type) for n in fused.graph.node] == [("ai.haptics", "LstmStep")]
+    Xt = X[: len(X) // 2]
+    ref = m.predict(Xt)
+    got_fused, got_graph = stepped(fused, Xt), stepped(graph, Xt)
+    assert (foam(train_x[: len(Xt)]) > 0.5).sum() > 1000  # rows past first contact
+    np.testing.assert_allclose(got_fused, ref, atol=PARITY_N)
+    np.testing.assert_allclose(got_fused, got_graph, atol=PARITY_N)
+
+
+def _press_six(xv: np.ndarray) -> np.ndarray:
+    """The six features along the presses: x, v, a and the previous force over each."""
+    kin = np.column_stack([xv, np.gradient(xv[:, 1], 1 / RATE)])
+    return np.column_stack([kin, _ratios(np.r_[0.0, foam(xv)[:-1]], kin)])
+
+
+def test_lstm_fused_node_with_a_bad_attribute_fails_in_one_line(train_x, fused_ops):
+    m = make_model("lstm", "x_v", hyper={"iterations": 2, "streams": 4, "chunk": 20,
+                                         "hidden": 4})  # fmt: skip
+    m.fit([train_x], [foam(train_x)], [info(len(train_x))])
+    om = m.to_onnx()
+    next(a for a in om.graph.node[0].attribute if a.name == "head_weights").floats.pop()
+    want = r"LstmStep: attribute `head_weights` has 3 values, `H` has 4: they pair up"
+    with pytest.raises(Exception, match=want):
+        session(om)
+
+
+def test_svr_fused_node_matches_predict_and_the_graph(fused_ops):
+    """The fused RBF SVR (the default export, any number of rows) matches scikit-learn's
+    float64 `predict` within 1e-4 N, closer than skl2onnx's float32 graph (kept by
+    `fused=False`), and a bad attribute refuses the session in one line."""
+    X = _dense_rows(3000)
+    y = 50 * X[:, 0] + 2 * np.tanh(X[:, 1] / 0.01)
+    m = make_model("svr", "six", hyper={"max_rows": 800})
+    m.fit(X, y)
+    prov = provenance(m, CFG, None, None)
+    fused, graph = to_contract_onnx(m, prov), to_contract_onnx(m, prov, fused=False)
+    assert [(n.domain, n.op_type) for n in fused.graph.node] == [("ai.haptics", "SvrStep")]
+    Xt = _dense_rows(2000, seed=1)
+    ref = m.predict(Xt)
+    feats = {"features": Xt.astype(np.float32)}
+    got_fused = session(fused).run(None, feats)[0][:, 0]
+    got_graph = session(graph).run(None, feats)[0][:, 0]
+    assert len(m.estimator_[-1].support_) > 100
+    np.testing.assert_allclose(got_fused, ref, atol=PARITY_N)
+    np.testing.assert_allclose(got_graph, ref, atol=5e-3)
+    next(a for a in fused.graph.node[0].attribute if a.name == "gamma").f = -1.0
+    with pytest.raises(Exception, match=r"SvrStep: attribute `gamma` = -1 is not positive"):
+        session(fused)

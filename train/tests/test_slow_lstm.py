@@ -18,7 +18,7 @@ SMALL = {"hidden": 12, "head": 12, "state_step_s": 0.001, "horizon_s": 0.05, "bu
 
 
 @pytest.fixture(scope="module")
-def fitted(synth):
+def fitted(synth, fused_ops):  # the default export is the fused node (fused-ops/)
     m = make_model("lstm_slow", "x_v", hyper=SMALL)
     fit_recordings(m, synth.train, CFG)
     om = to_contract_onnx(m, provenance(m, CFG, synth, None))
@@ -70,3 +70,24 @@ def test_lstm_slow_served_state_survives_a_non_finite_sample(fitted, synth):
     st = OnnxStepper(om)
     out = [st.step(r) for r in X]
     assert np.isfinite(out).all() and np.isfinite(st.h).all() and np.isfinite(st.c).all()
+
+
+def test_lstm_slow_fused_node_equals_its_graph_and_predict(fitted, synth):
+    """The fused node (the default export) and the multi-node graph each match `predict`
+    within 1e-4 N, and each other, stepped from zero state over rows that reach contact."""
+    m, om = fitted
+    assert [(n.domain, n.op_type) for n in om.graph.node] == [("ai.haptics", "SlowLstmStep")]
+    graph = to_contract_onnx(m, provenance(m, CFG, synth, None), fused=False)
+    assert len(graph.graph.node) > 20
+    rec = synth.test[0]
+    y = rec.target()
+    start = max(0, int(np.argmax(y > 0.5)) - 200)
+    X = rec.matrix(m.features)[start : start + 3000]
+    assert (y[start : start + 3000] > 0.5).sum() > 1000  # pressed rows, not zeros
+    ref = m.predict(X)
+    st_f, st_g = OnnxStepper(om), OnnxStepper(graph)
+    fused = np.array([st_f.step(r) for r in X.astype(np.float32)])
+    graphs = np.array([st_g.step(r) for r in X.astype(np.float32)])
+    np.testing.assert_allclose(fused, ref, atol=1e-4)
+    np.testing.assert_allclose(graphs, ref, atol=1e-4)
+    np.testing.assert_allclose(fused, graphs, atol=1e-4)

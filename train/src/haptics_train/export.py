@@ -125,11 +125,12 @@ def parity(
         # the framework's answer on a causal prefix is the prefix of its answer, so one call
         # finds the first force and gives the reference
         ref = predict(x[: min(len(x), _CONTACT_SEARCH_ROWS + stateful_limit)])
-        touched = np.flatnonzero(np.abs(np.nan_to_num(ref)) >= 0.01)
-        limit = min(len(ref), (int(touched[0]) if len(touched) else 0) + stateful_limit)
+        touched = np.flatnonzero(_contact(rec, ref))
+        first = int(touched[0]) if len(touched) else 0
+        limit = min(len(ref), first + stateful_limit)
         ref = ref[:limit]
     else:
-        limit = None
+        limit, first = None, None
         ref = predict(x)
     got = onnx_predict(m, rec, model.features, limit)
     diff = np.abs(got - ref)
@@ -139,7 +140,18 @@ def parity(
         "max_abs_diff": float(np.nanmax(diff)) if len(diff) else 0.0,
         "mean_abs_diff": float(np.nanmean(diff)) if len(diff) else 0.0,
         "all_finite": bool(np.isfinite(got).all()),
+        **({} if first is None else {"first_contact_row": first}),
     }
+
+
+def _contact(rec: Recording, ref: np.ndarray) -> np.ndarray:
+    """Rows of contact: a force of at least 0.01 N with the probe in the object (position > 0,
+    when the recording has the position: a network answers a small force out of contact too,
+    so the force alone would call the whole approach contact)."""
+    pressed = np.abs(np.nan_to_num(ref)) >= 0.01
+    if "position_x" in rec.columns:
+        pressed &= np.nan_to_num(rec.column("position_x")[: len(ref)]) > 0.0
+    return pressed
 
 
 #: How far into a recording a stateful model's parity looks for its first force (rows).

@@ -23,7 +23,7 @@ from tqdm.auto import tqdm
 from ..data import SequenceInfo
 from ..features import F_PREVIOUS, KINEMATICS, PREVIOUS_FORCE_FEATURES, RATIO_DIVISORS
 from .base import ForceModel, check_rows, check_sequences
-from .network_graphs import dense_graph, lstm_graph
+from .network_graphs import dense_fused, dense_graph, lstm_fused, lstm_graph
 
 #: |z / s| beyond this is clipped before asinh (asinh(1e15) = 35.2; (1e15)^2 fits float32)
 ASINH_CLIP = 1e15
@@ -288,9 +288,12 @@ class DenseModel(ForceModel):
                 out.append(self.net_(xt).numpy()[:, 0])
         return np.concatenate(out).astype(np.float64) if out else np.zeros(0)
 
-    def to_onnx(self) -> onnx.ModelProto:
+    def to_onnx(self, fused: bool = True) -> onnx.ModelProto:
+        """One `ai.haptics:DenseStep` node (the fused operator: needs libhaptics_fused_ops.so
+        where it runs), or with `fused=False` the multi-node graph (same folded weights)."""
         self._check_fitted()
-        return dense_graph(self.net_.eval(), len(self.features), ASINH_CLIP)
+        build = dense_fused if fused else dense_graph
+        return build(self.net_.eval(), len(self.features), ASINH_CLIP)
 
 
 class LSTMNet(nn.Module):
@@ -480,6 +483,10 @@ class LSTMModel(ForceModel):
                 out.append(net.out(y)[0, :, 0].numpy())
         return np.concatenate(out).astype(np.float64) if out else np.zeros(0)
 
-    def to_onnx(self) -> onnx.ModelProto:
+    def to_onnx(self, fused: bool = True) -> onnx.ModelProto:
+        """One `ai.haptics:LstmStep` node (the fused operator: needs libhaptics_fused_ops.so
+        where it runs), or with `fused=False` the multi-node graph (ONNX's LSTM op; same
+        state)."""
         self._check_fitted()
-        return lstm_graph(self.net_.eval(), len(self.features), ASINH_CLIP)
+        build = lstm_fused if fused else lstm_graph
+        return build(self.net_.eval(), len(self.features), ASINH_CLIP)

@@ -130,13 +130,33 @@ def fused_stateful_model(
     """The stateful contract's model as one node of the fused operators (fused-ops/): inputs
     and outputs exactly those of the multi-node graphs, everything the model needs in `attrs`.
     Runs where libhaptics_fused_ops.so is registered (ort_ops.py; infer-server always)."""
-    node = helper.make_node(op_type, ["features", "h_in", "c_in"], ["force", "h_out", "c_out"],
-                            domain=FUSED_DOMAIN, name=name)  # fmt: skip
-    node.attribute.extend(attrs)
     s = [1, 1, state]
     outs = [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape)
             for n, shape in (("force", [1, 1]), ("h_out", s), ("c_out", s))]  # fmt: skip
-    g = helper.make_graph([node], name, stateful_io(n_features, state), outs)
+    return _fused_model(op_type, attrs, stateful_io(n_features, state), outs, name)
+
+
+def fused_stateless_model(
+    op_type: str, attrs: list[onnx.AttributeProto], n_features: int, name: str
+) -> onnx.ModelProto:
+    """The stateless contract's model (`features` [N, n] -> `force` [N, 1], any N) as one node
+    of the fused operators."""
+    inp = helper.make_tensor_value_info("features", TensorProto.FLOAT, ["N", n_features])
+    out = helper.make_tensor_value_info("force", TensorProto.FLOAT, ["N", 1])
+    return _fused_model(op_type, attrs, [inp], [out], name)
+
+
+def _fused_model(
+    op_type: str,
+    attrs: list[onnx.AttributeProto],
+    inputs: list[onnx.ValueInfoProto],
+    outputs: list[onnx.ValueInfoProto],
+    name: str,
+) -> onnx.ModelProto:
+    node = helper.make_node(op_type, [i.name for i in inputs], [o.name for o in outputs],
+                            domain=FUSED_DOMAIN, name=name)  # fmt: skip
+    node.attribute.extend(attrs)
+    g = helper.make_graph([node], name, inputs, outputs)
     opsets = [helper.make_opsetid("", OPSET), helper.make_opsetid(FUSED_DOMAIN, FUSED_VERSION)]
     m = helper.make_model(g, opset_imports=opsets)
     m.ir_version = 8

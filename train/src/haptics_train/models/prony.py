@@ -13,8 +13,9 @@ the way a model fed back its own force can. The force is clamped at 0: the objec
 
 The state steps once per row at the training recordings' period `dt` (in the metadata, like the
 LSTM it is served once per step and must be trained at the rate it is served at). Exported to
-ONNX as a stateful model: `h_in`/`h_out` carry the K branch states, `c_in`/`c_out` are passed
-through (the contract's second state).
+ONNX as a stateful model: `h_in`/`h_out` carry the K branch states; the fused node (the default
+export, fused-ops/src/prony.rs) carries their low parts in `c_in`/`c_out`, which the multi-node
+graph (`to_onnx(fused=False)`) passes through.
 
 Sequences layout (`models.base`): `fit(X, y, info)` with X one [n_i, 2] array (x, v) per
 recording, every row in time order, y the [n_i] targets and `info` their `SequenceInfo` (row
@@ -27,13 +28,14 @@ from __future__ import annotations
 
 import numpy as np
 import onnx
+from onnx import helper
 from scipy.optimize import nnls
 from scipy.signal import lfilter
 
 from ..data import SequenceInfo
 from ..features import KINEMATICS
 from .base import ForceModel, check_sequences, step_dt
-from .onnx_graph import Graph, row, stateful_model
+from .onnx_graph import Graph, floats_attr, fused_stateful_model, row, stateful_model
 
 PRONY_DEFAULT = {"poly": 3, "tau_min_steps": 5, "tau_min_s": 0.02, "tau_max_s": 30.0, "n_tau": 6}
 
@@ -56,6 +58,19 @@ def prony_graph(k: np.ndarray, w: np.ndarray, e: np.ndarray, gain: np.ndarray) -
     terms = g.op("Concat", powers, s, axis=2)
     f = g.op("MatMul", terms, g.const(np.concatenate([k, w]).reshape(-1, 1)))
     return stateful_model(g, 2, len(w), g.op("Relu", f), s)
+
+
+def prony_fused(k: np.ndarray, w: np.ndarray, taus: np.ndarray, dt: float) -> onnx.ModelProto:
+    """One step as one `ai.haptics:PronyStep` node (fused-ops/src/prony.rs; attribute names:
+    its `from_attrs`): the raw fitted values, the decays computed in float64 by the kernel; `c`
+    carries the branches' low parts (the graph passes it through)."""
+    attrs = [
+        helper.make_attribute("dt_s", float(dt)),
+        floats_attr("taus_s", taus),
+        floats_attr("branch_weights", w),
+        floats_attr("spring", k),
+    ]
+    return fused_stateful_model("PronyStep", attrs, 2, len(w), "prony")
 
 
 class PronyModel(ForceModel):
@@ -123,7 +138,11 @@ class PronyModel(ForceModel):
         spring = sum(self.k_[j] * x[:, 0] ** (j + 1) for j in range(len(self.k_)))
         return np.maximum(spring + s @ self.w_, 0.0)
 
-    def to_onnx(self) -> onnx.ModelProto:
+    def to_onnx(self, fused: bool = True) -> onnx.ModelProto:
+        """One `ai.haptics:PronyStep` node (the fused operator: needs libhaptics_fused_ops.so
+        where it runs), or with `fused=False` the multi-node graph (same state in `h`)."""
         self._check_fitted()
+        if fused:
+            return prony_fused(self.k_, self.w_, self.taus_, self.dt_)
         e = np.exp(-self.dt_ / self.taus_)
         return prony_graph(self.k_, self.w_, e, self.taus_ * (1.0 - e))

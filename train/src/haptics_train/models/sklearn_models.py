@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 import onnx
+from onnx import helper
 from skl2onnx import convert_sklearn
 from skl2onnx.common.data_types import FloatTensorType
 from sklearn.ensemble import RandomForestRegressor
@@ -16,6 +17,7 @@ from sklearn.svm import SVR
 from tqdm.auto import tqdm
 
 from .base import ForceModel, check_rows
+from .onnx_graph import floats_attr, fused_stateless_model
 
 #: ai.onnx.ml 3 is what ONNX Runtime 1.2x-1.31 serve for TreeEnsembleRegressor and friends.
 TARGET_OPSET = {"": 17, "ai.onnx.ml": 3}
@@ -109,6 +111,31 @@ class SVRModel(SklearnModel):
             StandardScaler(),
             SVR(kernel=h["kernel"], C=h["C"], gamma=h["gamma"], epsilon=h["epsilon"]),
         )
+
+    def to_onnx(self, fused: bool = True) -> onnx.ModelProto:
+        """One `ai.haptics:SvrStep` node (the fused operator: needs libhaptics_fused_ops.so
+        where it runs) for the RBF kernel, or with `fused=False` (or another kernel)
+        skl2onnx's Scaler + SVMRegressor graph."""
+        self._check_fitted()
+        svr = self.estimator_[-1]
+        if not fused or svr.kernel != "rbf":
+            return _to_onnx(self.estimator_, len(self.features))
+        return svr_fused(self.estimator_[0], svr, len(self.features))
+
+
+def svr_fused(scaler: StandardScaler, svr: SVR, n_features: int) -> onnx.ModelProto:
+    """The pipeline as one `ai.haptics:SvrStep` node (fused-ops/src/svr.rs; attribute names:
+    its `from_attrs`): the scaler's mean and scale, the support vectors in the scaled space,
+    the dual coefficients, gamma (as the fit resolved it) and the intercept."""
+    attrs = [
+        floats_attr("feature_mean", scaler.mean_),
+        floats_attr("feature_scale", scaler.scale_),
+        floats_attr("support_vectors", svr.support_vectors_),
+        floats_attr("coefficients", svr.dual_coef_[0]),
+        helper.make_attribute("gamma", float(svr._gamma)),
+        helper.make_attribute("intercept", float(svr.intercept_[0])),
+    ]
+    return fused_stateless_model("SvrStep", attrs, n_features, "svr")
 
 
 RF_THESIS = {"n_estimators": 1000, "max_depth": 6}

@@ -40,13 +40,21 @@ import time
 import numpy as np
 import onnx
 import torch
+from onnx import helper
 from torch import nn
 from tqdm.auto import tqdm
 
 from ..data import SequenceInfo
 from .base import ForceModel, check_sequences, step_dt
 from .networks import ASINH_CLIP, InputScaler, TargetScaler
-from .onnx_graph import Graph, row, scaled_input, stateful_model
+from .onnx_graph import (
+    Graph,
+    floats_attr,
+    fused_stateful_model,
+    row,
+    scaled_input,
+    stateful_model,
+)
 
 SLOW_LSTM_DEFAULT: dict = {
     "hidden": 48,
@@ -127,6 +135,35 @@ def slow_lstm_graph(net: SlowLSTMNet, block_steps: int) -> onnx.ModelProto:
                  g.op("Concat", h, acc, cnt, axis=2))  # fmt: skip
     c_out = g.op("Where", full, g.op("Concat", c2, c_rest, axis=2), "c_in")
     return stateful_model(g, nf, hid + nf + 1, force, h_out, c_out)
+
+
+def slow_lstm_fused(net: SlowLSTMNet, block_steps: int) -> onnx.ModelProto:
+    """One control step as one `ai.haptics:SlowLstmStep` node (fused-ops/src/slow_lstm.rs;
+    attribute names: its `from_attrs`): the same state layout and arithmetic as
+    `slow_lstm_graph`, the standardisation as z * (1 / sd) + (-mu / sd) (the graph's), the
+    cell's weights in torch's gate order, the target scaling folded into the head's output."""
+    hid, nf = net.lstm.hidden_size, net.lstm.input_size
+    f64 = lambda t: t.detach().double().numpy()  # noqa: E731
+    inp = net.inp
+    soft = f64(inp.soft).astype(bool)
+    mu, sd = f64(inp.mu), f64(inp.sd)
+    lin1, lin2 = net.head[0], net.head[2]
+    scale, offset = float(net.out.scale), float(net.out.offset)
+    attrs = [
+        floats_attr("soft_scale", np.where(soft, f64(inp.s), 0.0)),
+        helper.make_attribute("clip", float(ASINH_CLIP)),
+        floats_attr("feature_scale", 1.0 / sd),
+        floats_attr("feature_offset", -mu / sd),
+        floats_attr("input_weights", f64(net.lstm.weight_ih_l0)),
+        floats_attr("recurrent_weights", f64(net.lstm.weight_hh_l0)),
+        floats_attr("biases", f64(net.lstm.bias_ih_l0) + f64(net.lstm.bias_hh_l0)),
+        floats_attr("head_weights", f64(lin1.weight)),
+        floats_attr("head_biases", f64(lin1.bias)),
+        floats_attr("out_weights", f64(lin2.weight)[0] * scale),
+        helper.make_attribute("out_bias", float(f64(lin2.bias)[0] * scale + offset)),
+        helper.make_attribute("block_steps", float(block_steps)),
+    ]
+    return fused_stateful_model("SlowLstmStep", attrs, nf, hid + nf + 1, "lstm_slow")
 
 
 def _blocks(x: np.ndarray, rows: int) -> np.ndarray:
@@ -272,6 +309,9 @@ class SlowLSTMModel(ForceModel):
                 out[sl] = net.out(y)[:, 0].numpy()
         return out
 
-    def to_onnx(self) -> onnx.ModelProto:
+    def to_onnx(self, fused: bool = True) -> onnx.ModelProto:
+        """One `ai.haptics:SlowLstmStep` node (the fused operator: needs
+        libhaptics_fused_ops.so where it runs), or with `fused=False` the multi-node graph
+        (same state, same step)."""
         self._check_fitted()
-        return slow_lstm_graph(self.net_, self.block_steps_)
+        return (slow_lstm_fused if fused else slow_lstm_graph)(self.net_, self.block_steps_)
