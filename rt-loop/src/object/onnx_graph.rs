@@ -65,8 +65,10 @@ pub struct StatePair {
 }
 
 /// A loaded, checked graph: one ONNX Runtime session, shared (`Arc`) by every copy of the
-/// object (ONNX Runtime's `Run` may be called concurrently on one session; each copy has its
-/// own tensors).
+/// object; each copy has its own tensors. The copies (the bench's object, the oracle's) are
+/// stepped by the loop's one thread: ONNX Runtime's own operators allow concurrent `Run`s on
+/// one session, but the fused network and SVR kernels keep scratch space per session
+/// (docs/model-contract.md), so copies must not be stepped from two threads at once.
 pub struct OnnxGraph {
     pub path: PathBuf,
     pub(super) session: Session,
