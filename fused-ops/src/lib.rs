@@ -1,8 +1,8 @@
 //! ONNX Runtime custom operators for the haptics models: one fused node per physics-shaped
 //! model, in the custom-op domain [`DOMAIN`]: `StructuredStep` (train's `structured`),
 //! `LawFreeStep` (`lawfree`), `DenseStep` (`dnn`, `dnn_fb`),
-//! `PronyStep` (`prony`), `LstmStep` (`lstm`, `lstm_fb`), `SlowLstmStep` (`lstm_slow`) and
-//! `SvrStep` (`svr`).
+//! `PronyStep` (`prony`), `LstmStep` (`lstm`, `lstm_fb`), `SlowLstmStep` (`lstm_slow`),
+//! `SvrStep` (`svr`) and `SpringDamperStep` (`sd_const`, `sd_poly1`, `sd_poly2`).
 //!
 //! Why: ONNX Runtime 1.32 pays 0.2-0.5 us of dispatch per node whatever its size, and the
 //! hand-built graph of `structured` has 50-56 nodes for a few hundred flops (docs/infer-server.md,
@@ -29,6 +29,7 @@ mod prony;
 mod register;
 mod scaler;
 mod slow_lstm;
+mod spring_damper;
 mod stateful;
 mod stateless;
 mod structured;
@@ -42,6 +43,7 @@ pub use lstm::{LstmParams, LstmStep};
 pub use math::{Fused, Madd, Split};
 pub use prony::{PronyParams, PronyStep};
 pub use slow_lstm::{SlowLstmParams, SlowLstmStep};
+pub use spring_damper::{SpringDamperParams, SpringDamperStep};
 pub use stateful::{StatefulStep, StepModel};
 pub use stateless::{RowModel, StatelessStep};
 pub use structured::{StructuredParams, StructuredStep};
@@ -61,5 +63,6 @@ pub fn domain() -> ort::Result<OperatorDomain> {
         .add(PronyStep::default())?
         .add(LstmStep::default())?
         .add(SlowLstmStep::default())?
-        .add(SvrStep::default())
+        .add(SvrStep::default())?
+        .add(SpringDamperStep::default())
 }

@@ -147,14 +147,33 @@ def test_prony_fused_node_with_a_bad_attribute_fails_in_one_line(train_x, fused_
 
 
 @pytest.mark.parametrize("algo", ["sd_const", "sd_poly1", "sd_poly2"])
-def test_spring_damper_graph_matches_predict(train_x, algo):
+def test_spring_damper_fused_node_and_graph_match_predict(train_x, algo, fused_ops):
+    """The default export is one `SpringDamperStep` node; it and the five-node graph
+    (`fused=False`) both give `predict`, for a batch of rows as for one."""
     m = make_model(algo)
     m.fit(train_x, foam(train_x))
-    om = to_contract_onnx(m, provenance(m, CFG, None, None))
-    check_graph(om, 6)
+    prov = provenance(m, CFG, None, None)
+    fused, graph = to_contract_onnx(m, prov), to_contract_onnx(m, prov, fused=False)
+    assert [n.op_type for n in fused.graph.node] == ["SpringDamperStep"]
+    check_graph(graph, 6)
     X = presses([0.03], 1.0)
-    got = session(om).run(None, {"features": X.astype(np.float32)})[0][:, 0]
-    np.testing.assert_allclose(got, m.predict(X), atol=PARITY_N)
+    want = m.predict(X)
+    assert np.abs(want).max() > 1.0, "the presses push"
+    for om in (fused, graph):
+        got = session(om).run(None, {"features": X.astype(np.float32)})[0][:, 0]
+        np.testing.assert_allclose(got, want, atol=PARITY_N)
+        one = session(om).run(None, {"features": X[200:201].astype(np.float32)})[0][:, 0]
+        np.testing.assert_allclose(one, want[200:201], atol=PARITY_N)
+
+
+def test_spring_damper_fused_node_with_a_bad_attribute_fails_in_one_line(train_x, fused_ops):
+    m = make_model("sd_poly2")
+    m.fit(train_x, foam(train_x))
+    om = m.to_onnx()
+    next(a for a in om.graph.node[0].attribute if a.name == "b").floats.pop()
+    want = r"SpringDamperStep: attribute `b` has 2 values, `k \(the same order\)` has 3"
+    with pytest.raises(Exception, match=want):
+        session(om)
 
 
 def _dense_rows(n: int, seed: int = 0) -> np.ndarray:

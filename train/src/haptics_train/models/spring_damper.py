@@ -12,7 +12,7 @@ import onnx
 
 from ..features import KINEMATICS
 from .base import ForceModel, check_rows
-from .onnx_graph import Graph, stateless_model
+from .onnx_graph import Graph, floats_attr, fused_stateless_model, stateless_model
 
 
 def design(x: np.ndarray, v: np.ndarray, order: int) -> np.ndarray:
@@ -29,6 +29,13 @@ def spring_damper_graph(k: np.ndarray, b: np.ndarray) -> onnx.ModelProto:
     kb = g.op("MatMul", powers, g.const(np.column_stack([k, b])))  # [N, 2]: k(x), b(x)
     f = g.op("ReduceSum", g.op("Mul", "features", kb), g.ints([1]), keepdims=1)
     return stateless_model(g, 2, f)
+
+
+def spring_damper_fused(k: np.ndarray, b: np.ndarray) -> onnx.ModelProto:
+    """The same law as one `ai.haptics:SpringDamperStep` node (fused-ops/src/spring_damper.rs;
+    attribute names: its `from_attrs`): one dispatch instead of five (docs/infer-server.md)."""
+    attrs = [floats_attr("k", k), floats_attr("b", b)]
+    return fused_stateless_model("SpringDamperStep", attrs, 2, "spring_damper")
 
 
 class SpringDamper(ForceModel):
@@ -71,6 +78,10 @@ class SpringDamper(ForceModel):
         x = self._check_X(X)
         return design(x[:, 0], x[:, 1], self.order) @ np.concatenate([self.k_, self.b_])
 
-    def to_onnx(self) -> onnx.ModelProto:
+    def to_onnx(self, fused: bool = True) -> onnx.ModelProto:
+        """One `ai.haptics:SpringDamperStep` node (the fused operator: needs
+        libhaptics_fused_ops.so where it runs), or with `fused=False` the five-node graph."""
         self._check_fitted()
+        if fused:
+            return spring_damper_fused(self.k_, self.b_)
         return spring_damper_graph(self.k_, self.b_)
