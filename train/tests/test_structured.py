@@ -120,3 +120,34 @@ def test_structured_takes_no_constant_from_a_material_it_measures_and_chooses_th
     deep.fit([np.column_stack([3 * x, 3 * v])], [y], info=[info(len(x))])
     for key in ("yield_m", "densification_m", "hysteresis_lengths_m"):
         np.testing.assert_allclose(deep.basis_[key], 3 * np.asarray(without.basis_[key]))
+
+
+def test_nnls_on_the_gram_matrix_is_scipys_nnls():
+    """The fit's NNLS solved on m'm (a [k, k] problem) gives scipy's answer on the rows."""
+    from scipy.optimize import nnls
+
+    from haptics_train.models.structured import nnls_gram
+
+    rng = np.random.default_rng(3)
+    m = rng.normal(size=(5000, 12))
+    y = m @ (np.abs(rng.normal(size=12)) * np.where(np.arange(12) % 3 == 0, -1, 1))
+    y += 0.01 * rng.normal(size=5000)
+    want, _ = nnls(m, y)
+    got = nnls_gram(m, y)
+    assert (got >= 0).all()
+    assert np.abs(got - want).max() < 1e-6
+    assert np.count_nonzero(want == 0) >= 4  # the constraint is active: the test means something
+
+
+def test_the_set_law_is_refined_between_the_grids_points():
+    """Refinement tries the geometric middles toward both neighbours, then the quarters; at an
+    end of the grid only inward; never 0."""
+    from haptics_train.models.structured import _between
+
+    assert _between([1.0, 4.0, 16.0], 4.0, 0) == pytest.approx([2.0, 8.0])
+    assert _between([1.0, 4.0, 16.0], 4.0, 1) == pytest.approx([4.0 * 0.25**0.25, 4.0 * 4**0.25])
+    assert _between([1.0, 4.0, 16.0], 16.0, 0) == pytest.approx([8.0])
+    assert _between([0.0, 0.1, 0.2], 0.1, 0) == pytest.approx([0.1 * 2**0.5])
+    assert _between([0.0, 0.1, 0.2], 0.0, 0) == []
+    # a refined value (between two points) is refined toward the points around it
+    assert _between([1.0, 4.0, 16.0], 8.0, 1) == pytest.approx([8.0 * 0.5**0.25, 8.0 * 2**0.25])
