@@ -19,8 +19,14 @@
 //! inputs and outputs once and step with `RunWithBinding`, or step with `Run`; default: what
 //! infer-server does, `SessionConfig::default()`).
 //! Prints a table, and as its last line one JSON object:
-//! `{"families": {NAME: {"p50_us", "p99_us", "p999_us", "max_us", "allocs_per_call", "nodes"}},
-//!   "identity_p50_us": .., "load": "..", "steps": ..}`.
+//! `{"families": {NAME: {"p50_us", "p99_us", "p999_us", "max_us", "allocs_per_call", "nodes",
+//!   "delayed_calls", "p999_undelayed_us"}}, "identity_p50_us": .., "load": "..", "steps": ..}`.
+//! `delayed_calls` counts the measured calls during whose round trip the inference thread
+//! waited on the run queue (its schedstat's wait time rose: the scheduler ran something else on
+//! its core); `p999_undelayed_us` is the p99.9 of the other calls: the model's own tail, apart
+//! from the machine's. Both null where the kernel keeps no scheduler statistics. `floor`
+//! ({"p50_us", "p99_us", "p999_us", "max_us"}) is the machine's own: a fixed section of
+//! arithmetic timed on a thread set up as the inference thread, with no model (`floor_samples`).
 
 mod common;
 #[path = "common/malloc_count.rs"]
@@ -35,6 +41,7 @@ use infer_server::handoff;
 use infer_server::inference_thread::{InferenceConfig, InferenceThread};
 use infer_server::profile::{self, Machine, Profile};
 use infer_server::{FeatureSchema, Runtime, SessionConfig, StepEngine};
+use shm_ring::os::rt_thread::{CpuChoice, RtRequest};
 use shm_ring::{monotonic_ns, SegmentName, WaitStrategy};
 
 /// The segment's schema as rt-loop publishes it (the nine of Table 3.1, then `f_previous`).
@@ -95,21 +102,116 @@ struct Row {
     p999: u64,
     max: u64,
     allocs: f64,
+    /// calls whose round trip saw the inference thread wait on the run queue, and the p99.9 of
+    /// the others (None without scheduler statistics)
+    delayed: Option<usize>,
+    p999_undelayed: Option<u64>,
+}
+
+/// The inference thread's time waiting on the run queue (ns): the second field of its
+/// `/proc/self/task/TID/schedstat`. Read before each request and after its answer, a rise means
+/// the scheduler kept the thread off its core during that round trip (another process, or this
+/// benchmark's own main thread, ran instead): the call's time then includes the machine's, not
+/// only the model's. Diagnostic of the benchmark only; the served path reads nothing like it.
+struct RunQueueWait {
+    file: std::fs::File,
+}
+
+impl RunQueueWait {
+    /// The newest thread named `inference` (the one `InferenceThread::spawn` just started);
+    /// None where /proc has no schedstat (a kernel without scheduler statistics).
+    fn of_inference_thread() -> Option<Self> {
+        let tid = std::fs::read_dir("/proc/self/task")
+            .ok()?
+            .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u32>().ok())
+            .filter(|tid| {
+                std::fs::read_to_string(format!("/proc/self/task/{tid}/comm"))
+                    .is_ok_and(|c| c.trim_end() == "inference")
+            })
+            .max()?;
+        let file = std::fs::File::open(format!("/proc/self/task/{tid}/schedstat")).ok()?;
+        let mut w = RunQueueWait { file };
+        w.read()?;
+        Some(w)
+    }
+
+    fn read(&mut self) -> Option<u64> {
+        use std::os::unix::fs::FileExt;
+        let mut buf = [0u8; 96];
+        let n = self.file.read_at(&mut buf, 0).ok()?;
+        std::str::from_utf8(&buf[..n])
+            .ok()?
+            .split_ascii_whitespace()
+            .nth(1)?
+            .parse()
+            .ok()
+    }
+}
+
+/// The machine's own floor for the inference thread: a thread set up as the profile sets the
+/// inference thread (its CPU, its FIFO priority), woken every period, timing a fixed section of
+/// arithmetic whose median is about the identity call's. No model, no ring, no ONNX Runtime:
+/// whatever stretches its tail (interrupts on that core, the hypervisor taking the virtual
+/// CPU, caches flushed by other work) stretches every model's alike.
+fn floor_samples(warm: usize, steps: usize) -> Vec<u64> {
+    let machine = Machine::detect();
+    let chosen = profile::settings(Profile::Auto, &machine);
+    std::thread::spawn(move || {
+        let _rt = RtRequest {
+            fifo_priority: chosen.rt_priority,
+            cpu: chosen.cpu.map_or(CpuChoice::Any, CpuChoice::Cpu),
+            lock_memory: false,
+        }
+        .apply();
+        // ~1.5 us of dependent floating-point work on this class of CPU (a multiply-add chain
+        // the compiler cannot fold: its seed comes through black_box)
+        let section = |seed: f64| {
+            let mut x = seed;
+            for _ in 0..1500 {
+                x = x * 0.999_999 + 1e-9;
+            }
+            std::hint::black_box(x)
+        };
+        let period = Duration::from_micros(100);
+        let mut next = Instant::now() + period;
+        let mut out = Vec::with_capacity(steps);
+        for i in 0..warm + steps {
+            common::pace_until(next, true);
+            next += period;
+            let t = monotonic_ns();
+            section(std::hint::black_box(i as f64));
+            let dt = monotonic_ns() - t;
+            if i >= warm {
+                out.push(dt);
+            }
+        }
+        out
+    })
+    .join()
+    .expect("the floor thread")
 }
 
 fn quantile(sorted: &[u64], q: f64) -> u64 {
     sorted[((sorted.len() as f64 * q).ceil() as usize).clamp(1, sorted.len()) - 1]
 }
 
-/// Serves `path` through the inference thread for `warm + steps` steps at 10 kHz; the
-/// inference thread's own per-call times of the last `steps`, and allocations per call.
+/// What `serve` measured: the inference thread's own per-call times of the measured steps, the
+/// same for the calls during whose round trip it never waited on the run queue (None without
+/// scheduler statistics), and the allocations per call.
+struct Served {
+    samples: Vec<u64>,
+    undelayed: Option<Vec<u64>>,
+    allocs: f64,
+}
+
+/// Serves `path` through the inference thread for `warm + steps` steps at 10 kHz.
 fn serve(
     rt: &'static Runtime,
     path: &Path,
     rows: &[[f64; 10]],
     warm: usize,
     steps: usize,
-) -> (Vec<u64>, f64) {
+) -> Served {
     let names = schema_names();
     let schema = FeatureSchema::new(names.clone()).unwrap();
     let stem = path.file_stem().unwrap().to_string_lossy().to_string();
@@ -157,6 +259,8 @@ fn serve(
     let t0_ns = monotonic_ns();
     let mut next = start + period;
     let mut samples = Vec::with_capacity(steps);
+    let mut rq = RunQueueWait::of_inference_thread();
+    let mut undelayed = rq.as_ref().map(|_| Vec::with_capacity(steps));
     for i in 0..warm + steps {
         if i == warm {
             malloc_count::start();
@@ -168,19 +272,30 @@ fn serve(
         msg.seq = i as u64 + 1;
         msg.timestamp_ns = monotonic_ns() - t0_ns;
         msg.values[..10].copy_from_slice(&rows[i % rows.len()]);
+        let waited_before = rq.as_mut().and_then(RunQueueWait::read);
         lp.features_tx.try_send(msg).unwrap();
         let answer = lp.forces_rx.recv_timeout(Duration::from_secs(5)).unwrap();
+        let waited_after = rq.as_mut().and_then(RunQueueWait::read);
         assert_eq!(answer.seq, msg.seq);
         assert_eq!(answer.flags, 0, "{stem}: answer flags {}", answer.flags);
         msg.flags = 0;
         if i >= warm {
             samples.push(answer.inference_ns);
+            if let (Some(u), Some(a), Some(b)) = (undelayed.as_mut(), waited_before, waited_after) {
+                if b == a {
+                    u.push(answer.inference_ns);
+                }
+            }
         }
     }
     let allocs = malloc_count::stop() as f64 / steps as f64;
     drop(lp);
     let _ = thread.join();
-    (samples, allocs)
+    Served {
+        samples,
+        undelayed,
+        allocs,
+    }
 }
 
 fn main() {
@@ -224,15 +339,26 @@ fn main() {
         if binding { "RunWithBinding" } else { "Run" },
     );
     println!(
-        "{:<22} {:>6} {:>8} {:>8} {:>8} {:>8} {:>12}",
-        "model", "nodes", "p50", "p99", "p99.9", "max", "allocs/call"
+        "{:<22} {:>6} {:>8} {:>8} {:>8} {:>8} {:>12} {:>8} {:>16}",
+        "model", "nodes", "p50", "p99", "p99.9", "max", "allocs/call", "delayed", "p99.9 undelayed"
     );
     let us = |ns: u64| ns as f64 / 1000.0;
+    // the floor's half before the models, half after: the load of the whole run
+    let floor_before = floor_samples(warm, steps / 2);
     let mut out = Vec::new();
     for path in &models {
         let name = path.file_stem().unwrap().to_string_lossy().to_string();
-        let (mut samples, allocs) = serve(rt, path, &rows, warm, steps);
+        let Served {
+            mut samples,
+            undelayed,
+            allocs,
+        } = serve(rt, path, &rows, warm, steps);
         samples.sort_unstable();
+        let delayed = undelayed.as_ref().map(|u| samples.len() - u.len());
+        let p999_undelayed = undelayed.and_then(|mut u| {
+            u.sort_unstable();
+            (!u.is_empty()).then(|| quantile(&u, 0.999))
+        });
         let row = Row {
             nodes: nodes.get(&name).copied(),
             p50: quantile(&samples, 0.5),
@@ -240,17 +366,22 @@ fn main() {
             p999: quantile(&samples, 0.999),
             max: *samples.last().unwrap(),
             allocs,
+            delayed,
+            p999_undelayed,
             name,
         };
         println!(
-            "{:<22} {:>6} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>12.2}",
+            "{:<22} {:>6} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>12.2} {:>8} {:>16}",
             row.name,
             row.nodes.map_or("-".into(), |n| n.to_string()),
             us(row.p50),
             us(row.p99),
             us(row.p999),
             us(row.max),
-            row.allocs
+            row.allocs,
+            row.delayed.map_or("-".into(), |n| n.to_string()),
+            row.p999_undelayed
+                .map_or("-".into(), |n| format!("{:.2}", us(n))),
         );
         out.push(row);
     }
@@ -267,16 +398,32 @@ fn main() {
                     "max_us": us(r.max),
                     "allocs_per_call": r.allocs,
                     "nodes": r.nodes,
+                    "delayed_calls": r.delayed,
+                    "p999_undelayed_us": r.p999_undelayed.map(us),
                 }),
             )
         })
         .collect();
+    let mut floor = floor_before;
+    floor.extend(floor_samples(warm, steps / 2));
+    floor.sort_unstable();
+    let fq = |q: f64| us(quantile(&floor, q));
+    println!(
+        "{:<22} {:>6} {:>8.2} {:>8.2} {:>8.2} {:>8.2}   (the machine's floor: {steps} sections of fixed arithmetic, half before the models and half after, the inference thread's CPU and priority, no model)",
+        "floor",
+        "-",
+        fq(0.5),
+        fq(0.99),
+        fq(0.999),
+        us(*floor.last().unwrap()),
+    );
     let identity = out.iter().find(|r| r.name == "identity").map(|r| us(r.p50));
     println!(
         "{}",
         serde_json::json!({
             "families": families,
             "identity_p50_us": identity,
+            "floor": {"p50_us": fq(0.5), "p99_us": fq(0.99), "p999_us": fq(0.999), "max_us": us(*floor.last().unwrap())},
             "steps": steps,
             "load": load,
             "io_binding": binding,
