@@ -49,7 +49,7 @@ What is fitted and what is a grid (issue 23: no number is read off a material fi
   its neighbours (geometric halves), so the law is fitted and the grid only brackets it. The
   linear pass alone, the first version's score, picked laws that doubled the error on the
   object's own force on validation (sponge 0.307 against 0.189 N; foam-b 0.549 against 0.206;
-  foam-c 0.260 against 0.201: docs/laws/README.md). The chosen values are `set_law_`.
+  foam-c 0.260 against 0.201: docs/laws.md). The chosen values are `set_law_`.
 
 The target the bench records (the RFOB estimate) is the object's force plus the bench's own
 friction; the friction is fitted as its own term on the rows where the probe slides (|v| above
