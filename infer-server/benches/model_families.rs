@@ -17,14 +17,16 @@
 //! without it a synthetic press is fed). Env: BENCH_STEPS (measured steps per model, default
 //! 20000), BENCH_WARM (steps before measuring, default 2000), BENCH_IO_BINDING=1|0 (bind the
 //! inputs and outputs once and step with `RunWithBinding`, or step with `Run`; default: what
-//! infer-server does, `SessionConfig::default()`).
+//! infer-server does, `SessionConfig::default()`), BENCH_PROFILE (`bench_profile`).
 //! Prints a table, and as its last line one JSON object:
 //! `{"families": {NAME: {"p50_us", "p99_us", "p999_us", "max_us", "allocs_per_call", "nodes",
-//!   "delayed_calls", "p999_undelayed_us"}}, "identity_p50_us": .., "load": "..", "steps": ..}`.
+//!   "delayed_calls", "faulted_calls", "p999_clean_us"}}, "identity_p50_us": .., "floor": {..},
+//!   "load": "..", "steps": ..}`.
 //! `delayed_calls` counts the measured calls during whose round trip the inference thread
 //! waited on the run queue (its schedstat's wait time rose: the scheduler ran something else on
-//! its core); `p999_undelayed_us` is the p99.9 of the other calls: the model's own tail, apart
-//! from the machine's. Both null where the kernel keeps no scheduler statistics. `floor`
+//! its core), `faulted_calls` those during which it took a page fault; `p999_clean_us` is the
+//! p99.9 of the calls with neither: the model's own tail, apart from those two of the machine's
+//! (`ThreadEvents`). All three null where the kernel keeps no scheduler statistics. `floor`
 //! ({"p50_us", "p99_us", "p999_us", "max_us"}) is the machine's own: a fixed section of
 //! arithmetic timed on a thread set up as the inference thread, with no model (`floor_samples`).
 
@@ -50,6 +52,19 @@ fn schema_names() -> Vec<String> {
         .iter()
         .map(|s| s.to_string())
         .collect()
+}
+
+/// BENCH_PROFILE=auto|dedicated|period|shared: the inference thread's wait profile (default
+/// auto, what infer-server picks; `dedicated` spins on a core of its own: the best tuning, to
+/// set beside the default).
+fn bench_profile() -> Profile {
+    match std::env::var("BENCH_PROFILE").as_deref() {
+        Ok("dedicated") => Profile::Dedicated,
+        Ok("period") => Profile::Period,
+        Ok("shared") => Profile::Shared,
+        Ok("auto") | Err(_) => Profile::Auto,
+        Ok(other) => panic!("BENCH_PROFILE={other}: one of auto, dedicated, period, shared"),
+    }
 }
 
 fn env_usize(name: &str) -> Option<usize> {
@@ -102,22 +117,34 @@ struct Row {
     p999: u64,
     max: u64,
     allocs: f64,
-    /// calls whose round trip saw the inference thread wait on the run queue, and the p99.9 of
-    /// the others (None without scheduler statistics)
+    /// calls whose round trip saw the inference thread wait on the run queue, or take a page
+    /// fault, and the p99.9 of the others (None without scheduler statistics)
     delayed: Option<usize>,
-    p999_undelayed: Option<u64>,
+    faulted: Option<usize>,
+    p999_clean: Option<u64>,
 }
 
-/// The inference thread's time waiting on the run queue (ns): the second field of its
-/// `/proc/self/task/TID/schedstat`. Read before each request and after its answer, a rise means
-/// the scheduler kept the thread off its core during that round trip (another process, or this
-/// benchmark's own main thread, ran instead): the call's time then includes the machine's, not
+/// What the kernel counts for the inference thread, read before each request and after its
+/// answer: its time waiting on the run queue (ns; the second field of
+/// `/proc/self/task/TID/schedstat`) and its page faults (minor + major, fields 10 and 12 of its
+/// `stat`). A rise of the first means the scheduler kept the thread off its core during that
+/// round trip (another process, or this benchmark's own main thread, ran instead); of the
+/// second, that the call touched memory the kernel had to map (in a virtual machine, possibly
+/// a page the host had taken back). Either way the call's time then holds the machine's, not
 /// only the model's. Diagnostic of the benchmark only; the served path reads nothing like it.
-struct RunQueueWait {
-    file: std::fs::File,
+struct ThreadEvents {
+    schedstat: std::fs::File,
+    stat: std::fs::File,
 }
 
-impl RunQueueWait {
+/// One reading of [`ThreadEvents`].
+#[derive(Clone, Copy, PartialEq)]
+struct Events {
+    run_queue_wait_ns: u64,
+    faults: u64,
+}
+
+impl ThreadEvents {
     /// The newest thread named `inference` (the one `InferenceThread::spawn` just started);
     /// None where /proc has no schedstat (a kernel without scheduler statistics).
     fn of_inference_thread() -> Option<Self> {
@@ -129,22 +156,36 @@ impl RunQueueWait {
                     .is_ok_and(|c| c.trim_end() == "inference")
             })
             .max()?;
-        let file = std::fs::File::open(format!("/proc/self/task/{tid}/schedstat")).ok()?;
-        let mut w = RunQueueWait { file };
+        let open = |f: &str| std::fs::File::open(format!("/proc/self/task/{tid}/{f}")).ok();
+        let mut w = ThreadEvents {
+            schedstat: open("schedstat")?,
+            stat: open("stat")?,
+        };
         w.read()?;
         Some(w)
     }
 
-    fn read(&mut self) -> Option<u64> {
+    /// Reads both files into stack buffers (no allocation: the benchmark counts them).
+    fn read(&mut self) -> Option<Events> {
         use std::os::unix::fs::FileExt;
-        let mut buf = [0u8; 96];
-        let n = self.file.read_at(&mut buf, 0).ok()?;
-        std::str::from_utf8(&buf[..n])
+        let mut buf = [0u8; 512];
+        let n = self.schedstat.read_at(&mut buf, 0).ok()?;
+        let run_queue_wait_ns = std::str::from_utf8(&buf[..n])
             .ok()?
             .split_ascii_whitespace()
             .nth(1)?
             .parse()
-            .ok()
+            .ok()?;
+        let n = self.stat.read_at(&mut buf, 0).ok()?;
+        let text = std::str::from_utf8(&buf[..n]).ok()?;
+        // after "pid (comm) ": state is field 3, minflt field 10, majflt field 12
+        let mut rest = text[text.rfind(')')? + 1..].split_ascii_whitespace();
+        let minflt: u64 = rest.nth(7)?.parse().ok()?;
+        let majflt: u64 = rest.nth(1)?.parse().ok()?;
+        Some(Events {
+            run_queue_wait_ns,
+            faults: minflt + majflt,
+        })
     }
 }
 
@@ -155,7 +196,7 @@ impl RunQueueWait {
 /// CPU, caches flushed by other work) stretches every model's alike.
 fn floor_samples(warm: usize, steps: usize) -> Vec<u64> {
     let machine = Machine::detect();
-    let chosen = profile::settings(Profile::Auto, &machine);
+    let chosen = profile::settings(bench_profile(), &machine);
     std::thread::spawn(move || {
         let _rt = RtRequest {
             fifo_priority: chosen.rt_priority,
@@ -195,12 +236,12 @@ fn quantile(sorted: &[u64], q: f64) -> u64 {
     sorted[((sorted.len() as f64 * q).ceil() as usize).clamp(1, sorted.len()) - 1]
 }
 
-/// What `serve` measured: the inference thread's own per-call times of the measured steps, the
-/// same for the calls during whose round trip it never waited on the run queue (None without
-/// scheduler statistics), and the allocations per call.
+/// What `serve` measured: the inference thread's own per-call times of the measured steps;
+/// with scheduler statistics, the same for the calls during whose round trip it neither waited
+/// on the run queue nor faulted, and the counts of those that did; the allocations per call.
 struct Served {
     samples: Vec<u64>,
-    undelayed: Option<Vec<u64>>,
+    clean: Option<(Vec<u64>, usize, usize)>,
     allocs: f64,
 }
 
@@ -224,7 +265,7 @@ fn serve(
     lp.forces_rx
         .set_wait_strategy(WaitStrategy::DEFAULT_SPIN_THEN_PARK);
     let machine = Machine::detect();
-    let chosen = profile::settings(Profile::Auto, &machine);
+    let chosen = profile::settings(bench_profile(), &machine);
     let (mut activator, taker) = handoff::channel();
     let thread = InferenceThread::spawn(
         InferenceConfig {
@@ -259,8 +300,9 @@ fn serve(
     let t0_ns = monotonic_ns();
     let mut next = start + period;
     let mut samples = Vec::with_capacity(steps);
-    let mut rq = RunQueueWait::of_inference_thread();
-    let mut undelayed = rq.as_ref().map(|_| Vec::with_capacity(steps));
+    let mut events = ThreadEvents::of_inference_thread();
+    let mut clean = events.as_ref().map(|_| Vec::with_capacity(steps));
+    let (mut delayed, mut faulted) = (0usize, 0usize);
     for i in 0..warm + steps {
         if i == warm {
             malloc_count::start();
@@ -272,18 +314,22 @@ fn serve(
         msg.seq = i as u64 + 1;
         msg.timestamp_ns = monotonic_ns() - t0_ns;
         msg.values[..10].copy_from_slice(&rows[i % rows.len()]);
-        let waited_before = rq.as_mut().and_then(RunQueueWait::read);
+        let before = events.as_mut().and_then(ThreadEvents::read);
         lp.features_tx.try_send(msg).unwrap();
         let answer = lp.forces_rx.recv_timeout(Duration::from_secs(5)).unwrap();
-        let waited_after = rq.as_mut().and_then(RunQueueWait::read);
+        let after = events.as_mut().and_then(ThreadEvents::read);
         assert_eq!(answer.seq, msg.seq);
         assert_eq!(answer.flags, 0, "{stem}: answer flags {}", answer.flags);
         msg.flags = 0;
         if i >= warm {
             samples.push(answer.inference_ns);
-            if let (Some(u), Some(a), Some(b)) = (undelayed.as_mut(), waited_before, waited_after) {
-                if b == a {
-                    u.push(answer.inference_ns);
+            if let (Some(c), Some(a), Some(b)) = (clean.as_mut(), before, after) {
+                let waited = b.run_queue_wait_ns != a.run_queue_wait_ns;
+                let fault = b.faults != a.faults;
+                delayed += usize::from(waited);
+                faulted += usize::from(fault);
+                if !waited && !fault {
+                    c.push(answer.inference_ns);
                 }
             }
         }
@@ -293,7 +339,7 @@ fn serve(
     let _ = thread.join();
     Served {
         samples,
-        undelayed,
+        clean: clean.map(|c| (c, delayed, faulted)),
         allocs,
     }
 }
@@ -334,13 +380,22 @@ fn main() {
         .unwrap_or(SessionConfig::default().io_binding);
     println!(
         "model families served by the inference thread ({}), ONNX Runtime {}, {}, 10 kHz, {steps} steps each after {warm}; per call, us; load average {load}",
-        profile::settings(Profile::Auto, &machine).describe(),
+        profile::settings(bench_profile(), &machine).describe(),
         rt.version(),
         if binding { "RunWithBinding" } else { "Run" },
     );
     println!(
-        "{:<22} {:>6} {:>8} {:>8} {:>8} {:>8} {:>12} {:>8} {:>16}",
-        "model", "nodes", "p50", "p99", "p99.9", "max", "allocs/call", "delayed", "p99.9 undelayed"
+        "{:<22} {:>6} {:>8} {:>8} {:>8} {:>8} {:>12} {:>8} {:>8} {:>12}",
+        "model",
+        "nodes",
+        "p50",
+        "p99",
+        "p99.9",
+        "max",
+        "allocs/call",
+        "delayed",
+        "faulted",
+        "p99.9 clean"
     );
     let us = |ns: u64| ns as f64 / 1000.0;
     // the floor's half before the models, half after: the load of the whole run
@@ -350,12 +405,12 @@ fn main() {
         let name = path.file_stem().unwrap().to_string_lossy().to_string();
         let Served {
             mut samples,
-            undelayed,
+            clean,
             allocs,
         } = serve(rt, path, &rows, warm, steps);
         samples.sort_unstable();
-        let delayed = undelayed.as_ref().map(|u| samples.len() - u.len());
-        let p999_undelayed = undelayed.and_then(|mut u| {
+        let (delayed, faulted) = (clean.as_ref().map(|c| c.1), clean.as_ref().map(|c| c.2));
+        let p999_clean = clean.and_then(|(mut u, _, _)| {
             u.sort_unstable();
             (!u.is_empty()).then(|| quantile(&u, 0.999))
         });
@@ -367,11 +422,12 @@ fn main() {
             max: *samples.last().unwrap(),
             allocs,
             delayed,
-            p999_undelayed,
+            faulted,
+            p999_clean,
             name,
         };
         println!(
-            "{:<22} {:>6} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>12.2} {:>8} {:>16}",
+            "{:<22} {:>6} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>12.2} {:>8} {:>8} {:>12}",
             row.name,
             row.nodes.map_or("-".into(), |n| n.to_string()),
             us(row.p50),
@@ -380,7 +436,8 @@ fn main() {
             us(row.max),
             row.allocs,
             row.delayed.map_or("-".into(), |n| n.to_string()),
-            row.p999_undelayed
+            row.faulted.map_or("-".into(), |n| n.to_string()),
+            row.p999_clean
                 .map_or("-".into(), |n| format!("{:.2}", us(n))),
         );
         out.push(row);
@@ -399,7 +456,8 @@ fn main() {
                     "allocs_per_call": r.allocs,
                     "nodes": r.nodes,
                     "delayed_calls": r.delayed,
-                    "p999_undelayed_us": r.p999_undelayed.map(us),
+                    "faulted_calls": r.faulted,
+                    "p999_clean_us": r.p999_clean.map(us),
                 }),
             )
         })
