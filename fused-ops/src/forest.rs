@@ -16,10 +16,12 @@
 //!   is false, so it "goes right" to itself) and whose threshold holds its value already
 //!   divided by the number of trees (the mean folded in). A walk therefore needs no test for
 //!   "is this a leaf": every tree takes exactly its depth's steps, each one a load, a compare
-//!   and a branch-free select;
+//!   and a conditional move (`select_unpredictable`: with a branch instead, rows off the path
+//!   of the row before mispredict half the steps: 4.1 us a row instead of 0.7 for 100 trees
+//!   of depth 9, examples/forest_cost.rs);
 //! - [`LANES`] trees walk together (interleaved), so the loads of one tree's next node
-//!   overlap with the others' instead of each step waiting for the previous load and a
-//!   mispredicted branch.
+//!   overlap with the others' instead of each step waiting for the previous load (16: 0.64
+//!   us a row where 8 take 0.70 and 32 take 1.15, the example's warm rows).
 //!
 //! Semantics as scikit-learn's: the features as float32 (`ForestModel` fits and predicts on
 //! float32 rows), `x <= threshold` goes left. scikit-learn's thresholds are float64 and it
@@ -38,13 +40,13 @@
 //! from its root, so every walk ends at a leaf), every value finite.
 
 use crate::attrs::{AttrError, Attrs, Reader};
-use crate::math::Madd;
+use crate::math::{self, Madd};
 use crate::stateless::{RowModel, StatelessStep};
 
 const OP: &str = "ForestStep";
 
 /// Trees walked together.
-pub const LANES: usize = 8;
+pub const LANES: usize = 16;
 
 /// The feature field's width in a node's link: at most 255 features (slot n is the leaves').
 const FEATURE_BITS: u32 = 8;
@@ -167,6 +169,16 @@ impl ForestParams {
             row,
             trees,
         })
+    }
+
+    /// Reads, checks and lays out `attrs` (what the kernel does at its creation).
+    pub fn from_attrs_checked<A: Attrs + ?Sized>(attrs: &A) -> Result<Self, AttrError> {
+        Self::read(attrs)
+    }
+
+    /// One row's force, compiled for this CPU (AVX2 where it has it), as the kernel runs it.
+    pub fn predict(&mut self, x: &[f32]) -> f32 {
+        math::fast!(M => self.row::<M>(x))
     }
 
     /// The trees.
@@ -294,9 +306,10 @@ impl RowModel for ForestParams {
                     let node = nodes[*i as usize];
                     let v = row[(node.link & FEATURE_MASK) as usize];
                     let right = node.link >> FEATURE_BITS;
-                    // left (the next record) when v <= t, else right: a select, not a branch
-                    let left = 0u32.wrapping_sub(u32::from(v <= node.t));
-                    *i = right ^ ((right ^ (*i + 1)) & left);
+                    // left (the next record) when v <= t, else right: a conditional move,
+                    // not a branch (LLVM turns a plain select, even a masked xor, into a
+                    // branch, which rows off the trained path mispredict half the time)
+                    *i = std::hint::select_unpredictable(v <= node.t, *i + 1, right);
                 }
             }
             for (a, &i) in acc.iter_mut().zip(&at) {
@@ -314,7 +327,6 @@ pub type ForestStep = StatelessStep<ForestParams>;
 mod tests {
     use super::*;
     use crate::attrs::tests::Map;
-    use crate::math;
 
     /// Two trees over (x0, x1):
     /// tree A: x0 <= 0.5 ? (x1 <= -1 ? 10 : 20) : 30   (nodes 0: split, 1: split, 2, 3, 4 leaves)
@@ -349,7 +361,7 @@ mod tests {
     }
 
     fn predict(p: &mut ForestParams, x: [f32; 2]) -> f32 {
-        math::fast!(M => p.row::<M>(&x))
+        p.predict(&x)
     }
 
     #[test]
@@ -375,8 +387,9 @@ mod tests {
 
     #[test]
     fn more_trees_than_lanes_fill_several_groups() {
-        // tree A of two_trees repeated 19 times (3 groups, the last padded): the mean of 19
-        // equal trees is that tree's leaf
+        // tree A of two_trees repeated 2 LANES + 3 times (3 groups, the last padded): the mean
+        // of equal trees is that tree's leaf
+        let trees = 2 * LANES + 3;
         let mut m = Map::of(&[("n_features", vec![2.0])]);
         let a = two_trees();
         for key in [
@@ -386,9 +399,9 @@ mod tests {
             "thresholds",
             "leaf_values",
         ] {
-            m = m.with(key, a.0[key][..5].repeat(19));
+            m = m.with(key, a.0[key][..5].repeat(trees));
         }
-        let mut p = ForestParams::from_attrs(&m.with("tree_sizes", vec![5.0; 19])).unwrap();
+        let mut p = ForestParams::from_attrs(&m.with("tree_sizes", vec![5.0; trees])).unwrap();
         assert_eq!(p.groups.len(), 3);
         for (x, want) in [([0.0, -2.0], 10.0), ([0.0, 0.0], 20.0), ([1.0, 0.0], 30.0)] {
             let got = predict(&mut p, x);

@@ -89,7 +89,7 @@ fn a_fused_node_with_a_bad_attribute_is_refused_in_one_line() {
     );
 }
 
-/// The fixture's forest (make_models.py `write_forest_fused`): 12 equal trees
+/// The fixture's forest (make_models.py `write_forest_fused`): 20 equal trees
 /// x <= 0.002 ? (v <= 0 ? 1 : 2) : 3, so the mean is that tree's leaf; x and v read as f32.
 #[test]
 fn a_fused_forest_is_served_and_answers_the_mean_of_its_leaves() {
