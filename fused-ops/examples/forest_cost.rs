@@ -120,6 +120,16 @@ fn evict(buf: &mut [u8]) {
     black_box(&buf[0]);
 }
 
+/// The process's anonymous memory in huge pages, KiB (Linux; 0 elsewhere).
+fn huge_kib() -> u64 {
+    std::fs::read_to_string("/proc/self/smaps_rollup")
+        .unwrap_or_default()
+        .lines()
+        .find_map(|l| l.strip_prefix("AnonHugePages:"))
+        .and_then(|v| v.split_whitespace().next()?.parse().ok())
+        .unwrap_or(0)
+}
+
 fn quantile(sorted: &[u64], q: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * q).round() as usize] as f64 / 1000.0
 }
@@ -151,6 +161,10 @@ fn main() {
             .map(|_| std::array::from_fn(|_| rng.unit()))
             .collect();
         let visits = (trees * depth as usize) as f64;
+        println!(
+            "  ({} MiB of this process in transparent huge pages: the nodes' block, huge.rs)",
+            huge_kib() / 1024
+        );
         for (label, buf) in [
             ("warm", None),
             ("cold 8 MiB", Some(&mut small)),

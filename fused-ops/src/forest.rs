@@ -40,6 +40,7 @@
 //! from its root, so every walk ends at a leaf), every value finite.
 
 use crate::attrs::{AttrError, Attrs, Reader};
+use crate::huge::HugeArray;
 use crate::math::{self, Madd};
 use crate::stateless::{RowModel, StatelessStep};
 
@@ -76,7 +77,8 @@ struct Group {
 #[derive(Debug, Clone, PartialEq)]
 pub struct ForestParams {
     n: usize,
-    nodes: Vec<Node>,
+    /// in a huge page where the system gives one (huge.rs: one TLB entry, not hundreds)
+    nodes: HugeArray<Node>,
     groups: Vec<Group>,
     /// the row as the walk reads it: the n features, then NaN (the leaves' slot), the rest
     /// unused (a feature index is 8 bits: any index reads inside it, no bounds check)
@@ -162,6 +164,13 @@ impl ForestParams {
             .collect();
         let mut row = [0.0; 256];
         row[n] = f32::NAN;
+        let nodes = HugeArray::copy_of(&nodes).ok_or_else(|| {
+            r.invalid(
+                "tree_sizes",
+                total as f64,
+                "a node count too large to allocate",
+            )
+        })?;
         Ok(Self {
             n,
             nodes,

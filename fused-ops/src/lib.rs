@@ -24,6 +24,7 @@
 mod attrs;
 mod dense;
 mod forest;
+mod huge;
 mod lawfree;
 mod lstm;
 mod math;
