@@ -3,10 +3,11 @@
 //! needs one TLB entry for each 2 MiB instead of one for each 4 KiB.
 //!
 //! Why: with cold caches (after another process ran on the core) each 4 KiB page a call
-//! touches first costs a page walk, and a core walks only a couple at a time: the forest's
+//! touches first costs a page walk too, and a core walks only a couple at a time: the forest's
 //! row went from 0.7 us warm to about 6 us after 8 MiB were written elsewhere, the same with 8,
-//! 16 or 32 trees walked together (examples/forest_cost.rs), which is what a walk-bound, not a
-//! latency-bound, miss looks like. Linux backs a 2 MiB-aligned range with huge pages when
+//! 16 or 32 trees walked together (examples/forest_cost.rs: more misses in flight did not
+//! help). In huge pages the cold row took 3.8-4.3 us (depth 9; 8.1 instead of 10.5 at depth
+//! 12): the page walks were part of the cost, the cache misses the rest. Linux backs a 2 MiB-aligned range with huge pages when
 //! `madvise(MADV_HUGEPAGE)` asks before it is first written (the kernel's THP mode `madvise`,
 //! as here, or `always`); elsewhere (THP `never`, other systems) the array is a plain aligned
 //! allocation and works the same, slower only when cold.
