@@ -103,16 +103,28 @@ impl<A: Attrs + ?Sized> Reader<'_, A> {
         what: &'static str,
     ) -> Result<Vec<f64>, AttrError> {
         let v = self.list(name)?;
-        if v.len() != len {
-            return Err(AttrError::Length {
-                op: self.op,
-                name,
-                got: v.len(),
-                other: what,
-                expected: len,
-            });
-        }
+        self.length(name, v.len(), what, len)?;
         Ok(v)
+    }
+
+    /// `name` has `got` values where `what` says `expected`.
+    fn length(
+        &self,
+        name: &'static str,
+        got: usize,
+        what: &'static str,
+        expected: usize,
+    ) -> Result<(), AttrError> {
+        if got == expected {
+            return Ok(());
+        }
+        Err(AttrError::Length {
+            op: self.op,
+            name,
+            got,
+            other: what,
+            expected,
+        })
     }
 
     /// A required list of sizes (INTS), every one at least 1.
@@ -140,6 +152,32 @@ impl<A: Attrs + ?Sized> Reader<'_, A> {
         Ok(v.split(',').map(|s| s.trim().to_string()).collect())
     }
 
+    /// A required list of integers (INTS) of exactly `len` values.
+    pub fn ints_of(
+        &self,
+        name: &'static str,
+        len: usize,
+        what: &'static str,
+    ) -> Result<Vec<i64>, AttrError> {
+        let v = self.attrs.ints(name).ok_or(AttrError::Missing {
+            op: self.op,
+            name,
+            kind: "list of ints",
+        })?;
+        self.length(name, v.len(), what, len)?;
+        Ok(v)
+    }
+
+    /// The error for `name` = `value`, which is `reason`.
+    pub fn invalid(&self, name: &'static str, value: f64, reason: &'static str) -> AttrError {
+        AttrError::Invalid {
+            op: self.op,
+            name,
+            value,
+            reason,
+        }
+    }
+
     /// A float list whose values are all > 0.
     pub fn positive_list(&self, name: &'static str) -> Result<Vec<f64>, AttrError> {
         let v = self.list(name)?;
@@ -157,16 +195,7 @@ impl<A: Attrs + ?Sized> Reader<'_, A> {
         other_name: &'static str,
         other: &[f64],
     ) -> Result<(), AttrError> {
-        if values.len() == other.len() {
-            return Ok(());
-        }
-        Err(AttrError::Length {
-            op: self.op,
-            name,
-            got: values.len(),
-            other: other_name,
-            expected: other.len(),
-        })
+        self.length(name, values.len(), other_name, other.len())
     }
 
     pub fn check(
@@ -179,12 +208,7 @@ impl<A: Attrs + ?Sized> Reader<'_, A> {
         if ok {
             Ok(value)
         } else {
-            Err(AttrError::Invalid {
-                op: self.op,
-                name,
-                value,
-                reason,
-            })
+            Err(self.invalid(name, value, reason))
         }
     }
 

@@ -2,7 +2,8 @@
 //! model, in the custom-op domain [`DOMAIN`]: `StructuredStep` (train's `structured`),
 //! `LawFreeStep` (`lawfree`), `DenseStep` (`dnn`, `dnn_fb`),
 //! `PronyStep` (`prony`), `LstmStep` (`lstm`, `lstm_fb`), `SlowLstmStep` (`lstm_slow`),
-//! `SvrStep` (`svr`) and `SpringDamperStep` (`sd_const`, `sd_poly1`, `sd_poly2`).
+//! `SvrStep` (`svr`), `SpringDamperStep` (`sd_const`, `sd_poly1`, `sd_poly2`) and `ForestStep`
+//! (`rf`).
 //!
 //! Why: ONNX Runtime 1.32 pays 0.2-0.5 us of dispatch per node whatever its size, and the
 //! hand-built graph of `structured` has 50-56 nodes for a few hundred flops (docs/infer-server.md,
@@ -22,6 +23,8 @@
 
 mod attrs;
 mod dense;
+mod forest;
+mod huge;
 mod lawfree;
 mod lstm;
 mod math;
@@ -38,6 +41,7 @@ mod tensors;
 
 pub use attrs::{AttrError, Attrs};
 pub use dense::{DenseParams, DenseStep};
+pub use forest::{ForestParams, ForestStep};
 pub use lawfree::{LawFreeParams, LawFreeStep};
 pub use lstm::{LstmParams, LstmStep};
 pub use math::{Fused, Madd, Split};
@@ -64,5 +68,6 @@ pub fn domain() -> ort::Result<OperatorDomain> {
         .add(LstmStep::default())?
         .add(SlowLstmStep::default())?
         .add(SvrStep::default())?
-        .add(SpringDamperStep::default())
+        .add(SpringDamperStep::default())?
+        .add(ForestStep::default())
 }

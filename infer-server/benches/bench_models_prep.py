@@ -9,7 +9,7 @@ Usage: bench_models_prep.py DATASET OUT [--retrain]
 - exports each with the contract's metadata into OUT/families (`haptics_train.export`, which
   checks parity with `predict` on the first test recording: printed, and failing above 1e-4 N);
 - for the models exported as one fused node (fused-ops/: structured, lawfree, prony, the dense
-  networks, the LSTMs, lstm_slow, svr), also writes
+  networks, the LSTMs, lstm_slow, svr, the spring-dampers, the forests), also writes
   their multi-node graph of standard operators as OUT/families/NAME_graph.onnx (same fitted
   model, same metadata), so one run measures the fused node against the graph it replaces;
 - writes OUT/families/identity.onnx: one node, the stateless contract's input and output (the

@@ -1,7 +1,7 @@
 //! infer-server serves a model made of one fused operator (`ai.haptics:StructuredStep`,
-//! fused-ops/): the domain is registered on every session it opens. The fixture's model is
-//! recomputed here by hand (not with fused-ops' code), and a node with a bad attribute is
-//! refused at load with the kernel's one-line error.
+//! `ai.haptics:ForestStep`, fused-ops/): the domain is registered on every session it opens.
+//! The fixtures' models are recomputed here by hand (not with fused-ops' code), and a node with
+//! a bad attribute is refused at load with the kernel's one-line error.
 
 mod common;
 
@@ -86,5 +86,44 @@ fn a_fused_node_with_a_bad_attribute_is_refused_in_one_line() {
     assert!(
         text.contains("StructuredStep: attribute `taus_s` = -1 is not positive"),
         "{text}"
+    );
+}
+
+/// The fixture's forest (make_models.py `write_forest_fused`): 20 equal trees
+/// x <= 0.002 ? (v <= 0 ? 1 : 2) : 3, so the mean is that tree's leaf; x and v read as f32.
+#[test]
+fn a_fused_forest_is_served_and_answers_the_mean_of_its_leaves() {
+    let path = model_or_skip!("forest_fused");
+    let schema = FeatureSchema::standard();
+    let mut engine =
+        StepEngine::load(common::runtime(), &path, &schema, &SessionConfig::default()).unwrap();
+    assert_eq!(engine.info().kind, ModelKind::Stateless);
+    let mut seen = [0usize; 3];
+    for n in 0..400 {
+        let t = n as f64 * 0.05;
+        let (x, v) = (0.003 * t.sin(), 0.01 * t.cos());
+        let mut input = [0.0f64; 9];
+        input[0] = x; // position_x
+        input[1] = v; // velocity
+        let (x32, v32) = (x as f32, v as f32);
+        let want = if x32 <= 0.002 {
+            if v32 <= 0.0 {
+                1.0
+            } else {
+                2.0
+            }
+        } else {
+            3.0
+        };
+        let got = engine.step(&input).unwrap();
+        assert!(
+            (got - want).abs() < 1e-6,
+            "x {x}, v {v}: got {got}, want {want}"
+        );
+        seen[want as usize - 1] += 1;
+    }
+    assert!(
+        seen.iter().all(|&s| s > 20),
+        "every leaf is reached: {seen:?}"
     );
 }

@@ -61,6 +61,7 @@ fn stepping_allocates_nothing_on_the_rust_side() {
         "slow_lstm_fused",
         "svr_fused",
         "spring_damper_fused",
+        "forest_fused",
     ];
     for name in names {
         let mut engine = StepEngine::load(

@@ -6,13 +6,14 @@ import onnx
 import pytest
 import torch
 
-from haptics_train.closed_loop import OnnxStepper, simulate
+from haptics_train.closed_loop import OnnxStepper, session, simulate
 from haptics_train.contract import validate_model
 from haptics_train.data import recording_from_columns
 from haptics_train.evaluate import evaluate
 from haptics_train.export import onnx_predict, parity, provenance, to_contract_onnx
 from haptics_train.features import NINE
 from haptics_train.models import TrainConfig, fit_recordings, make_model
+from haptics_train.models.sklearn_models import thresholds_down
 
 CFG = TrainConfig(decimate=5, progress=False)
 SMALL = {
@@ -46,9 +47,7 @@ def test_every_model_exports_a_contract_valid_onnx(trained):
         # exporters write the lowest opsets that suffice, never above the pinned ones
         assert ops[""] <= 17, (name, ops)
         assert ops.get("ai.onnx.ml", 0) <= 3, (name, ops)
-        if name.startswith("rf"):
-            assert "ai.onnx.ml" in ops, (name, ops)
-        if name.startswith(("svr", "dnn", "lstm")):  # one fused node (fused-ops/)
+        if name.startswith(("svr", "dnn", "lstm", "rf")):  # one fused node (fused-ops/)
             assert [n.domain for n in om.graph.node] == ["ai.haptics"], (name, ops)
         assert om.ir_version <= 10, (name, om.ir_version)
 
@@ -66,11 +65,46 @@ def test_onnx_parity_with_the_framework(trained, synth):
             assert p["rows"] > p["first_contact_row"] and x[p["first_contact_row"]] > 0, p
 
 
-def test_forest_trained_on_float32_takes_identical_branches(trained, synth):
+def test_forest_fused_node_and_graph_take_the_branches_of_predict(trained, synth):
+    """On a recording's rows, the fused `ForestStep` node (the default export), skl2onnx's
+    graph (`fused=False`) and scikit-learn's `predict` agree: the forest is trained on float32
+    features and the fused node's thresholds are rounded down to float32, so every row takes
+    the same branches and only the leaves' float32 sum differs."""
     m, om = trained["rf_six"]
-    x = synth.test[0].matrix(m.features)
-    np.testing.assert_allclose(onnx_predict(om, synth.test[0], m.features),
-                               m.predict(x), atol=1e-5)  # fmt: skip
+    assert [(n.domain, n.op_type) for n in om.graph.node] == [("ai.haptics", "ForestStep")]
+    graph = to_contract_onnx(m, provenance(m, CFG, synth, None), fused=False)
+    assert "TreeEnsembleRegressor" in [n.op_type for n in graph.graph.node]
+    rec = synth.test[0]
+    ref = m.predict(rec.matrix(m.features))
+    fused, tree_graph = onnx_predict(om, rec, m.features), onnx_predict(graph, rec, m.features)
+    assert np.count_nonzero(np.abs(ref) >= 0.01) > 1000  # forces, not only the approach
+    np.testing.assert_allclose(fused, ref, atol=1e-5)
+    np.testing.assert_allclose(tree_graph, ref, atol=1e-5)
+    np.testing.assert_allclose(fused, tree_graph, atol=1e-5)
+
+
+def test_forest_thresholds_round_down_to_the_same_branches():
+    """`thresholds_down`: for float32 x next to each threshold, `x <= t32` is `x <= t64`."""
+    rng = np.random.default_rng(0)
+    t = rng.normal(size=2000) * 10.0 ** rng.integers(-6, 3, 2000)
+    t32 = thresholds_down(t)
+    assert t32.dtype == np.float32 and np.all(t32.astype(np.float64) <= t)
+    for k in (-2, -1, 0, 1, 2):
+        x = t.astype(np.float32)
+        for _ in range(abs(k)):
+            x = np.nextafter(x, np.float32(np.sign(k) * np.inf))
+        np.testing.assert_array_equal(x <= t32, x.astype(np.float64) <= t)
+
+
+def test_forest_fused_node_with_a_bad_attribute_fails_in_one_line(trained, fused_ops):
+    _, om = trained["rf_six"]
+    bad = onnx.ModelProto()
+    bad.CopyFrom(om)
+    attr = next(a for a in bad.graph.node[0].attribute if a.name == "split_features")
+    attr.ints[0] = 99
+    with pytest.raises(Exception, match=r"ForestStep: attribute `split_features` = 0 is the "
+                                        r"index of a node whose feature is not below n_features"):
+        session(bad)
 
 
 def test_lstm_stateful_export_carries_its_state(trained, synth):

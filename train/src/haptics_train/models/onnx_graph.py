@@ -124,6 +124,12 @@ def floats_attr(name: str, values: object) -> onnx.AttributeProto:
     return helper.make_attribute(name, vals, attr_type=AttributeProto.FLOATS)
 
 
+def ints_attr(name: str, values: object) -> onnx.AttributeProto:
+    """An INTS attribute, typed explicitly (as `floats_attr`)."""
+    vals = [int(v) for v in np.ravel(np.asarray(values, dtype=np.int64))]
+    return helper.make_attribute(name, vals, attr_type=AttributeProto.INTS)
+
+
 def fused_stateful_model(
     op_type: str, attrs: list[onnx.AttributeProto], n_features: int, state: int, name: str
 ) -> onnx.ModelProto:

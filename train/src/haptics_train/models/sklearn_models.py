@@ -1,4 +1,5 @@
-"""Linear regression, SVR and random forest (scikit-learn), exported with skl2onnx."""
+"""Linear regression, SVR and random forest (scikit-learn), exported with skl2onnx, or the SVR
+and the forest as one node of the project's fused operators (fused-ops/)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from sklearn.svm import SVR
 from tqdm.auto import tqdm
 
 from .base import ForceModel, check_rows
-from .onnx_graph import floats_attr, fused_stateless_model
+from .onnx_graph import floats_attr, fused_stateless_model, ints_attr
 
 #: ai.onnx.ml 3 is what ONNX Runtime 1.2x-1.31 serve for TreeEnsembleRegressor and friends.
 TARGET_OPSET = {"": 17, "ai.onnx.ml": 3}
@@ -177,3 +178,44 @@ class ForestModel(SklearnModel):
                 est.fit(x, y)
                 bar.update(len(est.estimators_) - bar.n)
         est.set_params(warm_start=False)
+
+    def to_onnx(self, fused: bool = True) -> onnx.ModelProto:
+        """One `ai.haptics:ForestStep` node (the fused operator: needs libhaptics_fused_ops.so
+        where it runs), or with `fused=False` skl2onnx's TreeEnsembleRegressor + Cast graph."""
+        self._check_fitted()
+        if not fused:
+            return _to_onnx(self.estimator_, len(self.features))
+        return forest_fused(self.estimator_, len(self.features))
+
+
+def thresholds_down(t: np.ndarray) -> np.ndarray:
+    """scikit-learn's float64 thresholds as the largest float32 at or below each: for every
+    float32 x, `x <= result` exactly when `x <= t` (scikit-learn compares the float32 feature
+    widened to float64), so the float32 comparison takes the same branch on every row, where
+    rounding to the nearest float32 would flip the rows between the two."""
+    t32 = np.asarray(t, dtype=np.float64).astype(np.float32)
+    above = t32.astype(np.float64) > t
+    t32[above] = np.nextafter(t32[above], np.float32(-np.inf))
+    return t32
+
+
+def forest_fused(forest: RandomForestRegressor, n_features: int) -> onnx.ModelProto:
+    """The forest as one `ai.haptics:ForestStep` node (fused-ops/src/forest.rs; attribute names:
+    its module doc): each tree's `tree_` arrays one tree after the other (children as
+    tree-local indices, -1 at a leaf), the thresholds rounded down to float32
+    (`thresholds_down`), the node values (the kernel reads them at the leaves and divides by
+    the number of trees)."""
+    trees = [e.tree_ for e in forest.estimators_]
+    if any(t.n_outputs != 1 for t in trees):
+        raise ValueError("forest_fused: one output per tree (a force), not several")
+    cat = np.concatenate
+    attrs = [
+        ints_attr("n_features", [n_features]),
+        ints_attr("tree_sizes", [t.node_count for t in trees]),
+        ints_attr("children_left", cat([t.children_left for t in trees])),
+        ints_attr("children_right", cat([t.children_right for t in trees])),
+        ints_attr("split_features", cat([t.feature for t in trees])),
+        floats_attr("thresholds", cat([thresholds_down(t.threshold) for t in trees])),
+        floats_attr("leaf_values", cat([t.value[:, 0, 0] for t in trees])),
+    ]
+    return fused_stateless_model("ForestStep", attrs, n_features, "rf")
