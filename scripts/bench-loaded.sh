@@ -10,6 +10,10 @@
 #     page      the page open in headless Chromium (web-ui/bench/page-cpu.mjs --hold)
 #     hog       stress-ng on the CPU that is not the loop's
 #     swap      100 hot swaps (hapticctl swap, two copies of the model alternately)
+#     idle:TUNED, page:TUNED  idle and page again with infer-server on another wait profile
+#               (TUNED_PROFILE, default dedicated: the inference thread spins on a core of its own,
+#               the best tuning on a machine with a core to spare; `none` skips them): the
+#               product's default set beside the best tuning in one run
 #     page:FAMILY  the page open again, one run per model family of scripts/bench-models.sh
 #               (target/bench-models/families; FAMILY_SECONDS each, swapped in with hapticctl
 #               1 s after the run starts: that second, on the previous model, counts too)
@@ -23,7 +27,7 @@
 #        BENCH_DIR (default target/bench-loaded), HAPTICS_MODEL (default: the model
 #        models/recommendation.json recommends, else rf_six), FAMILIES_DIR (default
 #        target/bench-models/families: the page:FAMILY rows; none when it is missing or empty),
-#        FAMILY_SECONDS (default 10),
+#        FAMILY_SECONDS (default 10), TUNED_PROFILE (dedicated|period|shared|none),
 #        HAPTICS_BOARD (the realtime runs' board: sim, default; or s826, on HAPTICS_S826_LIB, by
 #        default the C-ABI double target/release/libs826_double.so simulating the same hand, its
 #        watchdog HAPTICS_S826_WATCHDOG_US, default 100000; the lockstep references stay on sim;
@@ -48,6 +52,8 @@ else
 fi
 families_dir=${FAMILIES_DIR:-target/bench-models/families}
 family_secs=${FAMILY_SECONDS:-10}
+tuned=${TUNED_PROFILE:-dedicated}
+case $tuned in dedicated|period|shared|none) ;; *) echo "bench-loaded: TUNED_PROFILE=$tuned: one of dedicated, period, shared, none" >&2; exit 2 ;; esac
 
 # ---- tools ---------------------------------------------------------------------------------
 if ! command -v stress-ng >/dev/null || ! command -v cyclictest >/dev/null; then
@@ -106,15 +112,20 @@ FLOOR_SECONDS=${FLOOR_SECONDS:-20} BENCH_MODEL="$root/models/$model.onnx" \
 tail -n 1 "$work/floor.txt" > "$work/floor.json"
 
 # ---- the product ----------------------------------------------------------------------------
+start_server() { # profile suffix: infer-server on $instance; sets server, grpc, http
+  target/release/infer-server serve --instance "$instance" --models "$work/models" --model "$model.onnx" \
+    --profile "$1" --grpc 127.0.0.1:0 --http 127.0.0.1:0 --stats-every 0 \
+    >"$work/infer-server$2.out" 2>"$work/infer-server$2.err" &
+  server=$!
+  pids+=($server)
+  for _ in $(seq 1 100); do grep -q "HTTP http" "$work/infer-server$2.out" && break; sleep 0.1; done
+  grpc=$(sed -n 's/.*gRPC \([^ ]*\) HTTP.*/\1/p' "$work/infer-server$2.out")
+  http=$(sed -n 's/.*HTTP \(http:[^ ]*\) .*/\1/p' "$work/infer-server$2.out")
+  [ -n "$grpc" ] && [ -n "$http" ] || { cat "$work/infer-server$2.err" >&2; exit 1; }
+  grep "profile" "$work/infer-server$2.err" >&2 || true
+}
 say "infer-server, automatic profile"
-target/release/infer-server serve --instance "$instance" --models "$work/models" --model "$model.onnx" \
-  --grpc 127.0.0.1:0 --http 127.0.0.1:0 --stats-every 0 >"$work/infer-server.out" 2>"$work/infer-server.err" &
-pids+=($!)
-for _ in $(seq 1 100); do grep -q "HTTP http" "$work/infer-server.out" && break; sleep 0.1; done
-grpc=$(sed -n 's/.*gRPC \([^ ]*\) HTTP.*/\1/p' "$work/infer-server.out")
-http=$(sed -n 's/.*HTTP \(http:[^ ]*\) .*/\1/p' "$work/infer-server.out")
-[ -n "$grpc" ] && [ -n "$http" ] || { cat "$work/infer-server.err" >&2; exit 1; }
-grep "profile" "$work/infer-server.err" >&2 || true
+start_server auto ""
 server_cpu=$(sed -n 's/.*wait [^,]*, CPU \([0-9]*\),.*/\1/p' "$work/infer-server.err" | head -1)
 last_cpu=$(($(nproc) - 1))
 hog_cpu=${server_cpu:-0}
@@ -212,8 +223,24 @@ if [ -s "$work/families.txt" ]; then
   wait "$page" || true
 fi
 
+if [ "$tuned" != none ]; then
+  say "the best tuning: infer-server --profile $tuned, idle and page open ($secs s each)"
+  kill -INT "$server" 2>/dev/null || true
+  wait "$server" 2>/dev/null || true
+  start_server "$tuned" "-$tuned"
+  run_loop idle_tuned realtime "$secs"
+  (cd web-ui && exec node bench/page-cpu.mjs --url "$http" --hold) >"$work/page-cpu-tuned.out" 2>&1 &
+  page=$!
+  pids+=($page)
+  run_loop page_tuned realtime "$secs" &
+  loop=$!
+  wait "$loop"
+  kill -USR2 "$page" 2>/dev/null || true
+  wait "$page" || true
+fi
+
 # ---- figures ------------------------------------------------------------------------------
-.venv/bin/python - "$work" "$swaps" "$model" <<'PY'
+.venv/bin/python - "$work" "$swaps" "$model" "$tuned" <<'PY'
 """Reads the runs' summaries and recordings; prints the table and the JSON line."""
 import json
 import math
@@ -227,6 +254,8 @@ import pyarrow.parquet as pq
 work = Path(sys.argv[1])
 n_swaps = int(sys.argv[2])
 served = sys.argv[3]
+tuned = sys.argv[4]
+tuned_rows = [n for n in ("idle_tuned", "page_tuned") if (work / f"{n}.json").exists()]
 families = [f for f in (work / "families.txt").read_text().split() if (work / f"page_{f}.json").exists()]
 floor = json.loads((work / "floor.json").read_text())
 
@@ -250,7 +279,7 @@ def rmse(run: dict[str, np.ndarray], ref: dict[str, np.ndarray]) -> float:
 
 lock_vs_shadow = rmse(lock, shadow)
 rows = {}
-for name in ["idle", "page", "hog", "swap", *(f"page_{f}" for f in families)]:
+for name in ["idle", "page", "hog", "swap", *tuned_rows, *(f"page_{f}" for f in families)]:
     s = json.loads((work / f"{name}.json").read_text())
     rec = cols(name, ["step", "time", "F_true", "fallback"])
     steps = s["steps"]
@@ -318,7 +347,8 @@ print(f"lockstep reference vs shadow (the model's own felt-force error): {lock_v
 hdr = ["condition", "steps", "rtt p50", "p99", "p99.9 us", "miss/M", "on_time", "late_one", "held", "fallback", "late frac", "max step N", "felt vs lockstep N", "felt vs shadow N"]
 print(" | ".join(hdr))
 for name, r in rows.items():
-    print(" | ".join([name.replace("page_", "page:", 1), str(r["steps"]), f(r["p50"]), f(r["p99"]), f(r["p999"]), f(r["miss_pm"], 0),
+    label = name.replace("_tuned", f":{tuned}") if name in tuned_rows else name.replace("page_", "page:", 1)
+    print(" | ".join([label, str(r["steps"]), f(r["p50"]), f(r["p99"]), f(r["p999"]), f(r["miss_pm"], 0),
                       f(r["on_time"]), f(r["late_one"]), f(r["held"]), f(r["fallback"]), f(r["late_fraction"], 5),
                       f(r["max_step_n"], 4), f(r["felt_vs_lockstep"], 4), f(r["felt_vs_shadow"], 4)]))
 sw = rows["swap"]
@@ -327,7 +357,7 @@ if page_cpu is not None:
     print(f"page: headless Chromium used {page_cpu:.3f} CPU-s per s")
 # issue 14's key covers the product's conditions (the served model); the family rows (small
 # models of every family, swapped in) have their own
-maxstep = [r["max_step_n"] for n, r in rows.items() if r["max_step_n"] is not None and not n.startswith("page_")]
+maxstep = [r["max_step_n"] for n, r in rows.items() if r["max_step_n"] is not None and n in ("idle", "page", "hog", "swap")]
 out = {
     "floor_miss_pm": floor["floor_miss_pm"],
     "inprocess_p50_us": floor["inprocess_p50_us"],
@@ -343,6 +373,11 @@ out = {
     "idle_late_fraction": rows["idle"]["late_fraction"],
     "family_page_late_fraction": {f: rows[f"page_{f}"]["late_fraction"] for f in families},
     "family_max_transition_step_n": {f: rows[f"page_{f}"]["max_step_n"] for f in families},
+    # the best tuning beside the default (TUNED_PROFILE; absent with none)
+    "tuned_profile": tuned if tuned_rows else None,
+    "tuned_idle_late_fraction": rows["idle_tuned"]["late_fraction"] if "idle_tuned" in rows else None,
+    "tuned_page_late_fraction": rows["page_tuned"]["late_fraction"] if "page_tuned" in rows else None,
+    "tuned_idle_p50_us": rows["idle_tuned"]["p50"] if "idle_tuned" in rows else None,
 }
 print(json.dumps(out))
 PY
