@@ -122,6 +122,15 @@ start_server() { # profile suffix: infer-server on $instance; sets server, grpc,
   grpc=$(sed -n 's/.*gRPC \([^ ]*\) HTTP.*/\1/p' "$work/infer-server$2.out")
   http=$(sed -n 's/.*HTTP \(http:[^ ]*\) .*/\1/p' "$work/infer-server$2.out")
   [ -n "$grpc" ] && [ -n "$http" ] || { cat "$work/infer-server$2.err" >&2; exit 1; }
+  # The page needs the control plane's token: the address infer-server prints with it
+  # (`page: http://...#token=...`), as a user opens it from scripts/up.sh's banner.
+  page_url=""
+  for _ in $(seq 1 50); do
+    page_url=$(sed -n 's/.*page: \(http[^ ]*#token=[0-9a-zA-Z]*\).*/\1/p' "$work/infer-server$2.err" | head -1)
+    [ -n "$page_url" ] && break
+    sleep 0.1
+  done
+  [ -n "$page_url" ] || page_url=$http
   grep "profile" "$work/infer-server$2.err" >&2 || true
 }
 say "infer-server, automatic profile"
@@ -166,7 +175,7 @@ say "idle ($secs s)"
 run_loop idle realtime "$secs"
 
 say "page open in headless Chromium ($secs s)"
-(cd web-ui && exec node bench/page-cpu.mjs --url "$http" --hold) >"$work/page-cpu.out" 2>&1 &
+(cd web-ui && exec node bench/page-cpu.mjs --url "$page_url" --hold) >"$work/page-cpu.out" 2>&1 &
 page=$!
 pids+=($page)
 run_loop page realtime "$secs" &
@@ -206,7 +215,7 @@ wait "$loop" || true
 
 if [ -s "$work/families.txt" ]; then
   say "page open, one run per model family ($family_secs s each)"
-  (cd web-ui && exec node bench/page-cpu.mjs --url "$http" --hold) >"$work/page-cpu-families.out" 2>&1 &
+  (cd web-ui && exec node bench/page-cpu.mjs --url "$page_url" --hold) >"$work/page-cpu-families.out" 2>&1 &
   page=$!
   pids+=($page)
   while read -r fam; do
@@ -229,7 +238,7 @@ if [ "$tuned" != none ]; then
   wait "$server" 2>/dev/null || true
   start_server "$tuned" "-$tuned"
   run_loop idle_tuned realtime "$secs"
-  (cd web-ui && exec node bench/page-cpu.mjs --url "$http" --hold) >"$work/page-cpu-tuned.out" 2>&1 &
+  (cd web-ui && exec node bench/page-cpu.mjs --url "$page_url" --hold) >"$work/page-cpu-tuned.out" 2>&1 &
   page=$!
   pids+=($page)
   run_loop page_tuned realtime "$secs" &
@@ -330,10 +339,18 @@ for name in ["idle", "page", "hog", "swap", *tuned_rows, *(f"page_{f}" for f in 
         row["swap_miss_ratio"] = (around / away) if away > 0 else (0.0 if around == 0 else math.inf)
     rows[name] = row
 
-page_cpu = None
-for line in (work / "page-cpu.out").read_text().splitlines():
-    if line.startswith("{"):
-        page_cpu = json.loads(line).get("visible_cpu_per_s")
+def page_cpu_of(name: str) -> float | None:
+    """Chromium's CPU per second from page-cpu.mjs's JSON line; None when the page never
+    loaded (no line: the script failed, e.g. refused without the control plane's token)."""
+    f = work / name
+    for line in (f.read_text().splitlines() if f.exists() else []):
+        if line.startswith("{"):
+            return json.loads(line).get("visible_cpu_per_s")
+    return None
+
+
+page_cpu = page_cpu_of("page-cpu.out")
+page_cpu_tuned = page_cpu_of("page-cpu-tuned.out") if "page_tuned" in tuned_rows else None
 
 
 def f(x, d=2):
@@ -355,6 +372,8 @@ sw = rows["swap"]
 print(f"swaps: {sw['swaps_done']} done, {sw['swaps_in_run']} inside the run; lost steps {sw['lost']}; misses per step within 50 ms of a swap {sw['miss_near']:.2e}, away {sw['miss_away']:.2e}")
 if page_cpu is not None:
     print(f"page: headless Chromium used {page_cpu:.3f} CPU-s per s")
+if page_cpu_tuned is not None:
+    print(f"page ({tuned}): headless Chromium used {page_cpu_tuned:.3f} CPU-s per s")
 # issue 14's key covers the product's conditions (the served model); the family rows (small
 # models of every family, swapped in) have their own
 maxstep = [r["max_step_n"] for n, r in rows.items() if r["max_step_n"] is not None and n in ("idle", "page", "hog", "swap")]
@@ -379,5 +398,10 @@ out = {
     "tuned_page_late_fraction": rows["page_tuned"]["late_fraction"] if "page_tuned" in rows else None,
     "tuned_idle_p50_us": rows["idle_tuned"]["p50"] if "idle_tuned" in rows else None,
 }
+out["page_loaded"] = page_cpu is not None
 print(json.dumps(out))
+if page_cpu is None:
+    # the page condition ran without a page: its figures are an idle run's, not the goal's
+    print("bench-loaded: the page never loaded in Chromium (see page-cpu.out): the page row measured no page", file=sys.stderr)
+    sys.exit(1)
 PY

@@ -423,6 +423,15 @@ impl Worker {
                 }
                 Err(RecvError::Timeout) => {
                     link.heartbeat();
+                    // A wait with a deadline that spins (the `dedicated` profile's
+                    // `WaitStrategy::Spin`) checks nothing but the deadline, so only here can a
+                    // loop that left be noticed: a whole slice without a message, then one
+                    // liveness query (a syscall, made while there is nothing to serve). The
+                    // period-synchronised wait times out on a late step too: it notices a gone
+                    // loop in its parked phase instead, so it pays nothing here.
+                    if sync.is_none() && !link.peer_alive() {
+                        break Ok(false);
+                    }
                     // A model may arrive while the loop is idle (e.g. before its first step).
                     if self.taker.take(active) {
                         bump(&stats.switches);

@@ -352,3 +352,54 @@ fn server_activates_refuses_and_revalidates_when_a_new_loop_brings_another_schem
     drop(lp);
     server.shutdown().unwrap();
 }
+
+/// The `dedicated` profile's spinning wait notices a loop that left, and the server waits for
+/// the next one (before, a spinning wait with a deadline checked only the deadline: the server
+/// stayed on the dead segment and the next loop's run found no server; bench-loaded's tuned
+/// rows found it).
+#[test]
+fn a_spinning_server_notices_the_loop_leaving_and_attaches_to_the_next() {
+    use infer_server::inference_control::InferenceControl;
+    let name = segment_name("spin-left");
+    let make = || {
+        Segment::create(&name, &haptics_proto::layout::config())
+            .unwrap()
+            .loop_side()
+            .unwrap()
+    };
+    let lp = make();
+    let server = InferenceControl::start(
+        common::runtime(),
+        InferenceConfig {
+            segment: name.clone(),
+            wait: WaitStrategy::Spin,
+            cpu: None,
+            rt_priority: None,
+            exit_when_loop_gone: false,
+        },
+        SessionConfig::default(),
+    )
+    .unwrap();
+    let end = std::time::Instant::now() + TIMEOUT;
+    while !server.stats().attached {
+        assert!(std::time::Instant::now() < end, "never attached");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    drop(lp);
+    while server.stats().attached {
+        assert!(
+            std::time::Instant::now() < end + TIMEOUT,
+            "the spinning server did not notice the loop leaving"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let _lp = make();
+    while server.stats().attachments < 2 {
+        assert!(
+            std::time::Instant::now() < end + 2 * TIMEOUT,
+            "no attachment to the next loop"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    server.shutdown().unwrap();
+}

@@ -22,7 +22,9 @@ const noData = a.includes("--no-data");
 const b = await openBrowser({ width: 1440, height: 1000 });
 const result = { url, visible_cpu_per_s: null, hidden_cpu_per_s: null, draws_per_s: null, data_frames_per_s: null, draw_fps: null, hidden_state: null };
 try {
-  await b.page.goto(url + "/");
+  // An address with the token in its fragment (`http://host:port/#token=...`, what infer-server
+  // prints and scripts/up.sh shows) is opened as it is; a bare one gets the page's path.
+  await b.page.goto(url.includes("#") ? url : url + "/");
   if (noData) await waitFor(async () => (await hook.state(b.page)) !== "connecting", { what: "the page's first status" });
   else await waitFor(async () => (await hook.counts(b.page)).buckets > 100, { what: "telemetry on the page", timeoutMs: 30000 });
   await sleep(1000);
