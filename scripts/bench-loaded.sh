@@ -166,6 +166,17 @@ run_loop() { # name clock duration [extra rt-loop args]
     --summary-json "$work/$name.json" --no-progress "$@" >"$work/$name.out" 2>&1
 }
 
+page_condition() { # name page-cpu-output: a realtime run while the page is open in Chromium
+  (cd web-ui && exec node bench/page-cpu.mjs --url "$page_url" --hold) >"$work/$2" 2>&1 &
+  local page=$!
+  pids+=($page)
+  run_loop "$1" realtime "$secs" &
+  local loop=$!
+  wait "$loop"
+  kill -USR2 "$page" 2>/dev/null || true # page-cpu.mjs reads Chromium's CPU, then closes it
+  wait "$page" || true
+}
+
 say "references: the same hand programme rendered in lockstep, and on the simulated real sponge (shadow)"
 run_loop lockstep lockstep 1000
 target/release/rt-loop run --config "$work/hand.toml" --experiment shadow --clock lockstep --seed 1 \
@@ -175,14 +186,7 @@ say "idle ($secs s)"
 run_loop idle realtime "$secs"
 
 say "page open in headless Chromium ($secs s)"
-(cd web-ui && exec node bench/page-cpu.mjs --url "$page_url" --hold) >"$work/page-cpu.out" 2>&1 &
-page=$!
-pids+=($page)
-run_loop page realtime "$secs" &
-loop=$!
-wait "$loop"
-kill -USR2 "$page" 2>/dev/null || true
-wait "$page" || true
+page_condition page page-cpu.out
 cat "$work/page-cpu.out" >&2
 
 say "CPU hog (stress-ng) on CPU $hog_cpu, not the loop's CPU $last_cpu ($secs s)"
@@ -238,14 +242,7 @@ if [ "$tuned" != none ]; then
   wait "$server" 2>/dev/null || true
   start_server "$tuned" "-$tuned"
   run_loop idle_tuned realtime "$secs"
-  (cd web-ui && exec node bench/page-cpu.mjs --url "$page_url" --hold) >"$work/page-cpu-tuned.out" 2>&1 &
-  page=$!
-  pids+=($page)
-  run_loop page_tuned realtime "$secs" &
-  loop=$!
-  wait "$loop"
-  kill -USR2 "$page" 2>/dev/null || true
-  wait "$page" || true
+  page_condition page_tuned page-cpu-tuned.out
 fi
 
 # ---- figures ------------------------------------------------------------------------------

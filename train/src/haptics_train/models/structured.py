@@ -245,16 +245,13 @@ def nnls_gram(m: np.ndarray, y: np.ndarray) -> np.ndarray:
 def _between(grid: list, value: float, level: int) -> list[float]:
     """The points between `value` and its grid neighbours at 1/2^(level+1) of the way, in log
     (geometric) terms; 0 is never a neighbour (a set of 0 is its own candidate)."""
-    g = sorted(float(x) for x in grid if float(x) > 0.0)
+    g = [float(x) for x in grid if float(x) > 0.0]
     if value <= 0.0 or len(g) < 2:
         return []
-    i = int(np.searchsorted(g, value))
-    lo = g[max(i - 1, 0)] if value > g[0] else None
-    hi = g[min(i + 1, len(g) - 1)] if value < g[-1] else None
-    if i < len(g) and g[i] != value:  # value between g[i-1] and g[i] (refined before)
-        hi = g[i] if value < g[-1] else None
+    lo = max((x for x in g if x < value), default=None)
+    hi = min((x for x in g if x > value), default=None)
     f = 0.5 ** (level + 1)
-    return [value * (n / value) ** f for n in (lo, hi) if n is not None and n != value]
+    return [value * (n / value) ** f for n in (lo, hi) if n is not None]
 
 
 def _thin(rows: list, k: int, h: dict) -> list:
