@@ -16,6 +16,35 @@ pub const META_PROVENANCE: &str = "haptics.provenance";
 pub const META_STATE_SIZE: &str = "haptics.state_size";
 /// Metadata key (optional): what "previous" means for the previous-force features (`step`).
 pub const META_PREVIOUS_FORCE: &str = "haptics.previous_force";
+/// Metadata key (optional, stateful models whose state steps in time): the period, in seconds,
+/// the state expects between two calls, i.e. one step of the loop it was exported for (its
+/// decays are exp(-step / tau)). A model served by a loop of another rate relaxes at the wrong
+/// speed, so infer-server refuses to activate it beside such a loop.
+pub const META_STEP_S: &str = "haptics.step_s";
+
+/// How far a model's `haptics.step_s` may be from the loop's period (a fraction of it).
+pub const STEP_TOLERANCE: f64 = 0.01;
+
+/// Why a model whose state steps at `step_s` cannot be served by a loop of `loop_rate_hz`, or
+/// `None` when it can (or either is unknown: no step declared, no loop status yet).
+pub fn step_mismatch(step_s: Option<f64>, loop_rate_hz: f64) -> Option<String> {
+    let step = step_s?;
+    if !(loop_rate_hz.is_finite() && loop_rate_hz > 0.0) {
+        return None;
+    }
+    let ratio = step * loop_rate_hz;
+    ((ratio - 1.0).abs() > STEP_TOLERANCE).then(|| {
+        format!(
+            "its state steps every {:.6} s ({META_STEP_S}, {:.0} Hz) but the loop runs at {:.0} Hz: \
+             served there it would relax {ratio:.3}x as fast as the object it learned; export it \
+             again from recordings of this loop's rate (haptics-train export serves at the \
+             recording loop's rate)",
+            step,
+            1.0 / step,
+            loop_rate_hz,
+        )
+    })
+}
 
 /// Input and output names fixed by the contract.
 pub const INPUT_FEATURES: &str = "features";
@@ -174,6 +203,22 @@ impl FeatureSchema {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_step_is_checked_against_the_loop_rate_only_when_both_are_known() {
+        assert_eq!(step_mismatch(None, 10_000.0), None);
+        assert_eq!(step_mismatch(Some(1e-4), 0.0), None, "no loop status yet");
+        assert_eq!(step_mismatch(Some(1e-4), f64::NAN), None);
+        assert_eq!(step_mismatch(Some(1e-4), 10_000.0), None);
+        assert_eq!(step_mismatch(Some(1.005e-4), 10_000.0), None, "within 1 %");
+        let why = step_mismatch(Some(2e-4), 10_000.0).expect("2x the period");
+        assert!(why.contains("5000 Hz") && why.contains("10000 Hz") && why.contains("2.000x"));
+        let why = step_mismatch(Some(0.02), 10_000.0).expect("a 50 Hz import's step");
+        assert!(why.contains("200.000x"), "{why}");
+        assert!(step_mismatch(Some(1e-4), 5_000.0)
+            .unwrap()
+            .contains("0.500x"));
+    }
 
     #[test]
     fn schema_parsing_refuses_duplicates_and_blanks() {

@@ -8,8 +8,8 @@ use std::path::PathBuf;
 
 use crate::contract::{
     checked_elements, FeatureSchema, ModelKind, FEATURE_NAMES, INPUT_C, INPUT_FEATURES, INPUT_H,
-    META_FEATURES, META_KIND, META_PREVIOUS_FORCE, META_PROVENANCE, META_STATE_SIZE, META_UNITS,
-    OUTPUT_C, OUTPUT_FORCE, OUTPUT_H,
+    META_FEATURES, META_KIND, META_PREVIOUS_FORCE, META_PROVENANCE, META_STATE_SIZE, META_STEP_S,
+    META_UNITS, OUTPUT_C, OUTPUT_FORCE, OUTPUT_H,
 };
 
 fn unknown_hint(name: &str) -> String {
@@ -102,6 +102,9 @@ pub struct Metadata {
     pub state_size: Option<usize>,
     /// `haptics.previous_force`, when a feature uses the previous force (informational).
     pub previous_force: Option<String>,
+    /// `haptics.step_s`: the period the state steps at, s (checked against the loop's rate
+    /// when the model is activated).
+    pub step_s: Option<f64>,
 }
 
 /// Checks the `haptics.*` metadata entries; `custom(key)` is the model's entry for `key`.
@@ -179,6 +182,22 @@ pub fn parse_metadata(custom: impl Fn(&str) -> Option<String>) -> Result<Metadat
                 .ok_or_else(|| bad(META_STATE_SIZE, &raw, "must be a positive integer".into()))?,
         ),
     };
+    let step_s = match custom(META_STEP_S) {
+        None => None,
+        Some(raw) => Some(
+            raw.trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|s| s.is_finite() && *s > 0.0 && *s < 1.0)
+                .ok_or_else(|| {
+                    bad(
+                        META_STEP_S,
+                        &raw,
+                        "must be the state's step in seconds, a number in (0, 1)".into(),
+                    )
+                })?,
+        ),
+    };
     Ok(Metadata {
         features,
         kind,
@@ -186,6 +205,7 @@ pub fn parse_metadata(custom: impl Fn(&str) -> Option<String>) -> Result<Metadat
         provenance,
         state_size,
         previous_force: custom(META_PREVIOUS_FORCE),
+        step_s,
     })
 }
 
@@ -354,4 +374,35 @@ pub fn check_declared(
         state_shape,
         force_declared,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn meta_with(step: Option<&str>) -> Result<Metadata, ModelError> {
+        parse_metadata(|k| match k {
+            META_FEATURES => Some("position_x,velocity".into()),
+            META_KIND => Some("stateful".into()),
+            META_UNITS => Some("N".into()),
+            META_PROVENANCE => Some("{}".into()),
+            META_STATE_SIZE => Some("4".into()),
+            META_STEP_S => step.map(str::to_string),
+            _ => None,
+        })
+    }
+
+    #[test]
+    fn the_step_is_optional_and_must_be_a_period_in_seconds() {
+        assert_eq!(meta_with(None).unwrap().step_s, None);
+        assert_eq!(meta_with(Some("0.0001")).unwrap().step_s, Some(1e-4));
+        assert_eq!(meta_with(Some(" 2e-4 ")).unwrap().step_s, Some(2e-4));
+        for bad in ["0", "-1e-4", "NaN", "inf", "1.5", "10 kHz", ""] {
+            let e = meta_with(Some(bad)).unwrap_err();
+            assert!(
+                matches!(&e, ModelError::BadMetadata { key, .. } if key == META_STEP_S),
+                "{bad:?}: {e}"
+            );
+        }
+    }
 }

@@ -234,6 +234,7 @@ impl StepEngine {
             path: path.to_path_buf(),
             kind: meta.kind,
             previous_force: meta.previous_force,
+            step_s: meta.step_s,
             features: meta.features,
             units: meta.units,
             provenance: meta.provenance,

@@ -34,7 +34,7 @@ pub struct ActiveModel {
 pub enum MaintenanceEvent {
     /// A loop with another feature schema attached; the active model was revalidated against it
     /// and re-activated.
-    Revalidated(ActiveModel),
+    Revalidated(Box<ActiveModel>),
     /// ... and the active model does not fit the new schema. The inference thread answers
     /// NaN + SCHEMA_MISMATCH (the loop renders its fallback) until another model is activated.
     RevalidationFailed { path: PathBuf, error: ModelError },
@@ -192,7 +192,7 @@ impl InferenceControl {
                     info,
                 };
                 control.active = Some(active.clone());
-                Some(MaintenanceEvent::Revalidated(active))
+                Some(MaintenanceEvent::Revalidated(Box::new(active)))
             }
             Err(error) => {
                 // Remember the schema it failed for, so the failure is reported once.

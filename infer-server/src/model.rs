@@ -61,6 +61,8 @@ pub struct ModelInfo {
     pub kind: ModelKind,
     /// `haptics.previous_force`, if the model declares it.
     pub previous_force: Option<String>,
+    /// `haptics.step_s`: the period its state steps at, s, if the model declares it.
+    pub step_s: Option<f64>,
     /// The model's input features, in its input order.
     pub features: Vec<String>,
     pub units: String,

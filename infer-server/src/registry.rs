@@ -29,10 +29,11 @@ use control_plane::{
     backend::validate_model_name, Activation, ControlError, ModelInfo, ModelSource, ModelState,
 };
 
-use crate::contract::FeatureSchema;
+use crate::contract::{step_mismatch, FeatureSchema};
 use crate::engine::{load_bounded, StepEngine};
 use crate::inference_control::InferenceControl;
 use crate::model::ModelError;
+use haptics_proto::LoopStatusLink;
 
 /// How long `activate` waits for the inference thread to take a new engine. It takes it
 /// between two steps, or within 100 ms when the attached loop sends nothing.
@@ -467,6 +468,22 @@ impl Registry {
             Some(engine) => engine,
             None => self.fresh_engine(name, load_if_needed)?,
         };
+        // A state stepped at another period than the loop's would relax at the wrong speed:
+        // refused, and kept loaded (the loop's rate is its status block's nominal one; before
+        // the loop first publishes it, nothing is known and nothing is refused).
+        if let Some(why) = step_mismatch(engine.info().step_s, self.loop_rate_hz()) {
+            let mut st = self.lock();
+            if let Some(e) = st.entries.get_mut(name) {
+                if e.state != ModelState::Active {
+                    e.state = ModelState::Loaded;
+                    e.info = Some(engine.info().clone());
+                    e.engine = Some(engine);
+                }
+            }
+            return Err(ControlError::FailedPrecondition(format!(
+                "{name} cannot be served by this loop: {why}; nothing changed"
+            )));
+        }
         let mut engine = engine;
         engine.rewarm(REWARM_RUNS);
         let label = engine.info().path.clone();
@@ -541,6 +558,19 @@ impl Registry {
     /// A new engine for `name`: reloaded from its source when it is in memory (a loaded engine
     /// validated for another schema, or the active model activated again: it starts afresh),
     /// else loaded from the directory if `load_if_needed`.
+    /// The attached loop's nominal rate from its status block, Hz; 0 when no loop has
+    /// published one (a short lock on the endpoints, then a seqlock read).
+    fn loop_rate_hz(&self) -> f64 {
+        let link = self
+            .server
+            .endpoints()
+            .lock()
+            .as_ref()
+            .map(|ep| ep.link.clone());
+        link.and_then(|l| l.loop_status())
+            .map_or(0.0, |s| s.rate_hz)
+    }
+
     fn fresh_engine(&self, name: &str, load_if_needed: bool) -> Result<StepEngine, ControlError> {
         let known = {
             let st = self.lock();

@@ -1210,3 +1210,74 @@ async fn a_python_grpc_client_uses_the_real_server_through_reflection() {
     assert_eq!(r["health"], "SERVING");
     drop(stepper.stop());
 }
+
+/// A stateful model whose state steps at another period than the loop's (`haptics.step_s`
+/// against the nominal rate in the loop's status block) is refused when activated, and the
+/// active model stays; one exported for this loop's rate is served.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_model_stepped_for_another_loop_rate_is_refused() {
+    use haptics_proto::{LoopStatus, LoopStatusLink};
+    let Some(fixtures) = common::fixtures() else {
+        return;
+    };
+    let dir = models_dir(
+        "step",
+        fixtures,
+        &["linear", "stepped_5khz", "stepped_10khz"],
+    );
+    let segment = segment_name("step");
+    let lp = Segment::create(&segment, &loop_config())
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    let status = LoopStatus {
+        rate_hz: 10_000.0,
+        ..LoopStatus::default()
+    };
+    lp.link.publish_loop_status(&status);
+    let server = ServerProcess::start("step", &dir, &segment, &["--model", "linear.onnx"]);
+    let stepper = StepLoop::start(lp);
+    let mut c = server.models().await;
+    let end = Instant::now() + Duration::from_secs(20);
+    let linear_id = loop {
+        if let Ok(m) = c.get_active_model(pb::GetActiveModelRequest {}).await {
+            break m.into_inner().model_id;
+        }
+        assert!(Instant::now() < end, "no active model: {}", server.stderr());
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    stepper.wait_for(stepper.last_seq() + 20);
+
+    let e = activate(&mut c, "stepped_5khz.onnx", true)
+        .await
+        .expect_err("a 5 kHz state beside a 10 kHz loop must be refused");
+    assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
+    for part in [
+        "haptics.step_s",
+        "5000 Hz",
+        "10000 Hz",
+        "2.000x",
+        "nothing changed",
+    ] {
+        assert!(
+            e.message().contains(part),
+            "{part:?} not in {:?}",
+            e.message()
+        );
+    }
+    let active = c
+        .get_active_model(pb::GetActiveModelRequest {})
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(active.model_id, linear_id, "the active model stays");
+    let listed = list(&mut c).await;
+    assert_eq!(
+        model(&listed, "stepped_5khz.onnx").state,
+        pb::ModelState::Loaded as i32,
+        "the refused model stays loaded"
+    );
+
+    let ok = activate(&mut c, "stepped_10khz.onnx", true).await.unwrap();
+    assert_ne!(ok.model.unwrap().model_id, linear_id);
+}

@@ -332,7 +332,7 @@ fn server_activates_refuses_and_revalidates_when_a_new_loop_brings_another_schem
             "no revalidation"
         );
         match server.maintain() {
-            Some(MaintenanceEvent::Revalidated(a)) => break a,
+            Some(MaintenanceEvent::Revalidated(a)) => break *a,
             Some(other) => panic!("{other:?}"),
             None => std::thread::sleep(Duration::from_millis(5)),
         }

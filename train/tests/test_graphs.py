@@ -34,7 +34,7 @@ def foam(X: np.ndarray) -> np.ndarray:
 
 def info(n: int) -> SequenceInfo:
     return SequenceInfo(sample_rate_hz=RATE, duration_s=n / RATE, stride=1, row_step=1,
-                        contact_off_n=0.05)  # fmt: skip
+                        contact_off_n=0.05, loop_rate_hz=RATE)  # fmt: skip
 
 
 def served(m: object, X: np.ndarray) -> np.ndarray:

@@ -45,4 +45,7 @@ def test_prony_is_dissipative_valid_and_beats_the_spring_damper(tests):
     om = to_contract_onnx(m, provenance(m, CFG, None, None))
     meta = validate_model(om)
     assert meta["haptics.kind"] == "stateful" and meta["haptics.state_size"] == str(len(m.taus_))
-    np.testing.assert_allclose(onnx_predict(om, held, m.features), p, atol=1e-4)
+    # imported 50 Hz rows, served by rt-loop at its default 10 kHz: the graph steps at 1e-4 s
+    assert m.serve_dt_ == pytest.approx(1e-4) and meta["haptics.step_s"] == repr(1e-4)
+    np.testing.assert_allclose(onnx_predict(om, held, m.features),
+                               m.predict_served(held.matrix(m.features), dt=1e-4), atol=1e-4)  # fmt: skip

@@ -131,6 +131,18 @@ def row_step(columns: dict[str, np.ndarray]) -> int:
     return max(int(np.median(d)), 1)
 
 
+def loop_rate_hz(rec: Recording) -> float:
+    """The rate of the loop that recorded `rec` (its haptics.run metadata's `rate_hz`), Hz;
+    NaN for data rt-loop did not record (imported from a testing machine)."""
+    run = rec.meta.get("haptics.run")
+    cfg = run.get("config") if isinstance(run, dict) else None
+    try:
+        rate = float(cfg["rate_hz"]) if isinstance(cfg, dict) else float("nan")
+    except (KeyError, TypeError, ValueError):
+        return float("nan")
+    return rate if np.isfinite(rate) and rate > 0 else float("nan")
+
+
 def contact_thresholds(rec: Recording) -> tuple[float, float]:
     """The recording's feature parameters (haptics.run metadata), else rt-loop's defaults."""
     run = rec.meta.get("haptics.run")
@@ -189,6 +201,9 @@ class SequenceInfo:
     row_step: int
     #: the contact-off force threshold of the recording's feature parameters, N
     contact_off_n: float
+    #: the rate of the loop that recorded it (rt-loop's `rate_hz`), Hz; NaN where unknown
+    #: (imported data): a model whose state steps in time is served once per step of this loop
+    loop_rate_hz: float = float("nan")
 
 
 def to_sequences(
@@ -209,6 +224,7 @@ def to_sequences(
             stride=row_stride(r, decimate, target_rate_hz),
             row_step=r.row_step,
             contact_off_n=contact_thresholds(r)[1],
+            loop_rate_hz=loop_rate_hz(r),
         )
         for r in recs
     ]

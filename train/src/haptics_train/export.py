@@ -88,6 +88,10 @@ def to_contract_onnx(model: ForceModel, prov: dict, **onnx_kw: object) -> onnx.M
         meta["haptics.state_size"] = str(h_in.type.tensor_type.shape.dim[-1].dim_value)
     if any(f in PREVIOUS_FORCE_FEATURES for f in model.features):
         meta["haptics.previous_force"] = "step"
+    if getattr(model, "serve_dt_", None):
+        # the period the state is stepped at (its decays are exp(-step / tau)): one control
+        # step of the loop it is meant for; infer-server refuses it beside a loop of another
+        meta["haptics.step_s"] = repr(float(model.serve_dt_))  # type: ignore[attr-defined]
     del m.metadata_props[:]
     for k, v in meta.items():
         m.metadata_props.add(key=k, value=v)
@@ -119,6 +123,16 @@ def parity(
     # a model whose graph renders only part of what it predicts (structured: the object, not
     # the bench's friction) is compared on that part
     predict = getattr(model, "predict_served", model.predict)
+    if getattr(model, "serve_dt_", None) and hasattr(model, "predict_served"):
+        # the graph steps its state at the loop's period, which the rows of a decimated (or
+        # imported) recording are not: compare both stepped at the graph's period
+        step = float(model.serve_dt_)  # type: ignore[attr-defined]
+
+        served = predict
+
+        def predict(x: np.ndarray) -> np.ndarray:  # noqa: F811
+            return served(x, dt=step)
+
     x = rec.matrix(model.features)
     if model.kind == "stateful":
         # stepping in Python costs tens of us a row, so the whole recording would take minutes;

@@ -194,6 +194,35 @@ def step_dt(algo: str, info: Sequence[SequenceInfo]) -> float:
     return dt
 
 
+#: rt-loop's default rate, Hz (`--rate-hz`): the serving rate of a model fitted on data no loop
+#: recorded (imported from a testing machine)
+LOOP_RATE_HZ_DEFAULT = 10_000.0
+
+
+def serve_dt(algo: str, info: Sequence[SequenceInfo]) -> float:
+    """The period a stateful model is served at, s: the loop steps its state once per control
+    step, whatever the rows' rate. The loop that recorded the training sequences (their median;
+    a warning where they differ by more than 1 %), else rt-loop's default rate (imported data:
+    a 50 Hz testing machine's model still runs in a 10 kHz loop). Models whose states decay as
+    exp(-dt / tau) are fitted at the rows' step (`step_dt`) and re-discretised at this one on
+    export, so a model fitted on decimated rows relaxes at the speed it was fitted at."""
+    rates = np.array([i.loop_rate_hz for i in info], dtype=float)
+    rates = rates[np.isfinite(rates) & (rates > 0)]
+    if len(rates) == 0:
+        return 1.0 / LOOP_RATE_HZ_DEFAULT
+    rate = float(np.median(rates))
+    if np.any(np.abs(rates / rate - 1) > 0.01):
+        warnings.warn(f"{algo}: training recordings from loops at different rates ({rates} Hz); "
+                      f"the model is served at {rate:g} Hz", stacklevel=3)  # fmt: skip
+    return 1.0 / rate
+
+
+def served_dt(model: object) -> float:
+    """The period a fitted stateful model's graph steps its state at (`serve_dt_`; a model
+    pickled before it existed has only `dt_`, the rows' period)."""
+    return float(getattr(model, "serve_dt_", None) or model.dt_)  # type: ignore[attr-defined]
+
+
 def fit_recordings(model: ForceModel, recs: Sequence[Recording], cfg: TrainConfig) -> ForceModel:
     """Fits `model` on recordings: their arrays in the model's layout (`data.training_arrays`)
     with the configuration's target, rows and seed."""

@@ -39,7 +39,8 @@ bounded whatever the input (the filters are stable, a play stays within r of u):
 cannot drift. Dissipation is not enforced (the readout's signs are free); `train_info_`
 reports the work the rendered object does over the training recordings (> 0: it absorbs).
 
-The state steps once per row at the training period `dt`, like `structured`. Exported as a
+The state steps once per row at the training period `dt` when fitted, and at the loop's period
+`serve_dt_` when exported (`haptics.step_s`), like `structured`. Exported as a
 stateful model (docs/model-contract.md): `h_in`/`h_out` carry [s_1..s_K, p_1..p_P]; `c_in`/
 `c_out` are passed through by the multi-node graph; the fused node (the default export,
 fused-ops/src/lawfree.rs) carries the filters' low parts in `c` (a float32 state cannot hold
@@ -64,7 +65,7 @@ from scipy.signal import lfilter
 from ..data import SequenceInfo
 from ..features import KINEMATICS
 from ..metrics import loop_work
-from .base import ForceModel, check_sequences, step_dt
+from .base import ForceModel, check_sequences, serve_dt, served_dt, step_dt
 from .lawfree_graph import lawfree_fused, lawfree_graph
 from .structured import dahl
 
@@ -136,6 +137,7 @@ class LawFreeModel(ForceModel):
         h = self.hyper
         t0 = time.perf_counter()
         self.dt_ = step_dt("lawfree", info)
+        self.serve_dt_ = serve_dt("lawfree", info)
         picked = []
         for xv, yy, i in zip(seqs, targets, info, strict=True):
             k = max(1, i.stride)
@@ -184,6 +186,7 @@ class LawFreeModel(ForceModel):
         self.train_info_ = {
             "rows": int(len(t)),
             "dt_s": self.dt_,
+            "serve_dt_s": self.serve_dt_,
             "depth_scale_m": self.depth_scale_m_,
             "speed_scale_mps": self.speed_scale_mps_,
             "readout_terms": int(n_obj),
@@ -224,5 +227,5 @@ class LawFreeModel(ForceModel):
         """One `ai.haptics:LawFreeStep` node (the fused operator: needs libhaptics_fused_ops.so
         where it runs), or with `fused=False` the multi-node graph (same state, same step)."""
         self._check_fitted()
-        decay = np.exp(-self.dt_ / np.asarray(self.hyper["taus_s"], dtype=float))
+        decay = np.exp(-served_dt(self) / np.asarray(self.hyper["taus_s"], dtype=float))
         return (lawfree_fused if fused else lawfree_graph)(self, decay)

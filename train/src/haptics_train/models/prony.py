@@ -11,8 +11,9 @@ weights are fitted by non-negative least squares on the contact rows (w_i >= 0, 
 sign free), so every Maxwell branch can only dissipate: the model cannot drift or inject energy
 the way a model fed back its own force can. The force is clamped at 0: the object only pushes.
 
-The state steps once per row at the training recordings' period `dt` (in the metadata, like the
-LSTM it is served once per step and must be trained at the rate it is served at). Exported to
+The state steps once per row at the training recordings' period `dt`; the export re-discretises
+it at the period of the loop that recorded them (`serve_dt_`, `haptics.step_s`: the loop steps
+it once per control step, and a decimated recording's rows are several steps apart). Exported to
 ONNX as a stateful model: `h_in`/`h_out` carry the K branch states; the fused node (the default
 export, fused-ops/src/prony.rs) carries their low parts in `c_in`/`c_out`, which the multi-node
 graph (`to_onnx(fused=False)`) passes through.
@@ -34,7 +35,7 @@ from scipy.signal import lfilter
 
 from ..data import SequenceInfo
 from ..features import KINEMATICS
-from .base import ForceModel, check_sequences, step_dt
+from .base import ForceModel, check_sequences, serve_dt, served_dt, step_dt
 from .onnx_graph import Graph, floats_attr, fused_stateful_model, row, stateful_model
 
 PRONY_DEFAULT = {"poly": 3, "tau_min_steps": 5, "tau_min_s": 0.02, "tau_max_s": 30.0, "n_tau": 6}
@@ -116,6 +117,7 @@ class PronyModel(ForceModel):
         coef = coef / scale
         p = int(h["poly"])
         self.dt_ = dt
+        self.serve_dt_ = serve_dt("prony", info)
         self.taus_ = taus
         self.k_ = coef[:p] - coef[p : 2 * p]
         self.w_ = coef[2 * p :]
@@ -123,6 +125,7 @@ class PronyModel(ForceModel):
         self.train_info_ = {
             "rows": int(len(y)),
             "dt_s": self.dt_,
+            "serve_dt_s": self.serve_dt_,
             "taus_s": self.taus_.tolist(),
             "k": self.k_.tolist(),
             "w": self.w_.tolist(),
@@ -132,9 +135,14 @@ class PronyModel(ForceModel):
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         """One sequence (x, v rows in time order) stepped from zero branch states."""
+        return self.predict_served(X)
+
+    def predict_served(self, X: np.ndarray, dt: float | None = None) -> np.ndarray:
+        """`predict` stepped at `dt` (default: the training rows' period; the graph steps at
+        `serve_dt_`, the loop's)."""
         self._check_fitted()
         x = self._check_X(X)
-        s = branch_states(x[:, 1], self.dt_, self.taus_)
+        s = branch_states(x[:, 1], self.dt_ if dt is None else dt, self.taus_)
         spring = sum(self.k_[j] * x[:, 0] ** (j + 1) for j in range(len(self.k_)))
         return np.maximum(spring + s @ self.w_, 0.0)
 
@@ -142,7 +150,8 @@ class PronyModel(ForceModel):
         """One `ai.haptics:PronyStep` node (the fused operator: needs libhaptics_fused_ops.so
         where it runs), or with `fused=False` the multi-node graph (same state in `h`)."""
         self._check_fitted()
+        dt = served_dt(self)
         if fused:
-            return prony_fused(self.k_, self.w_, self.taus_, self.dt_)
-        e = np.exp(-self.dt_ / self.taus_)
+            return prony_fused(self.k_, self.w_, self.taus_, dt)
+        e = np.exp(-dt / self.taus_)
         return prony_graph(self.k_, self.w_, e, self.taus_ * (1.0 - e))

@@ -29,7 +29,8 @@ friction compensation off it contains the bench's friction, which this model (un
 `structured`) does not separate; with compensation on it is the object alone.
 
 Sequences layout (`models.base`): `fit(X, y, info)`. Fitted attributes: `net_` (scalers, LSTM,
-head), `block_rows_` (rows per block in the training recordings), `block_steps_` (control
+head), `serve_dt_` (the loop's period it is served at, `haptics.step_s`), `block_rows_` (rows
+per block in the training recordings), `block_steps_` (control
 steps per block when served), `train_info_`.
 """
 
@@ -45,7 +46,7 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from ..data import SequenceInfo
-from .base import ForceModel, check_sequences, step_dt
+from .base import ForceModel, check_sequences, serve_dt, step_dt
 from .networks import ASINH_CLIP, InputScaler, TargetScaler
 from .onnx_graph import (
     Graph,
@@ -195,11 +196,13 @@ class SlowLSTMModel(ForceModel):
         torch.manual_seed(self.seed)
         rng = np.random.default_rng(self.seed)
         dt = step_dt(self.name, info)
-        row_step = int(np.median([i.row_step for i in info]))
         rows = max(1, round(float(h["state_step_s"]) / dt))
         self.block_rows_ = rows
-        self.block_steps_ = rows * row_step
         block_s = rows * dt
+        # control steps per block when served: the block's duration at the loop's period (a
+        # recording decimated k times has k steps a row; a 50 Hz import's rows are 200 steps)
+        self.serve_dt_ = serve_dt(self.name, info)
+        self.block_steps_ = max(1, round(block_s / self.serve_dt_))
         xs = np.concatenate([x[:: max(1, i.stride)] for x, i in zip(seqs, info, strict=True)])
         ys = np.concatenate([v[:: max(1, i.stride)] for v, i in zip(targets, info, strict=True)])
         ok = np.isfinite(xs).all(axis=1) & np.isfinite(ys)

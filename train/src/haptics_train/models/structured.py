@@ -58,7 +58,8 @@ which kinematics cannot tell) and `predict` returns object + bench: what the RFO
 reproduction too. The ONNX graph renders the object only (`predict_served`): the bench adds its
 own friction under the hand, so rendering it as well would count it twice (issue 11).
 
-The state steps once per row at the training period `dt`, like `prony`. Exported as a stateful
+The state steps once per row at the training period `dt` when fitted, and at the loop's period
+`serve_dt_` when exported (`haptics.step_s`), like `prony`. Exported as a stateful
 model: `h_in`/`h_out` carry [q_1..q_K, u_1..u_M, set, largest depth, previous e]; `c_in`/`c_out`
 carry the equilibrium force at the previous e in their first element (the graph is built by
 hand: structured_graph.py).
@@ -82,7 +83,7 @@ from threadpoolctl import threadpool_limits
 
 from ..data import SequenceInfo
 from ..features import KINEMATICS
-from .base import ForceModel, check_sequences, step_dt
+from .base import ForceModel, check_sequences, serve_dt, step_dt
 from .structured_graph import structured_fused, structured_graph
 
 #: The grids (see the module docstring for each range and why). Lengths are fractions of the
@@ -311,6 +312,7 @@ class StructuredModel(ForceModel):
         seqs, targets = check_sequences(X, y, len(self.features), len(info))
         h = self.hyper
         self.dt_ = step_dt("structured", info)
+        self.serve_dt_ = serve_dt("structured", info)
         # Fitted on every stride-th row, the states stepped at that rate (the Dahl states are
         # rate-independent, the branches exact for the increments they are driven by).
         rows = []
@@ -383,6 +385,7 @@ class StructuredModel(ForceModel):
         self.train_info_ = {
             "rows": fit["rows"],
             "dt_s": self.dt_,
+            "serve_dt_s": self.serve_dt_,
             "depth_scale_m": depth,
             "set_law": self.set_law_,
             "set_max_m": self.set_max_m_,
@@ -421,11 +424,12 @@ class StructuredModel(ForceModel):
         rmse = float(np.sqrt(np.mean((m @ coef - y) ** 2)))
         return {"coef": coef, "nb": nb, "rmse": rmse, "rows": int(len(y))}
 
-    def _parts(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _parts(self, X: np.ndarray, dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         self._check_fitted()
         xv = self._check_X(X)
         x, v = xv[:, 0], xv[:, 1]
-        obj, e = _object_columns(x, self.dt_, self.set_max_m_, self.a_, v, self.basis_)
+        dt = self.dt_ if dt is None else dt
+        obj, e = _object_columns(x, dt, self.set_max_m_, self.a_, v, self.basis_)
         f = obj @ np.concatenate([self.a_, self.g_, self.h_])
         served = np.where(e > 0.0, np.maximum(f, 0.0), 0.0)
         bench = _bench_columns(x, v, self.basis_)[:, :-2] @ self.c_ + self.b_ * v
@@ -437,9 +441,10 @@ class StructuredModel(ForceModel):
         served, bench = self._parts(X)
         return served + bench
 
-    def predict_served(self, X: np.ndarray) -> np.ndarray:
-        """The object's force alone: what the ONNX graph renders."""
-        return self._parts(X)[0]
+    def predict_served(self, X: np.ndarray, dt: float | None = None) -> np.ndarray:
+        """The object's force alone: what the ONNX graph renders, stepped at `dt` (default:
+        the training rows' period; the graph steps at `serve_dt_`, the loop's)."""
+        return self._parts(X, dt)[0]
 
     def to_onnx(self, fused: bool = True) -> onnx.ModelProto:
         """One `ai.haptics:StructuredStep` node (the fused operator: needs

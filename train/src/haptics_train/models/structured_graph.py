@@ -45,6 +45,7 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper
 
+from .base import served_dt
 from .onnx_graph import Graph, floats_attr, fused_stateful_model, row, stateful_model
 
 if TYPE_CHECKING:
@@ -89,7 +90,7 @@ def structured_graph(m: StructuredModel) -> onnx.ModelProto:
     taus = np.asarray(b["taus_s"], dtype=np.float64)
     hl = np.asarray(b["hysteresis_lengths_m"], dtype=np.float64)
     nk, nm = len(gk), len(hw)
-    dt = float(m.dt_)
+    dt = served_dt(m)
     state = nk + nm + 3
     first = row(np.eye(1, state))  # [1, 0, ..., 0]
 
@@ -154,7 +155,7 @@ def structured_fused(m: StructuredModel) -> onnx.ModelProto:
     nk, nm = len(m.g_), len(m.h_)
     state = nk + nm + 3
     attrs = [
-        helper.make_attribute("dt_s", float(m.dt_)),
+        helper.make_attribute("dt_s", served_dt(m)),
         floats_attr("yield_m", np.asarray(b["yield_m"])[kt]),
         floats_attr("a_yield", a_t[kt]),
         floats_attr("densification_m", np.asarray(b["densification_m"])[kd]),
