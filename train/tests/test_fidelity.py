@@ -35,6 +35,17 @@ def test_felt_force_counts_where_measured():
     assert recommendation(RESULTS, ["v"], felt={"b": 1.5, "a": 0.45})["recommended"] == "a"
 
 
+def test_the_felt_force_is_weighed_against_the_best_felt_not_in_newtons():
+    # a is 1.25x b offline but 3.2x closer in the loop: it holds both better. In newtons the
+    # larger of the two was a's free run (0.5 > b's 0.48) and the felt force decided nothing.
+    doc = recommendation(RESULTS, ["v"], felt={"a": 0.15, "b": 0.48})
+    assert doc["recommended"] == "a"
+    scores = {r["model"]: r["score"] for r in doc["ranking"]}
+    assert scores["a"] == 0.5 / 0.4 and scores["b"] == 0.48 / 0.15, scores
+    # without a felt force a model is scored offline alone; a diverged one ranks last
+    assert scores["persistent"] == 2.0 / 0.4 and scores["runaway"] == float("inf")
+
+
 def test_no_recommendation_without_validation():
     assert recommendation(RESULTS, []) is None
 

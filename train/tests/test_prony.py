@@ -47,5 +47,5 @@ def test_prony_is_dissipative_valid_and_beats_the_spring_damper(tests):
     assert meta["haptics.kind"] == "stateful" and meta["haptics.state_size"] == str(len(m.taus_))
     # imported 50 Hz rows, served by rt-loop at its default 10 kHz: the graph steps at 1e-4 s
     assert m.serve_dt_ == pytest.approx(1e-4) and meta["haptics.step_s"] == repr(1e-4)
-    np.testing.assert_allclose(onnx_predict(om, held, m.features),
-                               m.predict_served(held.matrix(m.features), dt=1e-4), atol=1e-4)  # fmt: skip
+    served = m.predict_served(held.matrix(m.features), dt=1e-4)
+    np.testing.assert_allclose(onnx_predict(om, held, m.features), served, atol=1e-4)

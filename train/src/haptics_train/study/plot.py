@@ -23,14 +23,14 @@ def write_plots(out: Path, ref: Run, rows: list[Row], rec: dict, rep: dict) -> N
         show.append(sd2)
     rs = ref.series
     fig, ax = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
-    ax[0].plot(rs["time"], rs["F_true"], "k", lw=1.6, label="simulated sponge (reference)")
+    ax[0].plot(rs["time"], rs["F_true"], "k", lw=1.6, label="simulated object (reference)")
     for r in show:
         s = r.run.series
         ax[0].plot(s["time"], s["F_true"], lw=0.9, label=f"{r.name} (RMSE {r.repro['rmse']:.2f} N)")  # type: ignore[index]
     ax[0].set_ylabel("felt force F_true [N]")
     ax[0].legend(fontsize=8)
     ax[0].grid(alpha=0.3)
-    ax[1].plot(rs["time"], 1000 * rs["position_x"], "k", lw=1.6, label="simulated sponge")
+    ax[1].plot(rs["time"], 1000 * rs["position_x"], "k", lw=1.6, label="simulated object")
     for r in show:
         s = r.run.series
         ax[1].plot(s["time"], 1000 * s["position_x"], lw=0.9, label=r.name)
@@ -38,7 +38,7 @@ def write_plots(out: Path, ref: Run, rows: list[Row], rec: dict, rep: dict) -> N
     ax[1].set_ylabel("depth x [mm]")
     ax[1].grid(alpha=0.3)
     fig.suptitle(
-        "the same simulated hand on the simulated sponge and on virtual sponges", fontsize=10
+        "the same simulated hand on the simulated object and on virtual objects", fontsize=10
     )
     fig.tight_layout()
     fig.savefig(out / "felt_force_time.png", dpi=90)
@@ -48,7 +48,7 @@ def write_plots(out: Path, ref: Run, rows: list[Row], rec: dict, rep: dict) -> N
     fig, ax = plt.subplots(1, max(n, 1), figsize=(4.2 * max(n, 1), 4), sharey=True, squeeze=False)
     for i, r in enumerate(show):
         a = ax[0][i]
-        a.plot(1000 * rs["position_x"], rs["F_true"], "k", lw=1.2, label="simulated sponge")
+        a.plot(1000 * rs["position_x"], rs["F_true"], "k", lw=1.2, label="simulated object")
         s = r.run.series
         a.plot(1000 * s["position_x"], s["F_true"], "tab:red", lw=0.9, label=r.name)
         a.set_xlabel("depth x [mm]")
@@ -67,7 +67,7 @@ def write_plots(out: Path, ref: Run, rows: list[Row], rec: dict, rep: dict) -> N
     colors = ["tab:blue" if r.learned else "tab:gray" for r in ok]
     ax.bar(names, vals, color=colors)
     ax.axhline(GOAL_RMSE, color="tab:red", ls="--", lw=1, label="thesis RF 1.21 N")
-    ax.set_ylabel("felt-force RMSE vs simulated sponge [N]")
+    ax.set_ylabel("felt-force RMSE vs simulated object [N]")
     ax.tick_params(axis="x", rotation=60, labelsize=8)
     ax.legend(fontsize=8)
     ax.grid(axis="y", alpha=0.3)
@@ -82,7 +82,7 @@ def write_plots(out: Path, ref: Run, rows: list[Row], rec: dict, rep: dict) -> N
         rep["rtob_force"],
         "tab:red",
         lw=0.7,
-        label="position replay on the simulated sponge",
+        label="position replay on the simulated object",
     )
     ax[0].set_ylabel("force response F_res [N]")
     ax[0].legend(fontsize=8)

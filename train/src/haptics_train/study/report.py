@@ -88,6 +88,28 @@ def metric_cells(m: dict[str, float] | None) -> list[str]:
     return [fmt(m["r2"]), fmt(m["mae"]), fmt(m["mse"]), fmt(m["rmse"])]
 
 
+def hand_note(fit: dict | None) -> str:
+    """The sentence saying whether the hand was scaled to the object (study/hand.py)."""
+    if not fit or not math.isfinite(fit.get("renderable_n", math.nan)):
+        return ""
+    if fit["factor"] >= 1.0:
+        return (
+            f"  At these set-points the reference peaks at {fit['peak_n']:.2f} N, within "
+            f"{fit['target_n'] / fit['renderable_n']:.0%} of the {fit['renderable_n']:.2f} N "
+            "the bench renders (the lower of `reproduction.max_force_n` and the motor's current "
+            "limit times its nominal force constant): the standard hand.\n"
+        )
+    return (
+        f"  **Scaled to the object:** at the standard set-points the reference peaked at "
+        f"{fit['peak_n']:.2f} N, above {fit['target_n'] / fit['renderable_n']:.0%} of the "
+        f"{fit['renderable_n']:.2f} N the bench renders (the lower of "
+        "`reproduction.max_force_n` and the motor's current limit times its nominal force "
+        f"constant), so every hand's set-points (headline, fast, ranking) are "
+        f"{fit['factor']:.3f}x the standard ones (searched on {fit['tries']} reference runs, "
+        f"none with a model; the reference now peaks at {fit['peak_scaled_n']:.2f} N).\n"
+    )
+
+
 def write_readme(
     out: Path,
     ref: Run,
@@ -111,7 +133,7 @@ def write_readme(
     k = ratio(sd2_rmse, best_rmse)
     met_rmse = best_rmse <= GOAL_RMSE
     met_ratio = math.isfinite(k) and k >= GOAL_RATIO
-    h = STUDY_HAND
+    h = setup.get("hand") or STUDY_HAND
     dur = h["rest_s"] + h["repeats"] * (h["press_s"] + h["hold_s"] + h["release_s"] + h["rest_s"])
     L: list[str] = []
     L.append("# Reproduction study (thesis 6.4.3 and 6.4.4) on the simulated bench\n")
@@ -133,7 +155,8 @@ def write_readme(
             f"{1000 * (h['depth_m'] + i * h['depth_step_m']):.0f}" for i in range(int(h["repeats"]))
         )
         + f" mm: {dur:.1f} s of loop time, {ref.steps} control steps per run.\n"
-        "- **Reference**: `shadow`, the hand presses the simulated object "
+        + hand_note(setup.get("hand_fit"))
+        + "- **Reference**: `shadow`, the hand presses the simulated object "
         f"(`{setup['material']}`) through a transparent motor (F_cmd = 0).\n"
         "- **Oracle** (`rt-loop run --model oracle`): the object's own physics (a separate "
         "instance of the same material model) driven by the measured motion, rendered through "
@@ -196,7 +219,7 @@ def write_readme(
                 f"{fmt(ratio(fsd.repro['rmse'], fb.repro['rmse']), 2)}x (sensitivity run below)."
             )
     L.extend(floor_section(settings or {}, setup, fast_note))
-    L.append("## Felt force: every served model against the simulated sponge\n")
+    L.append("## Felt force: every served model against the simulated object\n")
     L.append(
         "`repro` = reproduction (the hand on the virtual sponge) vs the reference's felt force. "
         "`pred along real` = the thesis's own 6.4.4 comparison: `shadow --model shm`, the model "
@@ -230,7 +253,7 @@ def write_readme(
     L.append("")
     L.append("![felt-force RMSE per model](rmse.png)\n")
     L.append(
-        "The best three learned models and `sd_poly2` against the simulated sponge, over "
+        "The best three learned models and `sd_poly2` against the simulated object, over "
         "time (felt force and depth):\n"
     )
     L.append("![felt force over time](felt_force_time.png)\n")
@@ -245,7 +268,7 @@ def write_readme(
         f"The held-out recording `{trajectory.name}` (force-controlled ramps at 2.1 N/s, "
         f"14 cycles) gives the position reference; `rt-loop run --experiment position-replay` "
         "follows it with the thesis's PID (C_p 700, C_d 12, C_i 1000, current = PID M_n/K_fn, "
-        f"plus the DOB estimate) on the simulated sponge, from a fresh sponge as the recording "
+        f"plus the DOB estimate) on the simulated object, from a fresh sponge as the recording "
         f"started: {rep.steps} steps in {rep.wall_s:.1f} s of wall time. The force response "
         "(RFOB estimate, what the thesis measured) and the true contact force of the replay are "
         "compared with the recording's at the same time.\n"
@@ -266,7 +289,7 @@ def write_readme(
     )
     L.append("![position replay](position_replay.png)\n")
     if fast_ref is not None and fast_rows:
-        fh = FAST_HAND
+        fh = setup.get("fast_hand") or FAST_HAND
         L.append("## Sensitivity: a faster hand (not part of the goal)\n")
         L.append(
             f"The same three presses with press and release in {fh['press_s']} s instead of "

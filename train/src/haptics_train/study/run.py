@@ -13,6 +13,7 @@ from pathlib import Path
 
 from ..fidelity import RECOMMENDATION_FILE, load_recommendation, merge, recommendation
 from ..truth import OBJECT_FORCE
+from .hand import fit_hand, scaled_hand
 from .plot import write_plots
 from .processes import Run, Tools, find_tools, read_series, run_loop, write_config
 from .protocol import (
@@ -100,9 +101,15 @@ def run_study(
             print(f"[study] {msg}", flush=True)
 
     common = ["--material", str(material)]
+    # every hand pressed no harder than the bench renders (hand.py): the standard set-points,
+    # or all of them scaled by one factor searched on the reference alone
+    hand_fit = fit_hand(tools, work, STUDY_HAND, seed, common, clock, say)
+    hand, fast_hand, rank_hand = (
+        scaled_hand(h, hand_fit["factor"]) for h in (STUDY_HAND, FAST_HAND, RANK_HAND)
+    )
     settings: dict[str, tuple[Run, list[Row]]] = {}
     settings["off"] = _reproduce_all(
-        tools, files, work, "", STUDY_HAND, seed, shadow_predictions, say, common, clock
+        tools, files, work, "", hand, seed, shadow_predictions, say, common, clock
     )
     primary = headline
     extra = common
@@ -110,7 +117,7 @@ def run_study(
         extra_on = [*common, "--bench", str(bench)]
         files_on = study_models(bench_models_dir, names) if bench_models_dir else files
         settings["on"] = _reproduce_all(
-            tools, files_on, work, "fc_", STUDY_HAND, seed, shadow_predictions, say, extra_on, clock
+            tools, files_on, work, "fc_", hand, seed, shadow_predictions, say, extra_on, clock
         )
         if primary == "on":
             extra, files = extra_on, files_on
@@ -122,7 +129,7 @@ def run_study(
     keep = {r.name for r in ranked[:FAST_BEST]} | set(SPRING_DAMPERS)
     fast_files = [f for f in files if f.stem in keep]
     fast_ref, fast_rows = _reproduce_all(
-        tools, fast_files, work, "fast_", FAST_HAND, seed, False, say, extra, clock
+        tools, fast_files, work, "fast_", fast_hand, seed, False, say, extra, clock
     )
 
     rep = run_loop(
@@ -163,6 +170,10 @@ def run_study(
         "bench": str(bench) if bench else None,
         "clock": clock,
         "headline": primary,
+        "hand": hand,
+        "fast_hand": fast_hand,
+        "rank_hand": rank_hand,
+        "hand_fit": hand_fit,
     }
     readme = write_readme(
         out_dir,
@@ -189,7 +200,7 @@ def run_study(
     felt_doc = None
     if rank_files and load_recommendation(models_dir) is not None:
         _, rank_rows = _reproduce_all(
-            tools, rank_files, work, "rank_", RANK_HAND, seed + RANK_SEED_OFFSET, False, say,
+            tools, rank_files, work, "rank_", rank_hand, seed + RANK_SEED_OFFSET, False, say,
             common, clock,
         )  # fmt: skip
         felt_doc = rerank_by_felt(models_dir, results, rank_rows)
@@ -250,7 +261,7 @@ def _reproduce_all(
     ref = loop("sponge", "reference", "shadow", "reference")
     if not ref.ok:
         raise StudyError(f"the reference (shadow) run failed: {ref.note or ref.stop}")
-    say(f"{tag}reference: simulated sponge, {ref.steps} steps in {ref.wall_s:.1f} s")
+    say(f"{tag}reference: simulated object, {ref.steps} steps in {ref.wall_s:.1f} s")
     t_ref, f_ref = ref.series["time"], ref.series["F_true"]
     rows: list[Row] = []
 
