@@ -29,6 +29,10 @@ use crate::registry::Registry;
 use crate::runtime::{Runtime, RuntimeError};
 use crate::telemetry::{LoopObserver, TelemetryThread};
 
+/// How long the start model waits, once a loop is attached, for the loop's status block (its
+/// rate) before it is activated without it.
+const START_MODEL_STATUS_WAIT: Duration = Duration::from_millis(500);
+
 /// Everything `infer-server serve` needs (built from its flags by
 /// [`crate::cli::ServeArgs::into_config`]).
 #[derive(Debug, Clone)]
@@ -246,6 +250,7 @@ impl App {
         let mut failures = Vec::new();
         let mut last_report = Instant::now();
         let mut attached = false;
+        let mut attached_at = Instant::now();
         let mut undecodable_seen = 0u64;
         while !shutdown.wait_timeout(Duration::from_millis(20))
             && !self.inference.is_finished()
@@ -254,6 +259,7 @@ impl App {
             let now_attached = self.inference.attached();
             if now_attached != attached {
                 attached = now_attached;
+                attached_at = Instant::now();
                 if attached {
                     eprintln!(
                         "infer-server: attached to {}; features [{}]",
@@ -267,7 +273,12 @@ impl App {
                     );
                 }
             }
-            if attached {
+            // The start model waits (briefly) for the loop's status block: its rate is what a
+            // model's `haptics.step_s` is checked against. rt-loop publishes it right after
+            // creating the segment; an older loop that never does is not waited on for long.
+            let rate_known = self.registry.loop_rate_hz() > 0.0
+                || attached_at.elapsed() >= START_MODEL_STATUS_WAIT;
+            if attached && rate_known {
                 if let Some(name) = self.pending_activation.take() {
                     match self.registry.activate(&name, true) {
                         Ok(a) => eprintln!(

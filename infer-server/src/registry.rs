@@ -560,7 +560,7 @@ impl Registry {
     /// else loaded from the directory if `load_if_needed`.
     /// The attached loop's nominal rate from its status block, Hz; 0 when no loop has
     /// published one (a short lock on the endpoints, then a seqlock read).
-    fn loop_rate_hz(&self) -> f64 {
+    pub fn loop_rate_hz(&self) -> f64 {
         let link = self
             .server
             .endpoints()

@@ -914,6 +914,18 @@ async fn sigterm_ends_open_streams_and_websockets_quickly() {
     );
     let stepper = StepLoop::start(lp);
     stepper.wait_for(50);
+    // linear is active once the start model's wait for the loop's status block is over (this
+    // loop publishes none: up to half a second)
+    let mut authed = server.models_with(Some("s3cret".into())).await;
+    let end = Instant::now() + Duration::from_secs(20);
+    while authed
+        .get_active_model(pb::GetActiveModelRequest {})
+        .await
+        .is_err()
+    {
+        assert!(Instant::now() < end, "no active model: {}", server.stderr());
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
 
     // Every call needs the token: mutating calls and reads alike.
     let mut c = server.models().await;
@@ -1280,4 +1292,49 @@ async fn a_model_stepped_for_another_loop_rate_is_refused() {
 
     let ok = activate(&mut c, "stepped_10khz.onnx", true).await.unwrap();
     assert_ne!(ok.model.unwrap().model_id, linear_id);
+}
+
+/// The start model (`--model`) is checked the same way: the server waits for the loop's status
+/// block before activating it, and refuses one stepped for another rate (it serves no model, and
+/// says why).
+#[tokio::test(flavor = "multi_thread")]
+async fn a_start_model_stepped_for_another_loop_rate_is_refused() {
+    use haptics_proto::{LoopStatus, LoopStatusLink};
+    let Some(fixtures) = common::fixtures() else {
+        return;
+    };
+    let dir = models_dir("step-start", fixtures, &["stepped_5khz"]);
+    let segment = segment_name("step-start");
+    let lp = Segment::create(&segment, &loop_config())
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    lp.link.publish_loop_status(&LoopStatus {
+        rate_hz: 10_000.0,
+        ..LoopStatus::default()
+    });
+    let server = ServerProcess::start(
+        "step-start",
+        &dir,
+        &segment,
+        &["--model", "stepped_5khz.onnx"],
+    );
+    let _stepper = StepLoop::start(lp);
+    let end = Instant::now() + Duration::from_secs(20);
+    while !server.stderr().contains("cannot be served by this loop") {
+        assert!(Instant::now() < end, "no refusal: {}", server.stderr());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let err = server.stderr();
+    assert!(
+        err.contains("haptics.step_s") && err.contains("5000 Hz"),
+        "{err}"
+    );
+    let mut c = server.models().await;
+    assert!(
+        c.get_active_model(pb::GetActiveModelRequest {})
+            .await
+            .is_err(),
+        "no model is active"
+    );
 }
