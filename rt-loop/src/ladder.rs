@@ -404,12 +404,16 @@ impl Ladder {
                 force = self.prev_rendered + s.copysign(d);
             }
         }
-        if x <= 0.0 {
+        let left_contact = x <= 0.0;
+        if left_contact {
             // out of contact the rendered object does not exist: no force, no transition left
             force = 0.0;
             self.slewing = false;
         }
-        if in_transition {
+        // The step a transition took, not the probe leaving the object: that zeroes the force
+        // whatever the rung (a model whose answer at the surface is not 0 drops there, on time
+        // or not), and was counted here as a transition's step of up to several newtons.
+        if in_transition && !left_contact {
             self.report.transition_steps += 1;
             let dstep = (force - self.prev_rendered).abs();
             if dstep > self.report.max_transition_step_n {
@@ -513,6 +517,42 @@ mod tests {
         // the fallback is fully in by the end of the gap, fully out at the end
         assert!((prev - 300.0 * x(799)).abs() < 1e-9, "faded out: {prev}");
         assert!(rep.transition_steps >= 100, "{rep:?}");
+    }
+
+    /// Leaving the object during a transition zeroes the force at once (the object is gone),
+    /// and that drop is not a transition's step: `max_transition_step_n` stays within the slew
+    /// limit, while the steps of the transition in contact are still measured.
+    #[test]
+    fn leaving_contact_mid_transition_is_not_a_transition_step() {
+        // a model answering 6 N at the surface; a late run makes the ladder hold, then the
+        // answers return while the probe is still in: a slewed transition back to 6 N, and
+        // the probe leaves the object in the middle of it
+        let mut script = Vec::new();
+        for _ in 0..100 {
+            script.push(Answer::OnTime(6.0));
+        }
+        for _ in 100..140 {
+            script.push(Answer::Missing(Miss::Late));
+        }
+        for _ in 140..200 {
+            script.push(Answer::OnTime(6.0));
+        }
+        let mut m = Script(script);
+        let mut l = ladder();
+        let mut forces = Vec::new();
+        for k in 0..200 {
+            let x = if k < 143 { 0.001 } else { -0.001 };
+            forces.push(l.render(&mut m, k as u64, k as f64 * T, &feats(x)).force);
+        }
+        let rep = l.report();
+        assert_eq!(forces[143], 0.0, "out of contact nothing is rendered");
+        assert!(
+            forces[142] > 0.5,
+            "still in transition at the exit: {}",
+            forces[142]
+        );
+        assert!(rep.transition_steps > 0, "{rep:?}");
+        assert!(rep.max_transition_step_n <= 0.04 + 1e-12, "{rep:?}");
     }
 
     /// Unilateral: negative answers render 0 N, and nothing is rendered out of contact;
