@@ -14,7 +14,7 @@ use control_plane::{
     ModelInfo, ModelSource, ServerStatus, StatusSnapshot, TelemetryBatch, TelemetryHub,
 };
 use haptics_proto::experiment_args::ExperimentArgs;
-use haptics_proto::{Command, LoopStatusLink};
+use haptics_proto::Command;
 use shm_ring::{FixedStr, SendError};
 
 use crate::latency::LatencySnapshot;
@@ -153,20 +153,12 @@ fn without_stale_step(model: Option<ModelInfo>, loop_alive: bool) -> Option<Mode
 }
 
 impl ControlBackend {
-    /// The attached loop's status block, if it published one (a short lock on the endpoints,
-    /// then a seqlock read: never waits on the loop).
+    /// The attached loop's status block, if it published one.
     fn loop_block(&self, attachment: u64) -> Option<haptics_proto::LoopStatus> {
         if attachment == 0 {
             return None;
         }
-        let link = self
-            .registry
-            .server()
-            .endpoints()
-            .lock()
-            .as_ref()
-            .map(|ep| ep.link.clone())?;
-        link.loop_status()
+        self.registry.server().loop_status()
     }
 
     pub fn new(

@@ -12,6 +12,8 @@ use std::sync::atomic::Ordering;
 use std::sync::Mutex;
 use std::time::Duration;
 
+use haptics_proto::LoopStatusLink;
+
 use crate::attachment::SharedEndpoints;
 use crate::contract::FeatureSchema;
 use crate::engine::StepEngine;
@@ -238,6 +240,13 @@ impl InferenceControl {
     /// Whether the inference thread is attached to a loop's segment now.
     pub fn attached(&self) -> bool {
         self.thread.stats().attached.load(Ordering::Relaxed)
+    }
+
+    /// The attached loop's status block, if it published one (a short lock on the endpoints,
+    /// then a seqlock read: never waits on the loop).
+    pub fn loop_status(&self) -> Option<haptics_proto::LoopStatus> {
+        let link = self.endpoints().lock().as_ref().map(|ep| ep.link.clone())?;
+        link.loop_status()
     }
 
     /// The telemetry ring, command mailbox and link of the current attachment.

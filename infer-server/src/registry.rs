@@ -33,7 +33,6 @@ use crate::contract::{step_mismatch, FeatureSchema};
 use crate::engine::{load_bounded, StepEngine};
 use crate::inference_control::InferenceControl;
 use crate::model::ModelError;
-use haptics_proto::LoopStatusLink;
 
 /// How long `activate` waits for the inference thread to take a new engine. It takes it
 /// between two steps, or within 100 ms when the attached loop sends nothing.
@@ -555,22 +554,15 @@ impl Registry {
         })
     }
 
+    /// The attached loop's nominal rate from its status block, Hz; 0 when no loop has
+    /// published one.
+    pub fn loop_rate_hz(&self) -> f64 {
+        self.server.loop_status().map_or(0.0, |s| s.rate_hz)
+    }
+
     /// A new engine for `name`: reloaded from its source when it is in memory (a loaded engine
     /// validated for another schema, or the active model activated again: it starts afresh),
     /// else loaded from the directory if `load_if_needed`.
-    /// The attached loop's nominal rate from its status block, Hz; 0 when no loop has
-    /// published one (a short lock on the endpoints, then a seqlock read).
-    pub fn loop_rate_hz(&self) -> f64 {
-        let link = self
-            .server
-            .endpoints()
-            .lock()
-            .as_ref()
-            .map(|ep| ep.link.clone());
-        link.and_then(|l| l.loop_status())
-            .map_or(0.0, |s| s.rate_hz)
-    }
-
     fn fresh_engine(&self, name: &str, load_if_needed: bool) -> Result<StepEngine, ControlError> {
         let known = {
             let st = self.lock();

@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import subprocess
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -126,12 +127,7 @@ def parity(
     if getattr(model, "serve_dt_", None) and hasattr(model, "predict_served"):
         # the graph steps its state at the loop's period, which the rows of a decimated (or
         # imported) recording are not: compare both stepped at the graph's period
-        step = float(model.serve_dt_)  # type: ignore[attr-defined]
-
-        served = predict
-
-        def predict(x: np.ndarray) -> np.ndarray:  # noqa: F811
-            return served(x, dt=step)
+        predict = partial(predict, dt=float(model.serve_dt_))  # type: ignore[attr-defined]
 
     x = rec.matrix(model.features)
     if model.kind == "stateful":
