@@ -32,6 +32,12 @@
 #        default the C-ABI double target/release/libs826_double.so simulating the same hand, its
 #        watchdog HAPTICS_S826_WATCHDOG_US, default 100000; the lockstep references stay on sim;
 #        a real card has no F_true, so the felt-force columns are NaN there).
+#        BENCH_PREBUILT (a folder holding built rt-loop, infer-server, hapticctl and the floor
+#        benchmark as machine_floor: nothing is built, installed or trained, for a machine without
+#        cargo; the model must be in models/), BENCH_PAGE (1, default; 0 on a machine without
+#        Chromium: no page rows, the JSON's page keys are null, and the run says so),
+#        BENCH_PYTHON (the Python with numpy and pyarrow for the figures, default .venv/bin/python).
+#        Without stress-ng, BENCH_PREBUILT runs the hog as a Python busy loop pinned with taskset.
 # Spins both cores during the floor (a benchmark, never a test). Needs root or sudo only to
 # install stress-ng (Debian: apt-get install -y stress-ng rt-tests) when it is missing.
 set -euo pipefail
@@ -40,8 +46,12 @@ root=$PWD
 secs=${BENCH_SECONDS:-20}
 swaps=${SWAPS:-100}
 say() { printf '==> %s\n' "$*" >&2; }
+prebuilt=${BENCH_PREBUILT:-}
+page_on=${BENCH_PAGE:-1}
+py=${BENCH_PYTHON:-.venv/bin/python}
+bin=${prebuilt:-target/release}
 # The model users get: the recommendation (scripts/up.sh serves the same), else rf_six.
-recommended=$(.venv/bin/python -c 'import json; print(json.load(open("models/recommendation.json"))["recommended"])' 2>/dev/null || true)
+recommended=$("$py" -c 'import json; print(json.load(open("models/recommendation.json"))["recommended"])' 2>/dev/null || true)
 model=${HAPTICS_MODEL:-${recommended:-rf_six}}
 if [ -n "${HAPTICS_MODEL:-}" ]; then
   say "model: $model (HAPTICS_MODEL)"
@@ -56,22 +66,32 @@ tuned=${TUNED_PROFILE:-dedicated}
 case $tuned in dedicated|period|shared|none) ;; *) echo "bench-loaded: TUNED_PROFILE=$tuned: one of dedicated, period, shared, none" >&2; exit 2 ;; esac
 
 # ---- tools ---------------------------------------------------------------------------------
-if ! command -v stress-ng >/dev/null || ! command -v cyclictest >/dev/null; then
+if [ -z "$prebuilt" ] && { ! command -v stress-ng >/dev/null || ! command -v cyclictest >/dev/null; }; then
   say "installing stress-ng and rt-tests (apt-get)"
   sudo_=""
   [ "$(id -u)" = 0 ] || sudo_=sudo
   $sudo_ apt-get install -y stress-ng rt-tests >&2 || { $sudo_ apt-get update >&2 && $sudo_ apt-get install -y stress-ng rt-tests >&2; }
 fi
-command -v stress-ng >/dev/null || { echo "bench-loaded: stress-ng is missing and could not be installed" >&2; exit 1; }
-[ -x "${CHROMIUM_PATH:-/usr/bin/chromium}" ] || { echo "bench-loaded: no Chromium at ${CHROMIUM_PATH:-/usr/bin/chromium} (apt-get install -y chromium)" >&2; exit 1; }
+if ! command -v stress-ng >/dev/null; then
+  [ -n "$prebuilt" ] || { echo "bench-loaded: stress-ng is missing and could not be installed" >&2; exit 1; }
+  say "no stress-ng: the hog is a Python busy loop pinned with taskset"
+fi
+if [ "$page_on" = 1 ]; then
+  [ -x "${CHROMIUM_PATH:-/usr/bin/chromium}" ] || { echo "bench-loaded: no Chromium at ${CHROMIUM_PATH:-/usr/bin/chromium} (apt-get install -y chromium; BENCH_PAGE=0 skips the page rows)" >&2; exit 1; }
+else
+  say "BENCH_PAGE=0: no page rows (the page-open goal is not measured by this run)"
+fi
 
 # shellcheck disable=SC1091
 source scripts/env.sh
-say "build (release): rt-loop, infer-server, hapticctl, the floor benchmark"
-haptics_build >&2
-cargo bench -p haptics-system-tests --bench machine_floor --no-run >&2
-[ -d web-ui/node_modules/playwright-core ] || (cd web-ui && npm ci >&2)
+if [ -z "$prebuilt" ]; then
+  say "build (release): rt-loop, infer-server, hapticctl, the floor benchmark"
+  haptics_build >&2
+  cargo bench -p haptics-system-tests --bench machine_floor --no-run >&2
+  [ "$page_on" != 1 ] || [ -d web-ui/node_modules/playwright-core ] || (cd web-ui && npm ci >&2)
+fi
 if [ ! -f "models/$model.onnx" ]; then
+  [ -z "$prebuilt" ] || { echo "bench-loaded: no models/$model.onnx (BENCH_PREBUILT trains nothing)" >&2; exit 1; }
   say "no models/$model.onnx: recording the dataset and training it (as scripts/up.sh does)"
   [ -f data/dataset/test_2.1.parquet ] || bash scripts/record-dataset.sh data/dataset >&2
   case "$model" in
@@ -87,7 +107,7 @@ mkdir -p "$work/models"
 cp "models/$model.onnx" "$work/models/$model.onnx"
 cp "models/$model.onnx" "$work/models/${model}_b.onnx" # the same model under a second name: swaps
 : >"$work/families.txt"
-if [ -d "$families_dir" ]; then
+if [ -d "$families_dir" ] && [ "$page_on" = 1 ]; then
   for f in "$families_dir"/*.onnx; do
     [ -e "$f" ] || continue
     fam=$(basename "$f" .onnx)
@@ -107,13 +127,15 @@ trap cleanup EXIT
 
 # ---- floor and in-process call --------------------------------------------------------------
 say "machine floor (${FLOOR_SECONDS:-20} s, both cores spinning) and the in-process call"
-FLOOR_SECONDS=${FLOOR_SECONDS:-20} BENCH_MODEL="$root/models/$model.onnx" \
-  cargo bench -q -p haptics-system-tests --bench machine_floor 2>/dev/null | tee "$work/floor.txt" >&2
+floor_bench() {
+  if [ -n "$prebuilt" ]; then "$bin/machine_floor" --bench; else cargo bench -q -p haptics-system-tests --bench machine_floor; fi
+}
+FLOOR_SECONDS=${FLOOR_SECONDS:-20} BENCH_MODEL="$root/models/$model.onnx" floor_bench 2>/dev/null | tee "$work/floor.txt" >&2
 tail -n 1 "$work/floor.txt" > "$work/floor.json"
 
 # ---- the product ----------------------------------------------------------------------------
 start_server() { # profile suffix: infer-server on $instance; sets server, grpc, http
-  target/release/infer-server serve --instance "$instance" --models "$work/models" --model "$model.onnx" \
+  "$bin/infer-server" serve --instance "$instance" --models "$work/models" --model "$model.onnx" \
     --profile "$1" --grpc 127.0.0.1:0 --http 127.0.0.1:0 --stats-every 0 \
     >"$work/infer-server$2.out" 2>"$work/infer-server$2.err" &
   server=$!
@@ -137,8 +159,17 @@ say "infer-server, automatic profile"
 start_server auto ""
 server_cpu=$(sed -n 's/.*wait [^,]*, CPU \([0-9]*\),.*/\1/p' "$work/infer-server.err" | head -1)
 last_cpu=$(($(nproc) - 1))
-hog_cpu=${server_cpu:-0}
-[ "$hog_cpu" = "$last_cpu" ] && hog_cpu=0
+# The hog takes a CPU that is neither the loop's nor the inference thread's when the machine has
+# one; on two CPUs there is none, and it shares the inference thread's (the other work a user
+# runs lands there).
+hog_cpu=""
+for c in $(seq 0 "$last_cpu"); do
+  if [ "$c" != "${server_cpu:-0}" ] && [ "$c" != "$last_cpu" ]; then hog_cpu=$c; break; fi
+done
+if [ -z "$hog_cpu" ]; then
+  hog_cpu=${server_cpu:-0}
+  [ "$hog_cpu" = "$last_cpu" ] && hog_cpu=0
+fi
 
 # The simulated hand presses for 5 s per repetition (rt-loop's HandConfig); every run uses the
 # same programme, long enough for the longest run (the swaps), and stops at its --duration.
@@ -161,7 +192,7 @@ run_loop() { # name clock duration [extra rt-loop args]
   local name=$1 clock=$2 dur=$3
   shift 3
   [ "$clock" = realtime ] && set -- "${board_args[@]}" "$@"
-  target/release/rt-loop run --config "$work/hand.toml" --experiment reproduction --clock "$clock" \
+  "$bin/rt-loop" run --config "$work/hand.toml" --experiment reproduction --clock "$clock" \
     --model shm --instance "$instance" --seed 1 --duration "$dur" --record "$work/$name.parquet" --overwrite \
     --summary-json "$work/$name.json" --no-progress "$@" >"$work/$name.out" 2>&1
 }
@@ -179,18 +210,24 @@ page_condition() { # name page-cpu-output: a realtime run while the page is open
 
 say "references: the same hand programme rendered in lockstep, and on the simulated real sponge (shadow)"
 run_loop lockstep lockstep 1000
-target/release/rt-loop run --config "$work/hand.toml" --experiment shadow --clock lockstep --seed 1 \
+"$bin/rt-loop" run --config "$work/hand.toml" --experiment shadow --clock lockstep --seed 1 \
   --record "$work/shadow.parquet" --overwrite --no-progress >"$work/shadow.out" 2>&1
 
 say "idle ($secs s)"
 run_loop idle realtime "$secs"
 
-say "page open in headless Chromium ($secs s)"
-page_condition page page-cpu.out
-cat "$work/page-cpu.out" >&2
+if [ "$page_on" = 1 ]; then
+  say "page open in headless Chromium ($secs s)"
+  page_condition page page-cpu.out
+  cat "$work/page-cpu.out" >&2
+fi
 
-say "CPU hog (stress-ng) on CPU $hog_cpu, not the loop's CPU $last_cpu ($secs s)"
-stress-ng --cpu 1 --taskset "$hog_cpu" --timeout $((secs + 10))s >"$work/hog.stress.out" 2>&1 &
+say "CPU hog ($(command -v stress-ng >/dev/null && echo stress-ng || echo a Python busy loop)) on CPU $hog_cpu, not the loop's CPU $last_cpu ($secs s)"
+if command -v stress-ng >/dev/null; then
+  stress-ng --cpu 1 --taskset "$hog_cpu" --timeout $((secs + 10))s >"$work/hog.stress.out" 2>&1 &
+else
+  taskset -c "$hog_cpu" timeout $((secs + 10)) "$py" -c 'while True: pass' >"$work/hog.stress.out" 2>&1 &
+fi
 hog=$!
 pids+=($hog)
 sleep 1
@@ -205,7 +242,7 @@ sleep 2
 : >"$work/swaps.jsonl"
 for i in $(seq 1 "$swaps"); do
   if [ $((i % 2)) = 1 ]; then name="${model}_b"; else name="$model"; fi
-  if ! target/release/hapticctl swap --addr "http://$grpc" --instance "$instance" --json "$name" >>"$work/swaps.jsonl"; then
+  if ! "$bin/hapticctl" swap --addr "http://$grpc" --instance "$instance" --json "$name" >>"$work/swaps.jsonl"; then
     echo "bench-loaded: swap $i failed (see above); the loop ran $(tail -n 3 "$work/swap.out")" >&2
     break
   fi
@@ -228,7 +265,7 @@ if [ -s "$work/families.txt" ]; then
     run_loop "page_$fam" realtime "$((family_secs + 1))" &
     loop=$!
     sleep 1
-    target/release/hapticctl swap --addr "http://$grpc" --instance "$instance" --json "family_$fam" >/dev/null ||
+    "$bin/hapticctl" swap --addr "http://$grpc" --instance "$instance" --json "family_$fam" >/dev/null ||
       echo "bench-loaded: could not swap to the family $fam" >&2
     wait "$loop" || true
   done <"$work/families.txt"
@@ -237,16 +274,16 @@ if [ -s "$work/families.txt" ]; then
 fi
 
 if [ "$tuned" != none ]; then
-  say "the best tuning: infer-server --profile $tuned, idle and page open ($secs s each)"
+  say "the best tuning: infer-server --profile $tuned, idle$([ "$page_on" != 1 ] || echo " and page open") ($secs s each)"
   kill -INT "$server" 2>/dev/null || true
   wait "$server" 2>/dev/null || true
   start_server "$tuned" "-$tuned"
   run_loop idle_tuned realtime "$secs"
-  page_condition page_tuned page-cpu-tuned.out
+  [ "$page_on" != 1 ] || page_condition page_tuned page-cpu-tuned.out
 fi
 
 # ---- figures ------------------------------------------------------------------------------
-.venv/bin/python - "$work" "$swaps" "$model" "$tuned" <<'PY'
+"$py" - "$work" "$swaps" "$model" "$tuned" "$page_on" <<'PY'
 """Reads the runs' summaries and recordings; prints the table and the JSON line."""
 import json
 import math
@@ -261,6 +298,7 @@ work = Path(sys.argv[1])
 n_swaps = int(sys.argv[2])
 served = sys.argv[3]
 tuned = sys.argv[4]
+page_on = sys.argv[5] == "1"
 tuned_rows = [n for n in ("idle_tuned", "page_tuned") if (work / f"{n}.json").exists()]
 families = [f for f in (work / "families.txt").read_text().split() if (work / f"page_{f}.json").exists()]
 floor = json.loads((work / "floor.json").read_text())
@@ -285,7 +323,7 @@ def rmse(run: dict[str, np.ndarray], ref: dict[str, np.ndarray]) -> float:
 
 lock_vs_shadow = rmse(lock, shadow)
 rows = {}
-for name in ["idle", "page", "hog", "swap", *tuned_rows, *(f"page_{f}" for f in families)]:
+for name in ["idle", *(["page"] if page_on else []), "hog", "swap", *tuned_rows, *(f"page_{f}" for f in families)]:
     s = json.loads((work / f"{name}.json").read_text())
     rec = cols(name, ["step", "time", "F_true", "fallback"])
     steps = s["steps"]
@@ -379,10 +417,10 @@ out = {
     "inprocess_p50_us": floor["inprocess_p50_us"],
     "idle_p50_us": rows["idle"]["p50"],
     "idle_miss_pm": rows["idle"]["miss_pm"],
-    "page_late_fraction": rows["page"]["late_fraction"],
+    "page_late_fraction": rows["page"]["late_fraction"] if page_on else None,
     "hog_late_fraction": rows["hog"]["late_fraction"],
     "max_transition_step_n": max(maxstep) if maxstep else None,
-    "felt_rmse_page_over_lockstep": rows["page"]["felt_vs_shadow"] / lock_vs_shadow if lock_vs_shadow > 0 else None,
+    "felt_rmse_page_over_lockstep": rows["page"]["felt_vs_shadow"] / lock_vs_shadow if page_on and lock_vs_shadow > 0 else None,
     "swap_lost_steps": sw["lost"],
     "swap_miss_ratio": sw["swap_miss_ratio"] if math.isfinite(sw["swap_miss_ratio"]) else None,
     "model": served,
@@ -396,8 +434,10 @@ out = {
     "tuned_idle_p50_us": rows["idle_tuned"]["p50"] if "idle_tuned" in rows else None,
 }
 out["page_loaded"] = page_cpu is not None
+if not page_on:
+    print("no page rows (BENCH_PAGE=0): the page-open keys are null; this run does not measure them")
 print(json.dumps(out))
-if page_cpu is None:
+if page_on and page_cpu is None:
     # the page condition ran without a page: its figures are an idle run's, not the goal's
     print("bench-loaded: the page never loaded in Chromium (see page-cpu.out): the page row measured no page", file=sys.stderr)
     sys.exit(1)
