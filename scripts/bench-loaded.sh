@@ -24,7 +24,7 @@
 #
 # Usage: scripts/bench-loaded.sh            (a few minutes; builds what it needs)
 # Env:   BENCH_SECONDS (per condition, default 20), FLOOR_SECONDS (default 20), SWAPS (100),
-#        BENCH_DIR (default target/bench-loaded), HAPTICS_MODEL (default: the model
+#        SWAP_GAP_S (the pause after each swap, default 0.15), BENCH_DIR (default target/bench-loaded), HAPTICS_MODEL (default: the model
 #        models/recommendation.json recommends, else rf_six), FAMILIES_DIR (default
 #        target/bench-models/families: the page:FAMILY rows; none when it is missing or empty),
 #        FAMILY_SECONDS (default 10), TUNED_PROFILE (dedicated|period|shared|none),
@@ -45,6 +45,7 @@ cd "$(dirname "$0")/.."
 root=$PWD
 secs=${BENCH_SECONDS:-20}
 swaps=${SWAPS:-100}
+swap_gap=${SWAP_GAP_S:-0.15}
 say() { printf '==> %s\n' "$*" >&2; }
 prebuilt=${BENCH_PREBUILT:-}
 page_on=${BENCH_PAGE:-1}
@@ -246,7 +247,11 @@ for i in $(seq 1 "$swaps"); do
     echo "bench-loaded: swap $i failed (see above); the loop ran $(tail -n 3 "$work/swap.out")" >&2
     break
   fi
-  sleep 0.05 # steps away from swaps, too
+  # Steps away from swaps, too: the figures compare misses within 50 ms of a swap with the
+  # misses further away, so swaps must leave gaps longer than 100 ms (with 0.05 s here, as
+  # before, swaps 63 ms apart left no step between them further than 50 ms from one, and the
+  # only "away" steps were the 0.2 s before the first).
+  sleep "$swap_gap"
 done
 sleep 0.5
 # $loop is the subshell running run_loop: stop its rt-loop (SIGINT: the run ends at the next
@@ -371,6 +376,8 @@ for name in ["idle", *(["page"] if page_on else []), "hog", "swap", *tuned_rows,
         row["swaps_in_run"] = len(change)
         row["miss_near"] = around
         row["miss_away"] = away
+        row["steps_near"] = int(near_s.sum())
+        row["steps_away"] = int(away_s.sum())
         row["swap_miss_ratio"] = (around / away) if away > 0 else (0.0 if around == 0 else math.inf)
     rows[name] = row
 
@@ -404,7 +411,7 @@ for name, r in rows.items():
                       f(r["on_time"]), f(r["late_one"]), f(r["held"]), f(r["fallback"]), f(r["late_fraction"], 5),
                       f(r["max_step_n"], 4), f(r["felt_vs_lockstep"], 4), f(r["felt_vs_shadow"], 4)]))
 sw = rows["swap"]
-print(f"swaps: {sw['swaps_done']} done, {sw['swaps_in_run']} inside the run; lost steps {sw['lost']}; misses per step within 50 ms of a swap {sw['miss_near']:.2e}, away {sw['miss_away']:.2e}")
+print(f"swaps: {sw['swaps_done']} done, {sw['swaps_in_run']} inside the run; lost steps {sw['lost']}; misses per step within 50 ms of a swap {sw['miss_near']:.2e} ({sw['steps_near']} steps), away {sw['miss_away']:.2e} ({sw['steps_away']} steps)")
 if page_cpu is not None:
     print(f"page: headless Chromium used {page_cpu:.3f} CPU-s per s")
 if page_cpu_tuned is not None:
