@@ -18,6 +18,10 @@ use crate::stateful::{split, StatefulStep, StepModel};
 
 const OP: &str = "LawFreeStep";
 
+/// At most this many saturating depth functions in the readout (train exports 2): their values
+/// are computed once per step into a fixed array, so a step allocates nothing.
+pub const MAX_DEPTH_SCALES: usize = 8;
+
 /// Everything one step needs, parsed once from the node's attributes.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LawFreeParams {
@@ -27,8 +31,14 @@ pub struct LawFreeParams {
     filters: Vec<(f64, f64)>,
     /// half-widths r (in units of u)
     plays: Vec<f64>,
-    /// the readout's weights per input q_j: (w1, w2, w3), q = [u, v/V, u - s.., u - p..]
+    /// the readout's weights per input q_j: (w1, w2, w3) of 1, w, w^2, q = [u, v/V, u - s..,
+    /// u - p..]
     readout: Vec<[f64; 3]>,
+    /// -1/a_s of the saturating depth functions 1 - exp(-w/a_s) (`readout_depth_scales`;
+    /// absent in models exported before them: none)
+    neg_inv_scales: Vec<f64>,
+    /// their weights, input by input: `sat[j * S + s]`
+    sat: Vec<f64>,
 }
 
 impl StepModel for LawFreeParams {
@@ -47,23 +57,35 @@ impl StepModel for LawFreeParams {
         let b = r.list("filter_gain")?;
         r.paired("filter_gain", &b, "filter_decay", &a)?;
         let plays = r.positive_list("play_widths")?;
+        let scales = r.positive_list("readout_depth_scales")?;
+        if scales.len() > MAX_DEPTH_SCALES {
+            return Err(r.invalid(
+                "readout_depth_scales",
+                scales.len() as f64,
+                "more values than the kernel's 8",
+            ));
+        }
         let w = r.list("readout")?;
         let n = 2 + a.len() + plays.len();
-        if w.len() != 3 * n {
+        let blocks = 3 + scales.len();
+        if w.len() != blocks * n {
             return Err(AttrError::Length {
                 op: OP,
                 name: "readout",
                 got: w.len(),
-                other: "3 x (2 + filter_decay + play_widths)",
-                expected: 3 * n,
+                other: "(3 + readout_depth_scales) x (2 + filter_decay + play_widths)",
+                expected: blocks * n,
             });
         }
+        let ns = scales.len();
         Ok(Self {
             inv_depth: 1.0 / depth,
             inv_speed: 1.0 / speed,
             filters: a.into_iter().zip(b).collect(),
             plays,
             readout: (0..n).map(|j| [w[j], w[n + j], w[2 * n + j]]).collect(),
+            neg_inv_scales: scales.iter().map(|a| -1.0 / a).collect(),
+            sat: (0..n * ns).map(|i| w[(3 + i % ns) * n + i / ns]).collect(),
         })
     }
 
@@ -105,18 +127,31 @@ impl LawFreeParams {
             0.0
         };
         let w = u.min(1.0);
-        let term = |q: f64, c: &[f64; 3]| q * (c[0] + w * (c[1] + w * c[2]));
-        let mut f = term(u, &self.readout[0]) + term(vn, &self.readout[1]);
+        let ns = self.neg_inv_scales.len();
+        let mut phi = [0.0f64; MAX_DEPTH_SCALES];
+        for (p, k) in phi.iter_mut().zip(&self.neg_inv_scales) {
+            *p = 1.0 - (w * k).exp();
+        }
+        let term = |q: f64, j: usize| {
+            let c = &self.readout[j];
+            let sat: f64 = self.sat[j * ns..(j + 1) * ns]
+                .iter()
+                .zip(&phi)
+                .map(|(e, p)| e * p)
+                .sum();
+            q * (c[0] + w * (c[1] + w * c[2]) + sat)
+        };
+        let mut f = term(u, 0) + term(vn, 1);
         c_out.fill(0.0);
         for (k, &(a, b)) in self.filters.iter().enumerate() {
             let s = a * (f64::from(h_in[k]) + f64::from(c_in[k])) + b * u;
             (h_out[k], c_out[k]) = split(s);
-            f += term(u - s, &self.readout[2 + k]);
+            f += term(u - s, 2 + k);
         }
         for (j, &r) in self.plays.iter().enumerate() {
             let p = f64::from(h_in[nk + j]).max(u - r).min(u + r);
             h_out[nk + j] = p as f32;
-            f += term(u - p, &self.readout[2 + nk + j]);
+            f += term(u - p, 2 + nk + j);
         }
         if contact {
             f.max(0.0) as f32
@@ -178,10 +213,55 @@ mod tests {
         }
     }
 
+    /// The saturating depth functions: the same model with `readout_depth_scales` [0.5, 0.2]
+    /// and weights on them for u (3, 4) and for the play (-1, 2), checked against the model
+    /// written out by hand.
+    #[test]
+    fn saturating_depth_terms_match_the_model_written_out_by_hand() {
+        let mut w = vec![2.0, 0.5, 1.0, 3.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        // block 4 (1 - exp(-w/0.5)) then block 5 (1 - exp(-w/0.2)), one weight per input
+        w.extend([3.0, 0.0, 0.0, -1.0, 4.0, 0.0, 0.0, 2.0]);
+        let attrs = simple()
+            .with("readout_depth_scales", vec![0.5, 0.2])
+            .with("readout", w);
+        let p = LawFreeParams::from_attrs(&attrs).unwrap();
+        let (mut h, mut ho) = (vec![0.0f32; 2], vec![0.0f32; 2]);
+        let (mut c, mut co) = (vec![0.0f32; 2], vec![0.0f32; 2]);
+        let (mut s, mut pl) = (0.0f64, 0.0f64);
+        for n in 0..300 {
+            let x = 0.012 * (n as f64 * 0.03).sin();
+            let v = 0.012 * 0.03 * 1000.0 * (n as f64 * 0.03).cos();
+            let got = p.step_xv(x as f32, v as f32, &h, &c, &mut ho, &mut co);
+            std::mem::swap(&mut h, &mut ho);
+            std::mem::swap(&mut c, &mut co);
+            let u = (x as f32 as f64).max(0.0) / 0.01;
+            s = 0.9 * s + 0.1 * u;
+            pl = pl.max(u - 0.1).min(u + 0.1);
+            let want = if x as f32 > 0.0 {
+                let vn = f64::from(v as f32) / 0.1;
+                let wu = u.min(1.0);
+                let (e1, e2) = (1.0 - (-wu / 0.5).exp(), 1.0 - (-wu / 0.2).exp());
+                (u * (2.0 + wu + 3.0 * e1 + 4.0 * e2)
+                    + 0.5 * vn
+                    + (u - s)
+                    + (u - pl) * (3.0 - e1 + 2.0 * e2))
+                    .max(0.0)
+            } else {
+                0.0
+            };
+            assert!(
+                (f64::from(got) - want).abs() < 1e-4 * (1.0 + want),
+                "step {n}: {got} vs {want}"
+            );
+        }
+    }
+
     #[test]
     fn a_bad_attribute_is_a_clear_error_not_a_panic() {
         let cases = [
-            (simple().with("readout", vec![1.0; 11]), "attribute `readout` has 11 values, `3 x (2 + filter_decay + play_widths)` has 12: they pair up"),
+            (simple().with("readout", vec![1.0; 11]), "attribute `readout` has 11 values, `(3 + readout_depth_scales) x (2 + filter_decay + play_widths)` has 12: they pair up"),
+            (simple().with("readout_depth_scales", vec![0.5]), "attribute `readout` has 12 values, `(3 + readout_depth_scales) x (2 + filter_decay + play_widths)` has 16: they pair up"),
+            (simple().with("readout_depth_scales", vec![-0.5]), "attribute `readout_depth_scales` = -0.5 is not positive"),
             (simple().with("filter_decay", vec![1.5]), "attribute `filter_decay` = 1.5 is outside 0..1"),
             (simple().with("depth_scale_m", vec![0.0]), "attribute `depth_scale_m` = 0 is not positive"),
         ];

@@ -81,3 +81,23 @@ def test_lawfree_onnx_steps_in_parity(fitted, fused_ops):
     np.testing.assert_allclose(got, ref, atol=1e-4)
     np.testing.assert_allclose(got_graph, ref, atol=1e-4)
     np.testing.assert_allclose(got, got_graph, atol=1e-4)
+
+
+def test_lawfree_memory_holds_no_force_at_the_surface_and_exports_its_depth_functions(fitted):
+    """A memory term's weight has no constant part (it vanishes with the compression: what is
+    the same size at every depth is the bench's friction), the saturating depth functions are
+    fitted, and the fused node carries their scales; `memory_at_surface` frees the constant."""
+    m = fitted
+    n = 2 + len(SMALL["taus_s"]) + len(SMALL["play_frac"])
+    assert m.depth_scales_ == [0.1, 0.3]
+    w = m.w_.reshape(3 + len(m.depth_scales_), n)
+    assert np.all(w[0, 2:] == 0.0), w[0]
+    assert np.any(w[3:, 2:] != 0.0) and np.any(w[0, :2] != 0.0)
+    attrs = {a.name: list(a.floats) for a in m.to_onnx().graph.node[0].attribute if a.floats}
+    assert attrs["readout_depth_scales"] == pytest.approx([0.1, 0.3])
+    assert len(attrs["readout"]) == 5 * n
+    x, v = presses([0.01, 0.02, 0.015, 0.025, 0.006], 2.0)
+    _, y = pad(x, v)
+    free = make_model("lawfree", hyper={**SMALL, "memory_at_surface": True})
+    free.fit([np.column_stack([x, v])], [y], info=[info(len(x))])
+    assert np.any(free.w_.reshape(5, n)[0, 2:] != 0.0)

@@ -10,9 +10,9 @@ state [s (K filters), p (P plays)] at once, so no node slices it:
 - the state in one pass: lin = st A + u B (A = [d_k, 1], B = [1 - d_k, 0]: the filters step,
   the plays keep their value), then clamped to [u - R, u + R] (R = [1e30, r]: the filters are
   never clamped, each play stays within its half-width r of u);
-- the readout sum_j q_j (w1_j + w2_j w + w3_j w^2), w = min(u, 1), as [q] W (one MatMul,
-  W = [w1 w2 w3]) times [1, w, w^2] (one Pow of w by [0, 1, 2], one MatMul), q = [u, v/V,
-  u - state];
+- the readout sum_j q_j sum_i W_ij phi_i, w = min(u, 1), as [q] W (one MatMul) times
+  phi = [1, w, w^2, 1 - exp(-w/a_1), ..] (one Pow of w by [0, 1, 2], with depth scales a
+  Mul, Exp, Sub and Concat; one MatMul), q = [u, v/V, u - state];
 - relu, times contact. `c` is passed through.
 
 `lawfree_fused` writes the same step as one node of the project's fused operator,
@@ -41,7 +41,9 @@ def lawfree_graph(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
     """The graph of fitted `m`; `decay` the filters' d_k (float32-rounded, as `predict` uses)."""
     widths = np.asarray(m.widths_, dtype=np.float64)
     k, p = len(decay), len(widths)
-    w = np.asarray(m.w_, dtype=np.float64).reshape(3, 2 + k + p).T  # [2 + K + P, 3]
+    scales = np.asarray(getattr(m, "depth_scales_", ()), dtype=np.float64)
+    nb = 3 + len(scales)
+    w = np.asarray(m.w_, dtype=np.float64).reshape(nb, 2 + k + p).T  # [2 + K + P, 3 + S]
     g = Graph("lawfree")
     # x/D on its own (for u and contact) and [x/D, v/V]: MatMuls, cheaper than slicing
     xd = g.op(
@@ -60,11 +62,15 @@ def lawfree_graph(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
                  g.op("Add", u, g.const(row(r))), hint="state")  # fmt: skip
 
     q = g.op("Concat", uv, g.op("Sub", u, state), axis=2)  # [1, 1, 2 + K + P]
-    c = g.op("MatMul", q, g.const(w))  # [1, 1, 3]: q.w1, q.w2, q.w3
-    # [1, w, w^2], w = min(u, 1): the weights stop growing past the deepest training press
+    c = g.op("MatMul", q, g.const(w))  # [1, 1, 3 + S]: q.W_i for each basis function
+    # phi = [1, w, w^2, 1 - exp(-w/a)..], w = min(u, 1): the weights stop growing past the
+    # deepest training press
     wu = g.op("Min", u, g.const(1.0))
-    powers = g.op("Pow", wu, g.const(np.array([0.0, 1.0, 2.0]).reshape(3, 1)))  # [1, 3, 1]
-    f = g.op("MatMul", c, powers)  # [1, 1, 1]
+    phi = g.op("Pow", wu, g.const(np.array([0.0, 1.0, 2.0]).reshape(3, 1)))  # [1, 3, 1]
+    if len(scales):
+        e = g.op("Exp", g.op("Mul", wu, g.const((-1.0 / scales).reshape(len(scales), 1))))
+        phi = g.op("Concat", phi, g.op("Sub", g.const(1.0), e), axis=1)  # [1, 3 + S, 1]
+    f = g.op("MatMul", c, phi)  # [1, 1, 1]
     force = g.op("Mul", g.op("Relu", f), contact)
     return stateful_model(g, len(m.features), k + p, force, state)
 
@@ -82,5 +88,8 @@ def lawfree_fused(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
         floats_attr("play_widths", widths),
         floats_attr("readout", m.w_),
     ]
+    scales = [float(a) for a in getattr(m, "depth_scales_", ())]
+    if scales:  # absent: the readout of 1, w, w^2 alone (models exported before the scales)
+        attrs.append(floats_attr("readout_depth_scales", scales))
     state = len(decay) + len(widths)
     return fused_stateful_model("LawFreeStep", attrs, len(m.features), state, "lawfree")
