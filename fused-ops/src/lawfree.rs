@@ -185,15 +185,16 @@ mod tests {
         ])
     }
 
-    #[test]
-    fn a_step_matches_the_model_written_out_by_hand() {
-        let p = LawFreeParams::from_attrs(&simple()).unwrap();
+    /// Steps `p` along a sine of `amplitude` (m; 300 steps, above and below the surface) and
+    /// checks each force against `want(u, v/V, s, p)`, the model written out by hand with the
+    /// filter (a 0.9, b 0.1) and the play (r 0.1) of `simple()` stepped beside it.
+    fn check_by_hand(p: &LawFreeParams, amplitude: f64, want: impl Fn(f64, f64, f64, f64) -> f64) {
         let (mut h, mut ho) = (vec![0.0f32; 2], vec![0.0f32; 2]);
         let (mut c, mut co) = (vec![0.0f32; 2], vec![0.0f32; 2]);
         let (mut s, mut pl) = (0.0f64, 0.0f64);
         for n in 0..300 {
-            let x = 0.008 * (n as f64 * 0.03).sin();
-            let v = 0.008 * 0.03 * 1000.0 * (n as f64 * 0.03).cos();
+            let x = amplitude * (n as f64 * 0.03).sin();
+            let v = amplitude * 0.03 * 1000.0 * (n as f64 * 0.03).cos();
             let got = p.step_xv(x as f32, v as f32, &h, &c, &mut ho, &mut co);
             std::mem::swap(&mut h, &mut ho);
             std::mem::swap(&mut c, &mut co);
@@ -201,8 +202,7 @@ mod tests {
             s = 0.9 * s + 0.1 * u;
             pl = pl.max(u - 0.1).min(u + 0.1);
             let want = if x as f32 > 0.0 {
-                let vn = f64::from(v as f32) / 0.1;
-                (2.0 * u + u.min(1.0) * u + 0.5 * vn + (u - s) + 3.0 * (u - pl)).max(0.0)
+                want(u, f64::from(v as f32) / 0.1, s, pl).max(0.0)
             } else {
                 0.0
             };
@@ -213,9 +213,17 @@ mod tests {
         }
     }
 
+    #[test]
+    fn a_step_matches_the_model_written_out_by_hand() {
+        let p = LawFreeParams::from_attrs(&simple()).unwrap();
+        check_by_hand(&p, 0.008, |u, vn, s, pl| {
+            2.0 * u + u.min(1.0) * u + 0.5 * vn + (u - s) + 3.0 * (u - pl)
+        });
+    }
+
     /// The saturating depth functions: the same model with `readout_depth_scales` [0.5, 0.2]
-    /// and weights on them for u (3, 4) and for the play (-1, 2), checked against the model
-    /// written out by hand.
+    /// and weights on them for u (3, 4) and for the play (-1, 2), past the deepest press too
+    /// (u up to 1.2: w = min(u, 1)).
     #[test]
     fn saturating_depth_terms_match_the_model_written_out_by_hand() {
         let mut w = vec![2.0, 0.5, 1.0, 3.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
@@ -225,35 +233,14 @@ mod tests {
             .with("readout_depth_scales", vec![0.5, 0.2])
             .with("readout", w);
         let p = LawFreeParams::from_attrs(&attrs).unwrap();
-        let (mut h, mut ho) = (vec![0.0f32; 2], vec![0.0f32; 2]);
-        let (mut c, mut co) = (vec![0.0f32; 2], vec![0.0f32; 2]);
-        let (mut s, mut pl) = (0.0f64, 0.0f64);
-        for n in 0..300 {
-            let x = 0.012 * (n as f64 * 0.03).sin();
-            let v = 0.012 * 0.03 * 1000.0 * (n as f64 * 0.03).cos();
-            let got = p.step_xv(x as f32, v as f32, &h, &c, &mut ho, &mut co);
-            std::mem::swap(&mut h, &mut ho);
-            std::mem::swap(&mut c, &mut co);
-            let u = (x as f32 as f64).max(0.0) / 0.01;
-            s = 0.9 * s + 0.1 * u;
-            pl = pl.max(u - 0.1).min(u + 0.1);
-            let want = if x as f32 > 0.0 {
-                let vn = f64::from(v as f32) / 0.1;
-                let wu = u.min(1.0);
-                let (e1, e2) = (1.0 - (-wu / 0.5).exp(), 1.0 - (-wu / 0.2).exp());
-                (u * (2.0 + wu + 3.0 * e1 + 4.0 * e2)
-                    + 0.5 * vn
-                    + (u - s)
-                    + (u - pl) * (3.0 - e1 + 2.0 * e2))
-                    .max(0.0)
-            } else {
-                0.0
-            };
-            assert!(
-                (f64::from(got) - want).abs() < 1e-4 * (1.0 + want),
-                "step {n}: {got} vs {want}"
-            );
-        }
+        check_by_hand(&p, 0.012, |u, vn, s, pl| {
+            let wu = u.min(1.0);
+            let (e1, e2) = (1.0 - (-wu / 0.5).exp(), 1.0 - (-wu / 0.2).exp());
+            u * (2.0 + wu + 3.0 * e1 + 4.0 * e2)
+                + 0.5 * vn
+                + (u - s)
+                + (u - pl) * (3.0 - e1 + 2.0 * e2)
+        });
     }
 
     #[test]
