@@ -175,3 +175,37 @@ def test_defaults_scale_with_the_data(tmp_path):
     fit_recordings(lstm, [rec], TrainConfig(progress=False))
     assert lstm.train_info_["chunk_steps"] == 20
     assert lstm.train_info_["horizon_s_effective"] == pytest.approx(0.002)
+
+
+def test_lawfree_readout_is_chosen_on_validation(tmp_path):
+    """`lawfree`'s readout (`pipeline.LAWFREE_READOUTS`) is chosen on the validation recording's
+    free run, like the feedback noise; a readout the user sets is not searched."""
+    from haptics_train.data import load_manifest
+    from haptics_train.pipeline import LAWFREE_READOUTS, _candidates
+    from haptics_train.synthetic import write_recording
+
+    d = tmp_path / "recs"
+    roles = (("a", 0.8, "train"), ("b", 3.9, "train"), ("v", 2.9, "validation"),
+             ("t", 2.1, "test"))  # fmt: skip
+    for seed, (name, rate, _) in enumerate(roles):
+        write_recording(d / f"{name}.parquet", ramp_rate=rate, seed=seed, cycles=2)
+    man = tmp_path / "set.toml"
+    man.write_text("\n".join(
+        f'[recordings.{n}]\npath = "recs/{n}.parquet"\nrole = "{role}"\nsource = "synthetic"\n'
+        for n, _, role in roles
+    ))  # fmt: skip
+    models = tmp_path / "m"
+    main(["pipeline", "--manifest", str(man), "--models-dir", str(models), "--out",
+          str(tmp_path / "r"), "--no-progress", "--models", "lawfree"])  # fmt: skip
+    res = json.loads((models / "results.json").read_text())["lawfree"]
+    sel = res["training"]["selection"]
+    labels = [label for label, _ in LAWFREE_READOUTS]
+    assert sel["parameter"] == "readout" and sel["validation"] == ["v"]
+    assert list(sel["candidates"]) == labels
+    assert sel["chosen"] == min(sel["candidates"], key=sel["candidates"].get)
+    chosen = dict(LAWFREE_READOUTS)[sel["chosen"]]
+    for key, value in chosen.items():
+        assert res["hyperparameters"][key] == value, key
+    ds = load_manifest(man)
+    assert _candidates("lawfree", {"lawfree": {"memory_at_surface": True}}, None, ds) is None
+    assert _candidates("structured", None, None, ds) is None

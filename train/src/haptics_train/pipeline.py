@@ -87,6 +87,37 @@ def validation_free_run_rmse(model: ForceModel, cfg: TrainConfig, dataset: Datas
     return float(pooled_metrics(dataset.validation, preds, cfg.target)["closed_loop"]["rmse"])
 
 
+#: lawfree's readouts, chosen on validation when the dataset has validation recordings:
+#: (label, hyper-parameters). Whether a memory's weight may have a constant part and whether the
+#: readout has saturating depth functions: on the bench's recordings (the friction inside the
+#: RFOB target) the constant part and the friction's Dahl states are the same columns and the
+#: restricted readout renders the objects better; on testing-machine data (no friction) a
+#: constant weight is a linear viscoelastic memory and the free one fits better. Which holds is
+#: the data's to say (docs/laws.md, "A memory holds no force at the surface").
+LAWFREE_READOUTS: tuple[tuple[str, dict], ...] = (
+    ("depth-functions", {"memory_at_surface": False, "readout_depth_scales": [0.1, 0.3]}),
+    ("depth-functions+constant", {"memory_at_surface": True, "readout_depth_scales": [0.1, 0.3]}),
+    ("powers+constant", {"memory_at_surface": True, "readout_depth_scales": []}),
+)
+
+
+def _candidates(
+    algo: str, hyper: dict[str, dict] | None, feedback_noise: list[float] | None, dataset: Dataset
+) -> tuple[str, list[tuple[str, dict]]] | None:
+    """What `train_models` chooses on validation for `algo` (the parameter's name and the
+    candidates), or None: no validation recording, no candidates, or the user set it."""
+    if not dataset.validation:
+        return None
+    if algo.endswith("_fb") and feedback_noise:
+        return "feedback_noise_frac", [
+            (str(c), {"feedback_noise": None, "feedback_noise_frac": c}) for c in feedback_noise
+        ]
+    chosen_by_user = set((hyper or {}).get(algo, {}))
+    if algo == "lawfree" and not chosen_by_user & {"memory_at_surface", "readout_depth_scales"}:
+        return "readout", [(label, dict(h)) for label, h in LAWFREE_READOUTS]
+    return None
+
+
 def train_models(
     dataset: Dataset,
     specs: list[str],
@@ -99,40 +130,40 @@ def train_models(
     """Fits every spec and saves it. For the feedback-noise networks (`*_fb`), when the dataset
     has validation recordings and candidates are given, each candidate fraction of the force
     range is trained and the one with the lowest free-run RMSE on the validation recordings is
-    kept (the test recordings play no part in the choice; `train_info_["selection"]`)."""
+    kept (the test recordings play no part in the choice; `train_info_["selection"]`); for
+    `lawfree` likewise its readout (`LAWFREE_READOUTS`), unless `hyper` sets it."""
     for spec in specs:
         parse_spec(spec, preset)  # an unknown algorithm or feature set stops before any training
     out.mkdir(parents=True, exist_ok=True)
     models = []
     for spec in specs:
         algo = spec.partition(":")[0].strip()
-        search = bool(algo.endswith("_fb") and feedback_noise_candidates and dataset.validation)
+        candidates = _candidates(algo, hyper, feedback_noise_candidates, dataset)
         print(f"[train] {spec} on {len(dataset.train)} recordings ...", flush=True)
         try:
-            if not search:
+            if not candidates:
                 m = _fit_one(spec, preset, hyper, {}, dataset, cfg)
             else:
+                parameter, options = candidates
                 scored: dict[str, float] = {}
-                best: tuple[float, ForceModel] | None = None
-                for c in feedback_noise_candidates or []:
-                    cand = _fit_one(spec, preset, hyper,
-                                    {"feedback_noise": None, "feedback_noise_frac": c},
-                                    dataset, cfg)  # fmt: skip
+                best: tuple[float, str, ForceModel] | None = None
+                for label, extra in options:
+                    cand = _fit_one(spec, preset, hyper, extra, dataset, cfg)
                     v = validation_free_run_rmse(cand, cfg, dataset)
-                    scored[str(c)] = v
-                    print(f"[train] {cand.name} feedback noise {c} x range: validation "
+                    scored[label] = v
+                    print(f"[train] {cand.name} {parameter} {label}: validation "
                           f"free-run RMSE {_fmt(v)} N", flush=True)  # fmt: skip
                     key = v if np.isfinite(v) else float("inf")
                     if best is None or key < best[0]:
-                        best = (key, cand)
+                        best = (key, label, cand)
                 assert best is not None
-                m = best[1]
+                m = best[2]
                 m.train_info_["selection"] = {
-                    "parameter": "feedback_noise_frac",
+                    "parameter": parameter,
                     "metric": "free-run RMSE, pooled over the validation recordings",
                     "validation": [r.name for r in dataset.validation],
                     "candidates": scored,
-                    "chosen": m.hyper["feedback_noise_frac"],
+                    "chosen": m.hyper["feedback_noise_frac"] if algo.endswith("_fb") else best[1],
                 }
             rounds = int(m.hyper.get("dagger_rounds") or 0)
             if rounds:
