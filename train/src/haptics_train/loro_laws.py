@@ -66,8 +66,8 @@ MODEL_CLASSES: dict[str, ModelClass] = {
         shares=frozenset({"foam"}),
         near=(("qlv", "same branches on dF_eq/dt; the cubic spring only approximated by the "
                       "tanh/pole basis"),)),
-    "lawfree": ModelClass("assumes no law: fading-memory filters + play operators, polynomial "
-                          "readout (a generic operator class)"),
+    "lawfree": ModelClass("assumes no law: fading-memory filters + play operators, a readout "
+                          "in functions of the depth (a generic operator class)"),
     "rf": ModelClass("general learner (forest), no law"),
     "dnn": ModelClass("general learner (feed-forward network), no law"),
     "dnn_fb": ModelClass("general learner (network fed back its force), no law"),
