@@ -55,6 +55,7 @@ fn stepping_allocates_nothing_on_the_rust_side() {
         "tree",
         "lstm",
         "structured_fused",
+        "lawfree_fused",
         "dense_fused",
         "prony_fused",
         "lstm_fused",
