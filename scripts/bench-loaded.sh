@@ -8,8 +8,8 @@
 #   rendering in reproduction with the simulated hand, realtime 10 kHz:
 #     idle      nothing else running
 #     page      the page open in headless Chromium (web-ui/bench/page-cpu.mjs --hold)
-#     hog       stress-ng on the CPU that is not the loop's
-#     swap      100 hot swaps (hapticctl swap, two copies of the model alternately)
+#     hog       stress-ng on a CPU that is not the loop's (nor the inference thread's, when there is a third)
+#     swap      100 hot swaps (hapticctl swap, two copies of the model alternately, SWAP_GAP_S apart)
 #     idle:TUNED, page:TUNED  idle and page again with infer-server on another wait profile
 #               (TUNED_PROFILE, default dedicated: the inference thread spins on a core of its own,
 #               the best tuning on a machine with a core to spare; `none` skips them): the
