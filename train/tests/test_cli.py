@@ -1,6 +1,7 @@
 """The command line end to end on a tiny synthetic dataset."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -83,21 +84,26 @@ def test_step_by_step_commands(tmp_path):
     assert "`dnn_fb_six`" in text and "`sd_poly1`" in text
 
 
-def test_manifest_validation_selection_and_baselines(tmp_path, capsys):
-    """A TOML manifest with a validation recording: the feedback noise is chosen on it (free
-    run), the test is scored per recording and pooled, the baselines are printed first."""
+def synthetic_manifest(tmp_path: Path, recs: tuple[tuple[str, float, str], ...]) -> Path:
+    """A TOML manifest of synthetic recordings (name, ramp rate, role), seeded 0, 1, .. in order."""
     from haptics_train.synthetic import write_recording
 
-    d = tmp_path / "recs"
-    for name, rate, seed in (("a", 0.8, 0), ("b", 3.9, 1), ("v", 2.9, 2), ("t1", 2.1, 3),
-                             ("t2", 6.2, 4)):  # fmt: skip
-        write_recording(d / f"{name}.parquet", ramp_rate=rate, seed=seed, cycles=2)
+    for seed, (name, rate, _) in enumerate(recs):
+        write_recording(tmp_path / "recs" / f"{name}.parquet", ramp_rate=rate, seed=seed, cycles=2)
     man = tmp_path / "set.toml"
     man.write_text("\n".join(
         f'[recordings.{n}]\npath = "recs/{n}.parquet"\nrole = "{role}"\nsource = "synthetic"\n'
-        for n, role in (("a", "train"), ("b", "train"), ("v", "validation"), ("t1", "test"),
-                        ("t2", "test"))
+        for n, _, role in recs
     ))  # fmt: skip
+    return man
+
+
+def test_manifest_validation_selection_and_baselines(tmp_path, capsys):
+    """A TOML manifest with a validation recording: the feedback noise is chosen on it (free
+    run), the test is scored per recording and pooled, the baselines are printed first."""
+    man = synthetic_manifest(tmp_path, (("a", 0.8, "train"), ("b", 3.9, "train"),
+                                        ("v", 2.9, "validation"), ("t1", 2.1, "test"),
+                                        ("t2", 6.2, "test")))  # fmt: skip
     models = tmp_path / "m"
     main(["pipeline", "--manifest", str(man), "--models-dir", str(models), "--out",
           str(tmp_path / "r"), "--no-progress", "--models", "sd_poly2,dnn_fb:six",
@@ -182,18 +188,9 @@ def test_lawfree_readout_is_chosen_on_validation(tmp_path):
     free run, like the feedback noise; a readout the user sets is not searched."""
     from haptics_train.data import load_manifest
     from haptics_train.pipeline import LAWFREE_READOUTS, _candidates
-    from haptics_train.synthetic import write_recording
 
-    d = tmp_path / "recs"
-    roles = (("a", 0.8, "train"), ("b", 3.9, "train"), ("v", 2.9, "validation"),
-             ("t", 2.1, "test"))  # fmt: skip
-    for seed, (name, rate, _) in enumerate(roles):
-        write_recording(d / f"{name}.parquet", ramp_rate=rate, seed=seed, cycles=2)
-    man = tmp_path / "set.toml"
-    man.write_text("\n".join(
-        f'[recordings.{n}]\npath = "recs/{n}.parquet"\nrole = "{role}"\nsource = "synthetic"\n'
-        for n, _, role in roles
-    ))  # fmt: skip
+    man = synthetic_manifest(tmp_path, (("a", 0.8, "train"), ("b", 3.9, "train"),
+                                        ("v", 2.9, "validation"), ("t", 2.1, "test")))  # fmt: skip
     models = tmp_path / "m"
     main(["pipeline", "--manifest", str(man), "--models-dir", str(models), "--out",
           str(tmp_path / "r"), "--no-progress", "--models", "lawfree"])  # fmt: skip

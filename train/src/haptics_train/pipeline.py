@@ -149,7 +149,7 @@ def train_models(
             else:
                 parameter, options = candidates
                 scored: dict[str, float] = {}
-                best: tuple[float, str, ForceModel] | None = None
+                best: tuple[float, object, ForceModel] | None = None
                 for label, extra in options:
                     cand = _fit_one(spec, preset, hyper, extra, dataset, cfg)
                     v = validation_free_run_rmse(cand, cfg, dataset)
@@ -158,7 +158,8 @@ def train_models(
                           f"free-run RMSE {_fmt(v)} N", flush=True)  # fmt: skip
                     key = v if np.isfinite(v) else float("inf")
                     if best is None or key < best[0]:
-                        best = (key, label, cand)
+                        # the value itself where the parameter is a hyper-parameter, else its label
+                        best = (key, extra.get(parameter, label), cand)
                 assert best is not None
                 m = best[2]
                 m.train_info_["selection"] = {
@@ -166,7 +167,7 @@ def train_models(
                     "metric": "free-run RMSE, pooled over the validation recordings",
                     "validation": [r.name for r in dataset.validation],
                     "candidates": scored,
-                    "chosen": m.hyper["feedback_noise_frac"] if algo.endswith("_fb") else best[1],
+                    "chosen": best[1],
                 }
             rounds = int(m.hyper.get("dagger_rounds") or 0)
             if rounds:

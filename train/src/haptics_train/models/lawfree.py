@@ -241,8 +241,13 @@ class LawFreeModel(ForceModel):
         ]
         return self
 
+    @property
+    def readout_depth_scales(self) -> list[float]:
+        """The fitted a_s (none for a model pickled before the depth functions existed)."""
+        return list(getattr(self, "depth_scales_", ()))
+
     def _object(self, z: np.ndarray, contact: np.ndarray) -> np.ndarray:
-        out = _readout_columns(z, getattr(self, "depth_scales_", ())) @ self.w_
+        out = _readout_columns(z, self.readout_depth_scales) @ self.w_
         return np.where(contact, np.maximum(out, 0.0), 0.0)
 
     def predict_served(self, X: np.ndarray, dt: float | None = None) -> np.ndarray:

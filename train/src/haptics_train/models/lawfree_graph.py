@@ -41,7 +41,7 @@ def lawfree_graph(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
     """The graph of fitted `m`; `decay` the filters' d_k (float32-rounded, as `predict` uses)."""
     widths = np.asarray(m.widths_, dtype=np.float64)
     k, p = len(decay), len(widths)
-    scales = np.asarray(getattr(m, "depth_scales_", ()), dtype=np.float64)
+    scales = np.asarray(m.readout_depth_scales, dtype=np.float64)
     nb = 3 + len(scales)
     w = np.asarray(m.w_, dtype=np.float64).reshape(nb, 2 + k + p).T  # [2 + K + P, 3 + S]
     g = Graph("lawfree")
@@ -88,7 +88,7 @@ def lawfree_fused(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
         floats_attr("play_widths", widths),
         floats_attr("readout", m.w_),
     ]
-    scales = [float(a) for a in getattr(m, "depth_scales_", ())]
+    scales = m.readout_depth_scales
     if scales:  # absent: the readout of 1, w, w^2 alone (models exported before the scales)
         attrs.append(floats_attr("readout_depth_scales", scales))
     state = len(decay) + len(widths)
