@@ -2,14 +2,20 @@
 # Records the training and test dataset on the simulated sponge bench (docs/physics.md, "The
 # experiments"): ramp rates 0.8, 1.8, 3.9, 6.2 N/s (train) and 2.1 N/s (test), 14 cycles each,
 # F_max from 1 N in 1 N steps up to 14 N, lockstep clock at 10 kHz, seed 1 (test: seed 2); and
-# a validation recording at 5.0 N/s (seed 3).
+# a validation recording at 5.0 N/s (seed 3); and `train_air`, the bench alone: the free-air
+# sweeps of `rt-loop identify-friction` (x < 0, 0.5-60 mm/s each way, 67 s) replayed by the
+# position controller and recorded (`rt-loop run --friction-sweep`). Inside the object the
+# bench's friction and the object's damping add up in the RFOB's force and no fit can tell them
+# apart; out of contact the force is the bench's alone, so the models that identify the
+# friction beside the object (structured, lawfree) are told which is which. Any rig can record
+# it (the probe moved away from the object). Spring-dampers fit contact rows only.
 #
 # Usage: scripts/record-dataset.sh [--material FILE] [--bench FILE] [OUTDIR=data/dataset]
 #        --material: the simulated object (default materials/sponge.toml; e.g. materials/foam-b.toml)
 #        --bench: bench file of `rt-loop identify-friction` (the RFOB subtracts its friction model;
 #        default none, as the thesis code); both are written into each recording's metadata.
-# Env:   DECIMATE (default 1: every step, lossless, ~530 MB for the six files; 2 halves that:
-#        5 kHz rows, ~265 MB; the loop and its online features always run at 10 kHz),
+# Env:   DECIMATE (default 1: every step, lossless, ~575 MB for the seven files; 2 halves that:
+#        5 kHz rows, ~290 MB; the loop and its online features always run at 10 kHz),
 #        SEED (default 1; the test recording uses SEED + 1).
 # Existing files are kept (delete one to record it again).
 set -euo pipefail
@@ -32,4 +38,6 @@ record test_2.1 2.1 $((seed + 1))
 # validation: a ramp rate neither trained nor tested on; haptics-train makes every choice
 # (feedback noise, the recommended model) on it, so the test is scored once
 record validation_5.0 5.0 $((seed + 2))
+# the bench alone, out of contact (above): training data of the bench's friction
+record_run train_air "$seed" --friction-sweep
 du -ch "$out"/*.parquet | tail -1

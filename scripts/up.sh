@@ -57,7 +57,7 @@ say "build (release): rt-loop, infer-server, hapticctl"
 haptics_build
 
 if [ ! -f data/dataset/test_2.1.parquet ]; then
-  say "record the default dataset (ramp rates 0.8, 1.8, 3.9, 6.2 N/s and the 2.1 N/s test run)"
+  say "record the default dataset (ramp rates 0.8, 1.8, 3.9, 6.2 N/s, the 2.1 N/s test run, the bench in free air)"
   bash scripts/record-dataset.sh data/dataset
 fi
 

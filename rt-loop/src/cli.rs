@@ -430,6 +430,11 @@ pub struct RunArgs {
     /// Recorded trajectory (its time and position_x) for position replay.
     #[arg(long)]
     pub trajectory: Option<PathBuf>,
+    /// Replay `identify-friction`'s free-air sweeps (x < 0, 0.5-60 mm/s each way, 67 s) instead
+    /// of a trajectory: the bench's friction with no object touched, recorded for training
+    /// (implies --experiment position-replay).
+    #[arg(long)]
+    pub friction_sweep: bool,
     /// Stop after this much loop time, s.
     #[arg(long)]
     pub duration: Option<f64>,
@@ -490,6 +495,12 @@ impl RunArgs {
         }
         if self.trajectory.is_some() {
             c.trajectory = self.trajectory.clone();
+        }
+        if self.friction_sweep {
+            c.friction_sweep = true;
+            if self.experiment.is_none() {
+                c.experiment = ExperimentKind::PositionReplay;
+            }
         }
         if self.duration.is_some() {
             c.max_duration_s = self.duration;

@@ -107,6 +107,11 @@ pub struct RunConfig {
     pub max_duration_s: Option<f64>,
     /// Recorded trajectory for position replay.
     pub trajectory: Option<PathBuf>,
+    /// Position replay of `identify-friction`'s free-air sweeps instead of a recorded
+    /// trajectory (friction_id.rs, `SweepPlan`): a recording of the bench's own friction, out of
+    /// contact, for the models that identify it beside the object (record-dataset.sh's
+    /// `train_air`).
+    pub friction_sweep: bool,
     pub ramp: RampConfig,
     pub params: LoopParams,
     pub sim: SimConfig,
@@ -139,6 +144,7 @@ impl Default for RunConfig {
             queue_capacity: 1 << 16,
             max_duration_s: None,
             trajectory: None,
+            friction_sweep: false,
             ramp: RampConfig::default(),
             params: LoopParams::default(),
             sim: SimConfig::default(),
@@ -185,8 +191,22 @@ impl RunConfig {
         if self.board == BoardKind::Replay && self.replay.is_none() {
             return Err("the replay board needs a recording (--replay PATH)".into());
         }
-        if self.experiment == ExperimentKind::PositionReplay && self.trajectory.is_none() {
-            return Err("position replay needs a trajectory (--trajectory RECORDING)".into());
+        if self.friction_sweep {
+            if self.experiment != ExperimentKind::PositionReplay {
+                return Err(
+                    "--friction-sweep is a position replay (--experiment position-replay)".into(),
+                );
+            }
+            if self.trajectory.is_some() {
+                return Err(
+                    "--friction-sweep replays the free-air sweeps: give it no --trajectory".into(),
+                );
+            }
+        } else if self.experiment == ExperimentKind::PositionReplay && self.trajectory.is_none() {
+            return Err(
+                "position replay needs a trajectory (--trajectory RECORDING, or --friction-sweep)"
+                    .into(),
+            );
         }
         // The simulated bench measures with the loop's scales; a real board's come from the
         // rig file (`--rig`).

@@ -84,6 +84,12 @@ impl SweepPlan {
         Ok(())
     }
 
+    /// The sweeps as a position trajectory (what `rt-loop run --friction-sweep` replays).
+    pub fn trajectory(&self) -> Result<Trajectory> {
+        let (t, x, _) = self.build();
+        Trajectory::new(t, x).map_err(|e| anyhow!(e))
+    }
+
     /// The trajectory's breakpoints (t, x) and the constant-velocity segments.
     fn build(&self) -> (Vec<f64>, Vec<f64>, Vec<Segment>) {
         let (mut t, mut x) = (vec![0.0], vec![0.0]);
@@ -144,8 +150,8 @@ pub fn identify(cfg: &RunConfig, plan: &SweepPlan) -> Result<Identification> {
     cfg.params.validate().map_err(|e| anyhow!(e))?;
     plan.validate(cfg.params.position_limit)
         .map_err(|e| anyhow!(e))?;
-    let (t, x, segs) = plan.build();
-    let trajectory = Trajectory::new(t, x).map_err(|e| anyhow!(e))?;
+    let (_, _, segs) = plan.build();
+    let trajectory = plan.trajectory()?;
     let experiment = Experiment::PositionReplay {
         trajectory,
         pid: PositionPid::new(&cfg.params),

@@ -106,6 +106,15 @@ pub fn metadata_json(cfg: &RunConfig, material_text: &str, model_name: &str) -> 
 pub fn build_experiment(cfg: &RunConfig, model: Option<Box<dyn ForceModel>>) -> Result<Experiment> {
     Ok(match cfg.experiment {
         ExperimentKind::Abstraction => Experiment::Abstraction(RampSchedule::new(&cfg.ramp)),
+        ExperimentKind::PositionReplay if cfg.friction_sweep => {
+            let plan = crate::friction_id::SweepPlan::default();
+            plan.validate(cfg.params.position_limit)
+                .map_err(|e| anyhow!("--friction-sweep: {e}"))?;
+            Experiment::PositionReplay {
+                trajectory: plan.trajectory()?,
+                pid: PositionPid::new(&cfg.params),
+            }
+        }
         ExperimentKind::PositionReplay => {
             let path = cfg
                 .trajectory

@@ -82,6 +82,97 @@ fn bad_input_gets_a_clear_error() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("cannot read material file"));
 }
 
+/// `--friction-sweep` records the bench's friction alone: the probe stays out of contact
+/// (x < 0 but for the approach's few encoder counts), the object's force is zero there, and
+/// what the RFOB reads while sliding is the friction, opposing the motion. Mixed with a
+/// trajectory or another experiment it is a clear error.
+#[test]
+fn friction_sweep_records_the_bench_out_of_contact() {
+    let dir = common::tmpdir("cli-friction-sweep");
+    let out = dir.join("air.parquet");
+    let o = bin()
+        .args([
+            "run",
+            "--friction-sweep",
+            "--decimate",
+            "10",
+            "--no-progress",
+        ])
+        .arg("--material")
+        .arg(common::material())
+        .arg("--record")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("position-replay") && err.contains("stop: finished"),
+        "{err}"
+    );
+    let meta: serde_json::Value =
+        serde_json::from_str(&read_metadata(&out).unwrap().unwrap()).unwrap();
+    assert_eq!(meta["config"]["friction_sweep"], true);
+    let c = read_columns(&out, &["position_x", "velocity", "rtob_force", "F_object"]).unwrap();
+    let (x, v, f, obj) = (&c[0], &c[1], &c[2], &c[3]);
+    let t_end = x.len() as f64 * 10.0 / 10_000.0;
+    assert!(t_end > 60.0, "{t_end} s");
+    assert!(x.iter().all(|&x| x < 0.001), "the probe pressed the object");
+    let deep = x.iter().filter(|&&x| x < -0.004 + 1e-4).count();
+    assert!(deep > x.len() / 2, "{deep} of {} rows in free air", x.len());
+    // out of contact the object pushes nothing
+    let touching: f64 = x
+        .iter()
+        .zip(obj)
+        .filter(|(&x, _)| x < -0.001)
+        .map(|(_, &o)| o.abs())
+        .fold(0.0, f64::max);
+    assert_eq!(touching, 0.0);
+    // sliding, the RFOB reads the force that overcomes the friction: along the motion (the
+    // motor pushes the probe along v against the friction, the object adds nothing)
+    let sliding: Vec<(f64, f64)> = v
+        .iter()
+        .zip(f)
+        .filter(|(&v, _)| v.abs() > 2e-3)
+        .map(|(&v, &f)| (v, f))
+        .collect();
+    assert!(sliding.len() > 1000, "{}", sliding.len());
+    let along = sliding.iter().map(|&(v, f)| f * v.signum()).sum::<f64>() / sliding.len() as f64;
+    assert!(
+        along > 0.3 && along < 3.0,
+        "mean friction along v {along} N"
+    );
+
+    let o = bin()
+        .args([
+            "run",
+            "--friction-sweep",
+            "--experiment",
+            "abstraction",
+            "--no-progress",
+        ])
+        .arg("--material")
+        .arg(common::material())
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--friction-sweep is a position replay"));
+    let o = bin()
+        .args([
+            "run",
+            "--friction-sweep",
+            "--trajectory",
+            "x.parquet",
+            "--no-progress",
+        ])
+        .arg("--material")
+        .arg(common::material())
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("give it no --trajectory"));
+}
+
 /// A series measured elsewhere (ms, mm, N, other column names) becomes a recording whose
 /// kinematics and features are those the loop computes for the same series.
 #[test]

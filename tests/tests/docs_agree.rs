@@ -125,7 +125,10 @@ fn record_dataset_default_decimation_and_file_count_are_the_scripts() {
     );
     let names: Vec<&str> = script
         .lines()
-        .filter_map(|l| l.strip_prefix("record "))
+        .filter_map(|l| {
+            l.strip_prefix("record ")
+                .or_else(|| l.strip_prefix("record_run "))
+        })
         .filter_map(|l| l.split_whitespace().next())
         .collect();
     let words = [

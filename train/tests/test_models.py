@@ -177,6 +177,25 @@ def test_spring_damper_recovers_known_coefficients():
     np.testing.assert_allclose(got[:, 0], f, atol=1e-4)
 
 
+def test_spring_damper_ignores_rows_out_of_contact():
+    """A free-air recording (the bench's friction, x < 0) beside the contact rows leaves the
+    contact law as fitted on the contact rows alone: a spring-damper holds no friction."""
+    rng = np.random.default_rng(4)
+    n = 4000
+    x = np.concatenate([rng.uniform(0, 0.03, n), rng.uniform(-0.04, -0.004, n)])
+    v = rng.uniform(-0.05, 0.05, 2 * n)
+    law = 500.0 * x + 4e4 * x**2 * np.sign(x) + 30.0 * v
+    f = np.where(x > 0, law, 0.9 * np.sign(v) + 5.0 * v)  # out of contact: friction only
+    cols = {"time": np.arange(2 * n) * 1e-4, "rtob_force": f, "position_x": x, "velocity": v,
+            "acceleration": np.zeros(2 * n), **{c: np.zeros(2 * n) for c in NINE[3:]}}  # fmt: skip
+    m = make_model("sd_poly2")
+    rec = recording_from_columns("mixed", cols)
+    fit_recordings(m, [rec], TrainConfig(decimate=1, progress=False))
+    np.testing.assert_allclose(m.k_, [500.0, 4e4, 0.0], atol=1e-6)
+    np.testing.assert_allclose(m.b_, [30.0, 0.0, 0.0], atol=1e-6)
+    assert m.train_info_["rows"] == n
+
+
 def test_feature_sets_and_presets():
     from haptics_train.features import FEATURE_SETS
 

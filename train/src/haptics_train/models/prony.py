@@ -107,6 +107,7 @@ class PronyModel(ForceModel):
             keep = np.zeros(len(y), dtype=bool)
             keep[:: i.stride] = True
             keep &= y > i.contact_off_n  # contact rows: the clamp is not fitted
+            keep &= x > 0.0  # and pressed: out of contact the force is the bench's friction
             poly = np.column_stack([x**j for j in range(1, int(h["poly"]) + 1)])
             rows_a.append(np.column_stack([poly, -poly, s])[keep])
             rows_y.append(y[keep])

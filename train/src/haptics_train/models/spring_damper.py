@@ -1,8 +1,11 @@
 """Spring-damper baselines (thesis 6.1): F = k(x) x + b(x) v with polynomial k and b.
 
 order 0: constant k and b; order 1: k = k0 + k1 x, b = b0 + b1 x; order 2 adds x^2 terms.
-Fitted by linear least squares on the decimated training rows (X = [x, v]). No intercept: a
-spring-damper exerts no force at rest at x = 0.
+Fitted by linear least squares on the decimated training rows in contact (X = [x, v], x > 0).
+No intercept: a spring-damper exerts no force at rest at x = 0. Out of contact (a free-air
+recording, record-dataset.sh's `train_air`) the target is the bench's friction, which a contact
+law cannot hold: those rows are left out, so the baseline is fitted as it was before the dataset
+had them.
 """
 
 from __future__ import annotations
@@ -61,6 +64,9 @@ class SpringDamper(ForceModel):
         if self.order not in (0, 1, 2):
             raise ValueError("spring-damper order must be 0, 1 or 2")
         x, y = check_rows(X, y, len(self.features))
+        contact = x[:, 0] > 0.0
+        if contact.any():  # rows out of contact are the bench's friction, not the object
+            x, y = x[contact], y[contact]
         a = design(x[:, 0], x[:, 1], self.order)
         # Column scaling keeps the normal equations well conditioned (x ~ 1e-2, x^3 ~ 1e-6).
         scale = np.abs(a).max(axis=0)
