@@ -209,6 +209,9 @@ class LawFreeModel(ForceModel):
         # No viscous bench term: inside the object it cannot be told from the object's own
         # v-terms when the probe seldom slides out of contact (force-controlled ramps), and a
         # large one cancelled by the object made a rendered object that gives energy back.
+        # With the free-air recording (record-dataset.sh's train_air) it can be identified:
+        # tried, bounded >= 0, it came out 0 on the sponge (the simulated bench's sliding
+        # friction falls slightly with speed over 0.5-60 mm/s), so it stays out.
         ridge = float(h["ridge"]) * np.sqrt(len(t))
         n_obj = a.shape[1] - nf
         lo = np.r_[np.full(n_obj, -np.inf), np.zeros(nf)]
