@@ -9,9 +9,10 @@
 #
 # Settings (environment; README.md, "scripts/up.sh's settings", lists them too):
 #   HAPTICS_MODEL       the model to serve (default: the one haptics-train recommends,
-#                       models/recommendation.json: the best free run on the validation recording)
+#                       models/recommendation.json: the best free run on the validation recording,
+#                       scored where the probe is pressed and slides)
 #   HAPTICS_CANDIDATES  the specs trained when there is no recommendation
-#                       (default sd_poly2,rf:memory,structured)
+#                       (default sd_poly2,rf:memory,structured,lawfree)
 #   HAPTICS_AUTOSTART   the experiment started with the loop (default shadow: the simulated hand
 #                       presses the simulated sponge while the model predicts alongside; or
 #                       abstraction, reproduction, none)
@@ -38,7 +39,7 @@ case "${1:-}" in
 esac
 
 model=${HAPTICS_MODEL:-}
-candidates=${HAPTICS_CANDIDATES:-sd_poly2,rf:memory,structured}
+candidates=${HAPTICS_CANDIDATES:-sd_poly2,rf:memory,structured,lawfree}
 autostart=${HAPTICS_AUTOSTART:-shadow}
 http=${HAPTICS_HTTP:-127.0.0.1:8080}
 grpc=${HAPTICS_GRPC:-127.0.0.1:50051}

@@ -4,7 +4,11 @@ measured it; test recordings play no part) and docs/fidelity.json's keys."""
 import json
 
 import numpy as np
+import pytest
 
+from haptics_train.data import recording_from_columns
+from haptics_train.evaluate import pooled_metrics
+from haptics_train.features import NINE
 from haptics_train.fidelity import FIDELITY_KEYS, merge, rank, recommendation
 from haptics_train.ood import diverged, write_readme_section
 
@@ -28,6 +32,37 @@ def test_ranked_by_validation_free_run_never_one_step_nor_test():
     assert names == ["b", "a", "persistent", "runaway"]
     doc = recommendation(RESULTS, ["validation_5.0"])
     assert doc["recommended"] == "b" and doc["free_run_rmse_n"] == 0.6
+
+
+def test_ranked_on_the_sliding_rows_where_scored():
+    """A model whose error sits where the probe slides loses to one whose error sits where it
+    sticks (the bench's stick friction, which no model knows), although over all rows it
+    scores better; files without the sliding score rank by all rows."""
+    n = 2000
+    x = np.full(n, 0.01)
+    v = np.where(np.arange(n) % 2 == 0, 0.0, 0.01)  # every other row stuck
+    rng = np.random.default_rng(0)
+    y = 2.0 + np.where(v == 0, rng.normal(0.0, 0.4, n), 0.0)
+    cols = {"time": np.arange(n) * 1e-3, "rtob_force": y, "position_x": x, "velocity": v,
+            "acceleration": np.zeros(n), **{c: np.zeros(n) for c in NINE[3:]}}  # fmt: skip
+    rec = recording_from_columns("validation_5.0", cols)
+    follows = {"closed_loop": np.full(n, 2.0)}  # right while sliding
+    biased = {"closed_loop": np.where(v == 0, y, 2.3)}  # off by 0.3 N while sliding
+    scored = {name: {"validation_pooled": pooled_metrics([rec], [p], "rtob_force"),
+                     "test_pooled": {"closed_loop": {"rmse": 1.0}}}
+              for name, p in (("follows", follows), ("biased", biased))}  # fmt: skip
+    assert scored["follows"]["validation_pooled"]["sliding"]["rows"] == n // 2
+    assert scored["follows"]["validation_pooled"]["sliding"]["rmse"] == 0.0
+    all_rows = {k: e["validation_pooled"]["closed_loop"]["rmse"] for k, e in scored.items()}
+    assert all_rows["biased"] < all_rows["follows"]  # all rows: the noise decides
+    ranking = rank(scored)
+    assert [r["model"] for r in ranking] == ["follows", "biased"]
+    assert ranking[1]["validation_sliding_rmse_n"] == pytest.approx(0.3)
+    assert ranking[1]["validation_free_run_rmse_n"] == all_rows["biased"]
+    # a results file written before the sliding score: all rows, as it was
+    old = {k: {**e, "validation_pooled": {"closed_loop": e["validation_pooled"]["closed_loop"]}}
+           for k, e in scored.items()}  # fmt: skip
+    assert [r["model"] for r in rank(old)] == ["biased", "follows"]
 
 
 def test_felt_force_counts_where_measured():

@@ -290,8 +290,10 @@ def evaluate_models(
             # the model to render: ranked on the validation recordings by free run (the test
             # recordings play no part in it); the study adds the felt force
             rec_path.write_text(json.dumps(doc, indent=1, default=float))
+            top = doc["ranking"][0]
             print(f"[evaluate] recommended (validation free run): {doc['recommended']} "
-                  f"({_fmt(doc['ranking'][0]['validation_free_run_rmse_n'])} N; test "
+                  f"(sliding rows {_fmt(top['validation_sliding_rmse_n'])} N, all rows "
+                  f"{_fmt(top['validation_free_run_rmse_n'])} N; test "
                   f"{_fmt(doc['free_run_rmse_n'])} N) -> {rec_path}", flush=True)  # fmt: skip
             if fidelity is not None:
                 merge(fidelity, {"recommended": doc["recommended"],
