@@ -105,6 +105,13 @@ def test_report_computes_class_notes_and_goals() -> None:
            "missed |" in s
     assert "On every law: the recommended model meets the 3x goal in 3 of 6 folds." in s
     assert "On the laws no model shares: the law-free learner meets the 2x goal in 0 of 3" in s
+    # with the sliding-row scores the product ranks by, those decide the recommendation
+    out = _fake_run("bouc-wen", 0.25, 0.5)
+    for f in out["folds"].values():
+        f["validation_sliding"] = {"prony": 0.3, "lawfree": 0.05, "structured": float("nan")}
+    g = loro.goals(out, SPECS)
+    assert {v["recommended"]["model"] for v in g.values()} == {"lawfree"}
+    assert g["rate_2"]["recommended"]["ratio"] == 2.0
 
 
 def test_loro_runs_end_to_end_quick(rt_loop: Path, tmp_path: Path) -> None:
