@@ -88,22 +88,26 @@ fn bad_input_gets_a_clear_error() {
 /// trajectory or another experiment it is a clear error.
 #[test]
 fn friction_sweep_records_the_bench_out_of_contact() {
+    // `rt-loop run ARGS --no-progress` on the test material
+    let run = |args: &[&str]| {
+        bin()
+            .arg("run")
+            .args(args)
+            .arg("--no-progress")
+            .arg("--material")
+            .arg(common::material())
+            .output()
+            .unwrap()
+    };
     let dir = common::tmpdir("cli-friction-sweep");
     let out = dir.join("air.parquet");
-    let o = bin()
-        .args([
-            "run",
-            "--friction-sweep",
-            "--decimate",
-            "10",
-            "--no-progress",
-        ])
-        .arg("--material")
-        .arg(common::material())
-        .arg("--record")
-        .arg(&out)
-        .output()
-        .unwrap();
+    let o = run(&[
+        "--friction-sweep",
+        "--decimate",
+        "10",
+        "--record",
+        out.to_str().unwrap(),
+    ]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
     assert!(
@@ -143,32 +147,10 @@ fn friction_sweep_records_the_bench_out_of_contact() {
         "mean friction along v {along} N"
     );
 
-    let o = bin()
-        .args([
-            "run",
-            "--friction-sweep",
-            "--experiment",
-            "abstraction",
-            "--no-progress",
-        ])
-        .arg("--material")
-        .arg(common::material())
-        .output()
-        .unwrap();
+    let o = run(&["--friction-sweep", "--experiment", "abstraction"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--friction-sweep is a position replay"));
-    let o = bin()
-        .args([
-            "run",
-            "--friction-sweep",
-            "--trajectory",
-            "x.parquet",
-            "--no-progress",
-        ])
-        .arg("--material")
-        .arg(common::material())
-        .output()
-        .unwrap();
+    let o = run(&["--friction-sweep", "--trajectory", "x.parquet"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("give it no --trajectory"));
 }

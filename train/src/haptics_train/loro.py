@@ -30,6 +30,7 @@ import numpy as np
 from .analysis import md_table
 from .data import load_manifest, write_manifest_entry
 from .evaluate import BASELINES
+from .fidelity import pooled_rmse
 from .importer import describe_import, import_series
 from .loro_laws import GENERATORS, LAWS, class_notes
 from .models import TrainConfig
@@ -97,15 +98,13 @@ def run(work: Path, specs: tuple[str, ...], quick: bool = False, seed: int = 0,
         res = evaluate_models([(m, cfg) for m in models], ds, fold / "models")
         base = json.loads((fold / "models" / "baselines.json").read_text())
 
-        def pooled(e: dict, split: str, kind: str = "closed_loop") -> float | None:
-            return ((e.get(f"{split}_pooled") or {}).get(kind) or {}).get("rmse")
-
         folds[name] = {
-            "test": {n: pooled(e, "test") for n, e in [*base.items(), *res.items()]},
-            "validation": {n: pooled(e, "validation") for n, e in res.items()},
+            "test": {n: pooled_rmse(e, "test") for n, e in [*base.items(), *res.items()]},
+            "validation": {n: pooled_rmse(e, "validation") for n, e in res.items()},
             # the product's ranking score (fidelity.validation_score: where the probe slides)
-            "validation_sliding": {n: pooled(e, "validation", "sliding") for n, e in res.items()},
-            "one_step_persistence": pooled(base["persistence"], "test", "one_step"),
+            "validation_sliding": {n: pooled_rmse(e, "validation", "sliding")
+                                   for n, e in res.items()},  # fmt: skip
+            "one_step_persistence": pooled_rmse(base["persistence"], "test", "one_step"),
             "range_n": float(np.ptp(ds.test[0].target())),
         }
     return {"generator": generator, "law": gen.law, "folds": folds, "quick": quick,
