@@ -327,7 +327,22 @@ fn serve_on_the_double_shows_a_board_fault_everywhere() {
         assert!(ok, "{out}");
         serde_json::from_str(out.trim()).unwrap()
     };
+    // infer-server prints its gRPC address before its inference thread has attached to the
+    // loop's segment; a command sent in between is refused ("no loop is attached"). Wait for
+    // the loop to show alive in status first, as a user watching `hapticctl status` would.
     let end = Instant::now() + Duration::from_secs(30);
+    loop {
+        let s = status(&addr);
+        if s["loop"]["alive"] == true {
+            break;
+        }
+        assert!(
+            Instant::now() < end,
+            "loop never alive: {s}\n{}",
+            lp.output()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
     let (ok, out) = ctl(&addr, &["experiment", "start", "abstraction"]);
     assert!(ok, "{out}");
     let s = loop {
