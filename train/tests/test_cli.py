@@ -184,10 +184,17 @@ def test_defaults_scale_with_the_data(tmp_path):
 
 
 def test_lawfree_readout_is_chosen_on_validation(tmp_path):
-    """`lawfree`'s readout (`pipeline.LAWFREE_READOUTS`) is chosen on the validation recording's
-    free run, like the feedback noise; a readout the user sets is not searched."""
+    """`lawfree`'s readout and ridge (`pipeline.lawfree_candidates`) are chosen on the
+    validation recording's free run over its sliding rows, like the recommendation; what the
+    user sets is not searched."""
     from haptics_train.data import load_manifest
-    from haptics_train.pipeline import LAWFREE_READOUTS, _candidates
+    from haptics_train.pipeline import (
+        LAWFREE_READOUTS,
+        LAWFREE_RIDGES,
+        SELECTION_METRIC,
+        _candidates,
+        lawfree_candidates,
+    )
 
     man = synthetic_manifest(tmp_path, (("a", 0.8, "train"), ("b", 3.9, "train"),
                                         ("v", 2.9, "validation"), ("t", 2.1, "test")))  # fmt: skip
@@ -196,13 +203,23 @@ def test_lawfree_readout_is_chosen_on_validation(tmp_path):
           str(tmp_path / "r"), "--no-progress", "--models", "lawfree"])  # fmt: skip
     res = json.loads((models / "results.json").read_text())["lawfree"]
     sel = res["training"]["selection"]
-    labels = [label for label, _ in LAWFREE_READOUTS]
+    options = dict(lawfree_candidates({}))
+    assert len(options) == len(LAWFREE_READOUTS) * len(LAWFREE_RIDGES)
     assert sel["parameter"] == "readout" and sel["validation"] == ["v"]
-    assert list(sel["candidates"]) == labels
+    assert sel["metric"] == SELECTION_METRIC
+    assert list(sel["candidates"]) == list(options)
     assert sel["chosen"] == min(sel["candidates"], key=sel["candidates"].get)
-    chosen = dict(LAWFREE_READOUTS)[sel["chosen"]]
-    for key, value in chosen.items():
+    for key, value in options[sel["chosen"]].items():
         assert res["hyperparameters"][key] == value, key
+    # the score is the sliding rows' when the validation recording has them, as evaluate wrote
+    sliding = res["validation_pooled"]["sliding"]
+    assert sliding["rows"] > 0
+    assert sel["candidates"][sel["chosen"]] == pytest.approx(sliding["rmse"], rel=1e-6)
     ds = load_manifest(man)
-    assert _candidates("lawfree", {"lawfree": {"memory_at_surface": True}}, None, ds) is None
+    assert _candidates("lawfree", {"lawfree": {"memory_at_surface": True}}, None, ds) == (
+        "readout", [(f"ridge {r:g}", {"ridge": r}) for r in LAWFREE_RIDGES])  # fmt: skip
+    only_ridge = _candidates("lawfree", {"lawfree": {"ridge": 1e-3}}, None, ds)
+    assert only_ridge == ("readout", [(label, dict(h)) for label, h in LAWFREE_READOUTS])
+    both = {"lawfree": {"memory_at_surface": True, "ridge": 1e-3}}
+    assert _candidates("lawfree", both, None, ds) is None
     assert _candidates("structured", None, None, ds) is None

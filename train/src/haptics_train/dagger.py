@@ -80,9 +80,11 @@ def fit_dagger(
     cfg: TrainConfig,
     rounds: int,
     score: Callable[[ForceModel], float],
+    metric: str = "free-run RMSE, pooled over the validation recordings",
 ) -> ForceModel:
     """`model` (fitted on `recs`) refined by `rounds` DAgger rounds; returns the round with the
-    lowest `score` (the validation free-run RMSE), its history in `train_info_["dagger"]`."""
+    lowest `score` (the validation free-run RMSE; `metric` says which rows), its history in
+    `train_info_["dagger"]`."""
     check_dagger(model)
     if rounds < 1:
         return model
@@ -117,7 +119,7 @@ def fit_dagger(
     chosen.train_info_["dagger"] = {
         "rounds": rounds,
         "chosen_round": best[1],
-        "metric": "free-run RMSE, pooled over the validation recordings",
+        "metric": metric,
         "history": history,
         "seconds": round(time.perf_counter() - t0, 1),
     }
