@@ -327,6 +327,13 @@ pub fn ctl(addr: &str, args: &[&str]) -> (bool, String) {
     )
 }
 
+/// `hapticctl --json status` at ADDR, parsed; panics (with its output) when the call fails.
+pub fn ctl_status(addr: &str) -> serde_json::Value {
+    let (ok, out) = ctl(addr, &["--json", "status"]);
+    assert!(ok, "hapticctl status: {out}");
+    serde_json::from_str(out.trim()).unwrap_or_else(|e| panic!("{e}: {out}"))
+}
+
 /// GET over a plain TCP connection (HTTP/1.0, the body after the headers); panics unless 200.
 pub fn http_get(addr: &str, path: &str) -> String {
     use std::io::{Read, Write};

@@ -7,7 +7,8 @@
 //! gRPC, `/api/status` and `/metrics`.
 
 use haptics_system_tests::{
-    bin, bin_dir, ctl, http_get, instance, skip::skip, start_infer_server, temp_dir, Proc,
+    bin, bin_dir, ctl, ctl_status, http_get, instance, skip::skip, start_infer_server, temp_dir,
+    Proc,
 };
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -322,17 +323,12 @@ fn serve_on_the_double_shows_a_board_fault_everywhere() {
     );
     lp.wait_for("serving segment", Duration::from_secs(30));
     let (server, addr) = start_infer_server(&inst, &dir, None);
-    let status = |addr: &str| -> serde_json::Value {
-        let (ok, out) = ctl(addr, &["--json", "status"]);
-        assert!(ok, "{out}");
-        serde_json::from_str(out.trim()).unwrap()
-    };
     // infer-server prints its gRPC address before its inference thread has attached to the
     // loop's segment; a command sent in between is refused ("no loop is attached"). Wait for
     // the loop to show alive in status first, as a user watching `hapticctl status` would.
     let end = Instant::now() + Duration::from_secs(30);
     loop {
-        let s = status(&addr);
+        let s = ctl_status(&addr);
         if s["loop"]["alive"] == true {
             break;
         }
@@ -346,7 +342,7 @@ fn serve_on_the_double_shows_a_board_fault_everywhere() {
     let (ok, out) = ctl(&addr, &["experiment", "start", "abstraction"]);
     assert!(ok, "{out}");
     let s = loop {
-        let s = status(&addr);
+        let s = ctl_status(&addr);
         if s["loop"]["board_faults"].as_u64().unwrap_or(0) >= 1 {
             break s;
         }

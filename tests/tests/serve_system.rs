@@ -4,17 +4,11 @@
 //! leaves nothing in /dev/shm.
 
 use haptics_system_tests::{
-    bin, ctl, http_get, instance, shm_entries, start_infer_server, temp_dir, write_linear_model,
-    Proc,
+    bin, ctl, ctl_status, http_get, instance, shm_entries, start_infer_server, temp_dir,
+    write_linear_model, Proc,
 };
 use std::process::Command;
 use std::time::{Duration, Instant};
-
-fn status(addr: &str) -> serde_json::Value {
-    let (ok, out) = ctl(addr, &["--json", "status"]);
-    assert!(ok, "hapticctl status: {out}");
-    serde_json::from_str(out.trim()).unwrap_or_else(|e| panic!("{e}: {out}"))
-}
 
 fn wait_status(
     addr: &str,
@@ -23,7 +17,7 @@ fn wait_status(
 ) -> serde_json::Value {
     let end = Instant::now() + Duration::from_secs(20);
     loop {
-        let s = status(addr);
+        let s = ctl_status(addr);
         if f(&s) {
             return s;
         }
