@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT / "train" / "src"))
 
 from haptics_train.study import STUDY_HAND, find_tools, run_loop, write_config  # noqa: E402
 
-#: rt-loop's HandConfig::default (rt-loop/src/hand.rs): the page's shadow runs use it
+#: rt-loop's HandConfig::default (rt-loop/src/experiment/hand.rs): the page's shadow runs use it
 DEFAULT_HAND = {"stiffness": 1500.0, "damping": 15.0, "depth_m": 0.030, "press_s": 1.5,
                 "hold_s": 1.0, "release_s": 1.5, "rest_s": 1.0, "repeats": 3,
                 "depth_step_m": 0.002}  # fmt: skip

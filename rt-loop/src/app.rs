@@ -5,8 +5,8 @@
 
 use crate::cli::{seconds_flag, Cmd, FitArgs, IdentifyArgs, ModelArg, RunArgs, ServeArgs};
 use crate::config::{BoardKind, ClockKind, ExperimentKind, RunConfig};
-use crate::model::SpringDamper;
-use crate::shm_model::ShmModel;
+use crate::serving::model::SpringDamper;
+use crate::serving::shm_model::ShmModel;
 use crate::stop::Shutdown;
 use anyhow::Result;
 use std::process::ExitCode;
@@ -66,7 +66,7 @@ pub fn run_experiment(a: &RunArgs, shutdown: &Shutdown) -> Result<ExitCode> {
     );
     let mut segment = None;
     let mut counters = None;
-    let mut model: Option<Box<dyn crate::model::ForceModel>> = None;
+    let mut model: Option<Box<dyn crate::serving::model::ForceModel>> = None;
     if a.model == ModelArg::Oracle {
         let (material, _) = crate::material::Material::load(&cfg.material)?;
         // in the loop's force units: K_fn / K_f of the simulated bench (crate::oracle)
@@ -84,7 +84,10 @@ pub fn run_experiment(a: &RunArgs, shutdown: &Shutdown) -> Result<ExitCode> {
         // every flag checked before anything is created
         let answer_wait = a.shm.answer_wait(cfg.clock, cfg.rate_hz)?;
         let server_wait = seconds_flag("--server-wait-s", a.server_wait_s, true)?;
-        let seg = crate::shm_io::create_segment(&a.shm.instance, a.shm.wait_strategy(cfg.clock))?;
+        let seg = crate::serving::shm_io::create_segment(
+            &a.shm.instance,
+            a.shm.wait_strategy(cfg.clock),
+        )?;
         let mut client = seg.client;
         client.stop_on(shutdown.clone());
         if a.model == ModelArg::Shm && uses_model {
@@ -110,7 +113,7 @@ pub fn run_experiment(a: &RunArgs, shutdown: &Shutdown) -> Result<ExitCode> {
         bar.as_mut().map(|b| b as &mut dyn crate::run::Progress),
         segment
             .as_mut()
-            .map(|s| s as &mut dyn crate::sink::StepSink),
+            .map(|s| s as &mut dyn crate::serving::sink::StepSink),
     );
     let mut summary = outcome.result?;
     summary.shm = counters.map(|c| c.snapshot());
@@ -178,7 +181,7 @@ pub fn print_summary(s: &crate::run::RunSummary) {
         eprintln!(
             "rt-loop: {} long steps (over {} periods; filters took bounded updates), longest {:.2} ms",
             s.long_steps,
-            crate::rig::LONG_STEP_FACTOR,
+            crate::control::rig::LONG_STEP_FACTOR,
             s.max_step_ms
         );
     }
@@ -250,14 +253,14 @@ pub fn identify_friction(a: &IdentifyArgs) -> Result<ExitCode> {
         cfg.seed = s;
     }
     a.board.apply(&mut cfg)?;
-    let mut plan = crate::friction_id::SweepPlan::default();
+    let mut plan = crate::control::friction_id::SweepPlan::default();
     if let Some(v) = &a.speeds_mm_s {
         plan.speeds_mps = v.iter().map(|s| s * 1e-3).collect();
     }
     let args: Vec<String> = std::env::args().skip(1).collect();
     let command = format!("rt-loop {}", args.join(" "));
-    let id = crate::friction_id::identify(&cfg, &plan)?;
-    crate::friction_id::report(&id, &command, &a.out, a.json.as_deref())?;
+    let id = crate::control::friction_id::identify(&cfg, &plan)?;
+    crate::control::friction_id::report(&id, &command, &a.out, a.json.as_deref())?;
     Ok(ExitCode::SUCCESS)
 }
 

@@ -8,9 +8,9 @@
 use crate::config::{BoardKind, ClockKind, ExperimentKind, RunConfig};
 use crate::daemon::DaemonConfig;
 use crate::import::{ForceUnit, ImportOptions, PositionUnit, TimeUnit};
-use crate::model::SpringDamper;
 use crate::record::Format;
-use crate::shm_model::AnswerWait;
+use crate::serving::model::SpringDamper;
+use crate::serving::shm_model::AnswerWait;
 use anyhow::{bail, Result};
 use clap::{Args, Parser, Subcommand};
 use haptics_proto::experiment_args::ExperimentArgs;
@@ -211,7 +211,7 @@ pub struct ShmArgs {
     pub wait: Option<WaitArg>,
     /// Lockstep clock: after this many safety timeouts in a row the server is treated as gone
     /// (steps fall back without waiting) until its heartbeat moves again.
-    #[arg(long, default_value_t = crate::shm_model::DEFAULT_GIVE_UP_AFTER)]
+    #[arg(long, default_value_t = crate::serving::shm_model::DEFAULT_GIVE_UP_AFTER)]
     pub give_up_after: u32,
 }
 
@@ -321,7 +321,7 @@ impl CommonArgs {
         c.ramp.override_with(&self.experiment);
         self.passivity.apply(&mut c.passivity);
         if let Some(p) = &self.bench {
-            c.params.friction = crate::friction::Friction::load(p)?;
+            c.params.friction = crate::control::friction::Friction::load(p)?;
         }
         Ok(c)
     }

@@ -3,9 +3,9 @@
 
 use crate::board::sim::SimConfig;
 use crate::clock::RealtimeConfig;
+use crate::experiment::hand::HandConfig;
 use crate::experiment::{RampConfig, ReproductionConfig};
 use crate::features::FeatureParams;
-use crate::hand::HandConfig;
 use crate::invalid::{require_within, InvalidSetting};
 use crate::params::LoopParams;
 use crate::record::Format;
@@ -121,7 +121,7 @@ pub struct RunConfig {
     pub features: FeatureParams,
     pub reproduction: ReproductionConfig,
     /// The degradation ladder of reproduction (late answers, held force, fallback fade).
-    pub ladder: crate::ladder::LadderConfig,
+    pub ladder: crate::serving::ladder::LadderConfig,
     /// The time-domain passivity layer of reproduction (after the ladder).
     pub passivity: crate::passivity::PassivityConfig,
     pub realtime: RealtimeConfig,
@@ -152,7 +152,7 @@ impl Default for RunConfig {
             hand: HandConfig::default(),
             features: FeatureParams::default(),
             reproduction: ReproductionConfig::default(),
-            ladder: crate::ladder::LadderConfig::default(),
+            ladder: crate::serving::ladder::LadderConfig::default(),
             passivity: crate::passivity::PassivityConfig::default(),
             realtime: RealtimeConfig::default(),
         }

@@ -6,10 +6,10 @@
 //! end the running experiment at 0 A, finish its recording, remove the segment and exit.
 
 use crate::config::{ClockKind, ExperimentKind, RunConfig};
-use crate::model::ForceModel;
 use crate::percentiles::Percentiles;
-use crate::shm_io::{create_segment, LoopCommand, StartRequest};
-use crate::shm_model::{AnswerWait, ShmModel};
+use crate::serving::model::ForceModel;
+use crate::serving::shm_io::{create_segment, LoopCommand, StartRequest};
+use crate::serving::shm_model::{AnswerWait, ShmModel};
 use crate::stop::{Shutdown, StopReason};
 use anyhow::{anyhow, Result};
 use shm_ring::WaitStrategy;

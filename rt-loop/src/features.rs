@@ -285,7 +285,7 @@ pub fn compute_offline(
     g_a: f64,
     p: &FeatureParams,
 ) -> Vec<OfflineRow> {
-    let mut kin = crate::filters::Kinematics::new(g_v, g_a);
+    let mut kin = crate::control::filters::Kinematics::new(g_v, g_a);
     let mut fx = FeatureExtractor::new(p.clone());
     let mut out = Vec::with_capacity(x.len());
     for i in 0..x.len() {

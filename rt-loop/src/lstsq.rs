@@ -1,6 +1,6 @@
 //! Least squares with three unknowns, shared by the two fits the loop makes from data: the
-//! spring-damper fallback ([`crate::model::SpringDamper::fit`]) and the bench's friction
-//! ([`crate::friction::fit`]). A module of its own so that neither fit imports the other's
+//! spring-damper fallback ([`crate::serving::model::SpringDamper::fit`]) and the bench's friction
+//! ([`crate::control::friction::fit`]). A module of its own so that neither fit imports the other's
 //! module (friction used to reach into `model`, which imports `features`, which imports
 //! `filters`, which imports `friction`: a cycle).
 

@@ -11,9 +11,9 @@
 //! its time. Off the real-time path (a command over files).
 
 use crate::features::Features;
-use crate::model::ForceModel;
 use crate::object::material::Material;
 use crate::object::oracle::OracleModel;
+use crate::serving::model::ForceModel;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use std::path::{Path, PathBuf};

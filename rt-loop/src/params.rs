@@ -34,7 +34,7 @@ pub struct LoopParams {
     pub friction_model: f64,
     /// Coulomb/Stribeck/viscous friction the RFOB subtracts as well (`[params.friction]`, or
     /// the bench file of `rt-loop identify-friction` via `--bench`); zero by default.
-    pub friction: crate::friction::Friction,
+    pub friction: crate::control::friction::Friction,
     /// Position PID gains C_p, C_d, C_i (current = PID * M_n / K_fn).
     pub pid_p: f64,
     pub pid_d: f64,
@@ -63,7 +63,7 @@ impl Default for LoopParams {
             meters_per_count: 5e-6,
             position_limit: 0.05,
             friction_model: 0.0,
-            friction: crate::friction::Friction::default(),
+            friction: crate::control::friction::Friction::default(),
             pid_p: 700.0,
             pid_d: 12.0,
             pid_i: 1000.0,

@@ -9,14 +9,14 @@ use crate::board::sim::{SimBoard, SimTime, SimWorld};
 use crate::board::Board;
 use crate::clock::{JitterStats, RealtimeClock};
 use crate::config::{BoardKind, ClockKind, ExperimentKind, RunConfig};
+use crate::control::rig::{Rig, Stop};
 use crate::experiment::{Experiment, ModelStats, PositionPid, RampSchedule, Trajectory};
 use crate::material::Material;
-use crate::model::{ForceModel, SpringDamperModel};
 use crate::percentiles::Percentiles;
 use crate::record::row::Row;
 use crate::record::{RecorderHandle, RecorderReport, Target};
-use crate::rig::{Rig, Stop};
-use crate::sink::{RunFigures, StepAction, StepSink};
+use crate::serving::model::{ForceModel, SpringDamperModel};
+use crate::serving::sink::{RunFigures, StepAction, StepSink};
 use crate::stop::{Shutdown, StopReason};
 use anyhow::{anyhow, Result};
 use serde::Serialize;
@@ -40,24 +40,24 @@ pub struct RunSummary {
     pub model: Option<ModelStats>,
     /// The shared-memory client's counters (runs with a served model), filled in by the caller
     /// from the model the run gives back.
-    pub shm: Option<crate::shm_model::ShmCountersSnapshot>,
+    pub shm: Option<crate::serving::shm_model::ShmCountersSnapshot>,
     /// Loop-observed round trip to the server (runs with a served model), filled in by the caller.
     pub round_trip_us: Option<Percentiles>,
     /// Telemetry rows published into the segment (0 without one).
     pub telemetry_rows: u64,
     /// Reproduction/shadow: steps per rung of the degradation ladder (on_time, late_one,
     /// held, fallback); every step is counted in exactly one. `None` for other experiments.
-    pub ladder: Option<crate::ladder::LadderCounts>,
+    pub ladder: Option<crate::serving::ladder::LadderCounts>,
     /// Why each step not rendered by its on-time answer was not (one reason per such step:
     /// their sum is late_one + held + fallback).
-    pub degraded_reasons: Option<crate::ladder::Reasons>,
+    pub degraded_reasons: Option<crate::serving::ladder::Reasons>,
     /// Largest change of the rendered force in one step caused by a change of ladder level, N.
     pub max_transition_step_n: f64,
     /// Steps during which a ladder transition (slew catch-up or cross-fade) was under way.
     pub transition_steps: u64,
     /// Ring slots or indices found corrupt by the loop's shared-memory endpoints.
     pub corrupt: u64,
-    /// Steps whose measured dt exceeded [`crate::rig::LONG_STEP_FACTOR`] periods (stalls);
+    /// Steps whose measured dt exceeded [`crate::control::rig::LONG_STEP_FACTOR`] periods (stalls);
     /// the filters took a bounded update on them.
     pub long_steps: u64,
     /// The longest step, ms.
@@ -107,7 +107,7 @@ pub fn build_experiment(cfg: &RunConfig, model: Option<Box<dyn ForceModel>>) -> 
     Ok(match cfg.experiment {
         ExperimentKind::Abstraction => Experiment::Abstraction(RampSchedule::new(&cfg.ramp)),
         ExperimentKind::PositionReplay if cfg.friction_sweep => {
-            let plan = crate::friction_id::SweepPlan::default();
+            let plan = crate::control::friction_id::SweepPlan::default();
             plan.validate(cfg.params.position_limit)
                 .map_err(|e| anyhow!("--friction-sweep: {e}"))?;
             Experiment::PositionReplay {
@@ -140,7 +140,7 @@ pub fn build_experiment(cfg: &RunConfig, model: Option<Box<dyn ForceModel>>) -> 
             duration: cfg.hand.duration(),
             shadow: cfg.experiment == ExperimentKind::Shadow,
             stats: ModelStats::default(),
-            ladder: crate::ladder::Ladder::new(
+            ladder: crate::serving::ladder::Ladder::new(
                 &cfg.ladder,
                 cfg.reproduction.max_force_n,
                 cfg.reproduction.fallback,

@@ -98,7 +98,7 @@ fn reproduction_renders_the_model_and_shadow_compares() {
     cfg.hand.repeats = 2;
     cfg.experiment = ExperimentKind::Reproduction;
     let (rows, stop) = common::run_rows(&cfg);
-    assert_eq!(stop, rt_loop::rig::Stop::Finished);
+    assert_eq!(stop, rt_loop::control::rig::Stop::Finished);
     assert!(rows.iter().all(|r| r.phase == 5 && !r.fallback));
     let pressed: Vec<_> = rows.iter().filter(|r| r.f_pred > 2.0).collect();
     assert!(pressed.len() > 5000, "the hand pressed the virtual sponge");
@@ -134,7 +134,7 @@ fn reproduction_renders_the_model_and_shadow_compares() {
 #[test]
 fn bad_predictions_fall_back() {
     struct Flaky(std::sync::Arc<std::sync::atomic::AtomicU32>);
-    impl rt_loop::model::ForceModel for Flaky {
+    impl rt_loop::serving::model::ForceModel for Flaky {
         fn name(&self) -> &str {
             "flaky"
         }

@@ -6,7 +6,7 @@
 mod alloc_count;
 
 use rt_loop::config::{ExperimentKind, RunConfig};
-use rt_loop::friction::Friction;
+use rt_loop::control::friction::Friction;
 use rt_loop::material::Material;
 use rt_loop::oracle::OracleModel;
 

@@ -11,10 +11,10 @@ use haptics_proto::{ForceMsg, Segment};
 use rt_loop::board::{Board, BoardError, BoardStop, Snapshot};
 use rt_loop::config::{ClockKind, ExperimentKind};
 use rt_loop::features::Features;
-use rt_loop::ladder::{Ladder, LadderConfig, Level};
-use rt_loop::model::{Answer, ForceModel, Miss, SpringDamper};
-use rt_loop::shm_io::create_segment;
-use rt_loop::shm_model::{AnswerWait, ShmModel};
+use rt_loop::serving::ladder::{Ladder, LadderConfig, Level};
+use rt_loop::serving::model::{Answer, ForceModel, Miss, SpringDamper};
+use rt_loop::serving::shm_io::create_segment;
+use rt_loop::serving::shm_model::{AnswerWait, ShmModel};
 use shm_ring::{RecvError, WaitStrategy};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -452,7 +452,7 @@ fn zero_current_comes_before_any_wait_for_a_server_and_the_watchdog_after_it() {
     cfg.experiment = ExperimentKind::Reproduction;
     let board = rt_loop::run::build_board(&cfg, None).unwrap();
     let exp = rt_loop::run::build_experiment(&cfg, Some(Box::new(Waiting(log.clone())))).unwrap();
-    let mut rig = rt_loop::rig::Rig::new(
+    let mut rig = rt_loop::control::rig::Rig::new(
         LoggingBoard {
             log: log.clone(),
             inner: board,

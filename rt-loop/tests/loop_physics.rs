@@ -6,7 +6,7 @@ mod common;
 use common::{run_rows, short_cfg};
 use rt_loop::board::{Board, BoardStop, Snapshot};
 use rt_loop::config::ExperimentKind;
-use rt_loop::rig::Stop;
+use rt_loop::control::rig::Stop;
 
 /// On a slow ramp (1 N/s to 6 N and 10 N), with the RFOB's friction model set to the bench's
 /// Coulomb friction, the estimate follows the true contact force. Measured: 0.45 N RMS over
@@ -167,7 +167,7 @@ fn current_never_beyond_the_clamp() {
 #[test]
 fn position_limit_aborts_with_zero_current() {
     struct Nothing;
-    impl rt_loop::model::ForceModel for Nothing {
+    impl rt_loop::serving::model::ForceModel for Nothing {
         fn name(&self) -> &str {
             "nothing"
         }
@@ -205,9 +205,13 @@ fn position_limit_aborts_with_zero_current() {
         written: Vec::with_capacity(1 << 20),
     };
     let experiment = rt_loop::run::build_experiment(&cfg, Some(Box::new(Nothing))).unwrap();
-    let mut rig =
-        rt_loop::rig::Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone())
-            .unwrap();
+    let mut rig = rt_loop::control::rig::Rig::new(
+        board,
+        cfg.params.clone(),
+        experiment,
+        cfg.features.clone(),
+    )
+    .unwrap();
     rig.set_period(1.0 / cfg.rate_hz);
     let mut last = None;
     let stop = loop {
@@ -219,7 +223,7 @@ fn position_limit_aborts_with_zero_current() {
     assert_eq!(stop, Stop::PositionLimit);
     let last = last.unwrap();
     assert!(last.position_x < 0.05 && last.position_x > 0.045);
-    let zero_amps = rt_loop::dac::current_to_word(0.0, cfg.params.dac_full_scale);
+    let zero_amps = rt_loop::control::dac::current_to_word(0.0, cfg.params.dac_full_scale);
     assert_eq!(zero_amps, 32768);
     let words = &rig.board.written;
     assert!(

@@ -6,10 +6,10 @@ mod common;
 
 use rt_loop::config::ExperimentKind;
 use rt_loop::features::Features;
-use rt_loop::model::ForceModel;
 use rt_loop::record::row::Row;
 use rt_loop::record::RecorderReport;
-use rt_loop::sink::{RunFigures, SinkTotals, StepAction, StepSink};
+use rt_loop::serving::model::ForceModel;
+use rt_loop::serving::sink::{RunFigures, SinkTotals, StepAction, StepSink};
 use rt_loop::stop::{Shutdown, StopReason};
 use std::any::Any;
 

@@ -4,9 +4,9 @@
 
 use haptics_proto::{FeatureMsg, ForceMsg, Segment};
 use rt_loop::features::Features;
-use rt_loop::model::ForceModel;
-use rt_loop::shm_io::create_segment;
-use rt_loop::shm_model::{AnswerWait, ShmClient, ShmModel, SETTLE_AFTER_ATTACH};
+use rt_loop::serving::model::ForceModel;
+use rt_loop::serving::shm_io::create_segment;
+use rt_loop::serving::shm_model::{AnswerWait, ShmClient, ShmModel, SETTLE_AFTER_ATTACH};
 use shm_ring::{RecvError, SegmentName, WaitStrategy};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -199,8 +199,9 @@ fn server_gone_falls_back_without_waiting_and_a_new_server_resumes() {
     let back: Box<dyn ForceModel> = Box::new(model);
     let model = ShmModel::from_model(back).expect("the served model is recognised");
     assert_eq!(model.client().counters.snapshot().attachments_seen, 1);
-    let other: Box<dyn ForceModel> =
-        Box::new(rt_loop::model::SpringDamperModel(Default::default()));
+    let other: Box<dyn ForceModel> = Box::new(rt_loop::serving::model::SpringDamperModel(
+        Default::default(),
+    ));
     assert!(
         ShmModel::from_model(other).is_none(),
         "another model is not"

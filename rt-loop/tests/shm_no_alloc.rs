@@ -6,8 +6,8 @@ mod alloc_count;
 
 use haptics_proto::{ForceMsg, LoopStatusLink, Segment};
 use rt_loop::features::Features;
-use rt_loop::shm_io::create_segment;
-use rt_loop::shm_model::AnswerWait;
+use rt_loop::serving::shm_io::create_segment;
+use rt_loop::serving::shm_model::AnswerWait;
 use shm_ring::{RecvError, WaitStrategy};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;

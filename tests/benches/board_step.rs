@@ -22,7 +22,7 @@ fn measure(board: &mut dyn Board, seconds: f64) -> Histogram<u64> {
     let period = Duration::from_micros(100);
     let start = Instant::now();
     let mut k = 0u32;
-    let word = rt_loop::dac::current_to_word(0.05, 0.6);
+    let word = rt_loop::control::dac::current_to_word(0.05, 0.6);
     while start.elapsed().as_secs_f64() < seconds {
         k += 1;
         let next = start + period * k;

@@ -22,7 +22,7 @@ use haptics_system_tests::{bin, repo_root, Proc};
 use hdrhistogram::Histogram;
 use infer_server::{FeatureSchema, Runtime, SessionConfig, StepEngine};
 use rt_loop::config::{ClockKind, ExperimentKind, RunConfig};
-use rt_loop::shm_model::{AnswerWait, ShmClient, ShmModel};
+use rt_loop::serving::shm_model::{AnswerWait, ShmClient, ShmModel};
 use shm_ring::WaitStrategy;
 use shm_ring_bench_grpc::predictor_client::PredictorClient;
 use shm_ring_bench_grpc::predictor_server::{Predictor, PredictorServer};
@@ -226,7 +226,7 @@ struct LoopPass {
 /// the run's model and comes back with its result.
 fn loop_pass(
     client: ShmClient,
-    io: &mut rt_loop::shm_io::LoopIo,
+    io: &mut rt_loop::serving::shm_io::LoopIo,
     deadline: Duration,
     secs: f64,
 ) -> (LoopPass, ShmClient) {
@@ -293,7 +293,8 @@ fn main() {
         let grpc_q = q(&grpc(engine, secs));
 
         let instance = format!("bench-{}-{name}", std::process::id());
-        let seg = rt_loop::shm_io::create_segment(&instance, WaitStrategy::Spin).expect("segment");
+        let seg = rt_loop::serving::shm_io::create_segment(&instance, WaitStrategy::Spin)
+            .expect("segment");
         let mut io = seg.io;
         let mut client = seg.client;
         let mut extra: Vec<String> = server_args.split_whitespace().map(String::from).collect();

@@ -1,7 +1,7 @@
 //! Issue 20 item 5 end to end: a deliberately ACTIVE model (negative damping: its force leads
 //! the motion) exported as ONNX with the model contract's metadata, served by the real
 //! infer-server to the real rt-loop over shared memory, against the simulated hand (an
-//! impedance: stiffness and damping toward its moving set-point, rt-loop/src/hand.rs).
+//! impedance: stiffness and damping toward its moving set-point, rt-loop/src/experiment/hand.rs).
 //!
 //! - passivity layer off: the object gives the hand more energy than it received and the
 //!   motion oscillates with a growing amplitude;

@@ -243,7 +243,7 @@ pub struct PassivityStatus {
 
 impl LoopStatus {
     /// Whether the current (or last) run's recording failed: rt-loop's recorder text then
-    /// starts with "failed" (`rt-loop/src/shm_io.rs`, the recorder's status words).
+    /// starts with "failed" (`rt-loop/src/serving/shm_io.rs`, the recorder's status words).
     pub fn recorder_failed(&self) -> bool {
         self.recorder.starts_with("failed")
     }

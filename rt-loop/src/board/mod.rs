@@ -94,7 +94,7 @@ pub trait Board {
     /// Latches the encoder count and the timestamp. The simulated board advances its physics
     /// up to this instant first. REAL-TIME PATH.
     fn read(&mut self) -> Result<Snapshot, BoardStop>;
-    /// Writes the loop's 16-bit current word (32768 = 0 A; `crate::dac`). REAL-TIME PATH.
+    /// Writes the loop's 16-bit current word (32768 = 0 A; `crate::control::dac`). REAL-TIME PATH.
     fn write(&mut self, word: u16) -> Result<(), BoardStop>;
     /// Kicks the hardware watchdog. REAL-TIME PATH.
     fn kick(&mut self) -> Result<(), BoardStop>;

@@ -3,7 +3,7 @@
 //! command with `--rig FILE` into the loop's parameters and the 826's settings. TOML.
 
 use crate::config::RunConfig;
-use crate::friction::Friction;
+use crate::control::friction::Friction;
 use anyhow::{anyhow, Result};
 use serde::{Deserialize, Serialize};
 use std::path::Path;

@@ -7,8 +7,8 @@
 //! inline state: `snapshot`/`write_dac` allocate nothing and take no lock.
 
 use super::{Board, BoardError, BoardStop, Snapshot};
-use crate::dac;
-use crate::hand::HandConfig;
+use crate::control::dac;
+use crate::experiment::hand::HandConfig;
 use crate::invalid::{require_non_negative, require_positive, InvalidSetting};
 use crate::material::Material;
 use crate::object::{Law, Object};

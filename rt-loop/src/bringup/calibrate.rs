@@ -84,7 +84,10 @@ pub fn calibrate(cfg: &RunConfig, given: &Given) -> Result<(RigFile, Vec<String>
         // the sweeps run paced at the loop's rate (friction_id::identify), on the card's own
         // timestamps; a generous watchdog, as for the pulses
         fc.s826.watchdog_us = Some(super::BRINGUP_WATCHDOG_US);
-        let id = crate::friction_id::identify(&fc, &crate::friction_id::SweepPlan::default())?;
+        let id = crate::control::friction_id::identify(
+            &fc,
+            &crate::control::friction_id::SweepPlan::default(),
+        )?;
         notes.push(format!(
             "friction: {} sweep segments, fit RMS residual {:.4} N",
             id.fit.points.len(),

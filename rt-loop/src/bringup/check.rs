@@ -220,8 +220,9 @@ fn counts_per_metre(board: S826Board, cfg: &RunConfig) -> Result<(S826Board, Lin
         trajectory,
         pid: PositionPid::new(&cfg.params),
     };
-    let mut rig = crate::rig::Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone())
-        .map_err(|f| anyhow!("{}", f.error))?;
+    let mut rig =
+        crate::control::rig::Rig::new(board, cfg.params.clone(), experiment, cfg.features.clone())
+            .map_err(|f| anyhow!("{}", f.error))?;
     rig.set_period(1.0 / cfg.rate_hz);
     let mut clock = crate::clock::RealtimeClock::new(cfg.rate_hz);
     clock.start();
@@ -240,7 +241,7 @@ fn counts_per_metre(board: S826Board, cfg: &RunConfig) -> Result<(S826Board, Lin
     };
     let mut board = rig.board;
     board.deactivate();
-    if stop != crate::rig::Stop::Finished || k == 0 {
+    if stop != crate::control::rig::Stop::Finished || k == 0 {
         let l = line(
             "counts per metre",
             false,
@@ -267,7 +268,7 @@ fn watchdog_trip(board: &mut S826Board, cfg: &RunConfig) -> Result<Line> {
     let wd = cfg.s826.watchdog_at(cfg.rate_hz);
     board.set_watchdog_us(wd);
     board.activate(0)?;
-    let small = crate::dac::current_to_word(
+    let small = crate::control::dac::current_to_word(
         0.5 * PULSE_FRACTIONS[0] * cfg.params.current_limit,
         cfg.params.dac_full_scale,
     );

@@ -7,7 +7,7 @@ pub mod calibrate;
 pub mod check;
 
 use crate::board::Board;
-use crate::dac;
+use crate::control::dac;
 use crate::lstsq::NormalEquations3;
 use anyhow::{anyhow, Result};
 use std::time::{Duration, Instant};

@@ -13,7 +13,7 @@
 use super::material::Material;
 use super::{Law, Object};
 use crate::features::Features;
-use crate::model::ForceModel;
+use crate::serving::model::ForceModel;
 
 /// Sub-steps per control period: the simulated bench integrates its sponge at 10 us sub-steps
 /// at 10 kHz; the oracle interpolates the measured position over the same number.

@@ -30,7 +30,7 @@ pub fn short_cfg(cycles: u32, rate: f64, step: f64) -> RunConfig {
 }
 
 /// Runs the loop in memory (lockstep, no recorder) and returns every row and how it stopped.
-pub fn run_rows(cfg: &RunConfig) -> (Vec<Row>, rt_loop::rig::Stop) {
+pub fn run_rows(cfg: &RunConfig) -> (Vec<Row>, rt_loop::control::rig::Stop) {
     let mut rig = rt_loop::run::build_rig(cfg, None).expect("rig");
     let mut rows = Vec::new();
     loop {

@@ -146,7 +146,7 @@ impl Card {
                     None
                 }
             };
-        let hand = Some(rt_loop::hand::HandConfig::default());
+        let hand = Some(rt_loop::experiment::hand::HandConfig::default());
         let world = match self.env.world.as_str() {
             "hand" => SimWorld { sponge: None, hand },
             "both" => SimWorld {
@@ -192,7 +192,7 @@ impl Card {
         self.amps = amps;
         if let Some(sim) = self.sim.as_mut() {
             let fs = SimConfig::default().dac_full_scale;
-            let _ = sim.write(rt_loop::dac::current_to_word(amps, fs));
+            let _ = sim.write(rt_loop::control::dac::current_to_word(amps, fs));
         }
         if before != 0.0 && amps == 0.0 {
             let n = self.snapshots;

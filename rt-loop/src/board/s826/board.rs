@@ -13,7 +13,7 @@ use super::api::*;
 use super::library::S826Lib;
 use super::S826Config;
 use crate::board::{Board, BoardError, BoardHealth, BoardStop, Snapshot};
-use crate::dac;
+use crate::control::dac;
 use std::os::raw::c_uint;
 
 /// The card's versions (`S826_VersionRead`).
@@ -110,7 +110,7 @@ pub struct S826Board {
     cfg: S826Config,
     /// The motor's current limit, A: the DAC never commands more, whatever the word says.
     current_limit: f64,
-    /// Full scale of the loop's current words (`crate::dac`), A.
+    /// Full scale of the loop's current words (`crate::control::dac`), A.
     dac_full_scale: f64,
     watchdog_us: u32,
     open: bool,

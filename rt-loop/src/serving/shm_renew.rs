@@ -17,7 +17,7 @@
 //! - drops the endpoints the loop thread handed back (unmapping is a syscall: not on the loop
 //!   thread).
 //!
-//! The loop thread's side ([`Renewal::fresh_client`], [`Renewal::fresh_io`]) costs one relaxed
+//! The loop thread's side ([`Renewal::swap_client`], [`Renewal::swap_io`]) costs one relaxed
 //! atomic load per call while nothing is pending; taking fresh endpoints is a `try_lock` that
 //! never waits (the keeper holds the lock only to move a value) and moves a few pointers: no
 //! allocation, no syscall. Until the server attaches to the new segment the loop has no server,

@@ -2,11 +2,13 @@
 //! recorded trajectory, reproduction against a simulated hand (and its shadow variant).
 //! Schedules are built before the run; looking them up in the step allocates nothing.
 
+pub mod hand;
+
+use crate::control::filters::{Estimate, PseudoDerivative};
 use crate::features::Features;
-use crate::filters::{Estimate, PseudoDerivative};
 use crate::invalid::{require_non_negative, InvalidSeries, InvalidSetting};
-use crate::model::{ForceModel, SpringDamper};
 use crate::params::LoopParams;
+use crate::serving::model::{ForceModel, SpringDamper};
 use serde::{Deserialize, Serialize};
 
 /// The `phase` column: haptics-proto's.
@@ -357,7 +359,7 @@ pub enum Experiment {
         shadow: bool,
         stats: ModelStats,
         /// What is rendered when the model's answer is not there in time (issue 14).
-        ladder: crate::ladder::Ladder,
+        ladder: crate::serving::ladder::Ladder,
     },
 }
 
@@ -395,7 +397,7 @@ impl Experiment {
     }
 
     /// The ladder's figures of a reproduction/shadow run (`None` for other experiments).
-    pub fn ladder_report(&self) -> Option<crate::ladder::LadderReport> {
+    pub fn ladder_report(&self) -> Option<crate::serving::ladder::LadderReport> {
         match self {
             Experiment::Reproduction { ladder, .. } => Some(ladder.report()),
             _ => None,
@@ -471,10 +473,11 @@ impl Experiment {
                 // the ladder asks the model and replaces a missing answer without a jump;
                 // `fallback` marks every step not rendered by the model's on-time answer
                 let r = ladder.render(model.as_mut(), step, time, feats);
-                let (f_pred, fallback) = (r.force, r.level != crate::ladder::Level::OnTime);
+                let (f_pred, fallback) =
+                    (r.force, r.level != crate::serving::ladder::Level::OnTime);
                 // the held value is the last served answer; the fallback is no served model's
                 let model_id = match r.level {
-                    crate::ladder::Level::Fallback => 0,
+                    crate::serving::ladder::Level::Fallback => 0,
                     _ => model.model_id(),
                 };
                 if fallback {

@@ -145,7 +145,7 @@ pub struct Estimator {
     pub dob: ForceObserver,
     pub rfob: ForceObserver,
     friction_model: f64,
-    friction: crate::friction::Friction,
+    friction: crate::control::friction::Friction,
     /// Whether the identified friction model is subtracted this step (the rig sets it: while
     /// the probe pushes against an object; see rig.rs).
     pub friction_active: bool,
@@ -186,7 +186,7 @@ impl Estimator {
         } else {
             0.0
         };
-        // plus the identified Coulomb/Stribeck/viscous model (crate::friction), 0 by default
+        // plus the identified Coulomb/Stribeck/viscous model (crate::control::friction), 0 by default
         let fric = if self.friction_active {
             coulomb + self.friction.force(v)
         } else {

@@ -6,15 +6,15 @@
 //! with a counting global allocator (tests/alloc_free_step.rs) holds it to that.
 
 use crate::board::{Board, BoardError, BoardHealth, BoardStop};
-use crate::dac;
+use crate::control::dac;
+use crate::control::filters::Estimator;
 use crate::experiment::{Command, Experiment, Phase};
 use crate::features::{FeatureExtractor, FeatureParams};
-use crate::filters::Estimator;
 use crate::params::LoopParams;
 use crate::record::row::Row;
 
 /// A step whose dt exceeds this many nominal periods is a stall: counted, and its updates
-/// bounded (the filters' exact discretisation, see [`crate::filters`]; the PID's integral
+/// bounded (the filters' exact discretisation, see [`crate::control::filters`]; the PID's integral
 /// takes at most this many periods).
 pub const LONG_STEP_FACTOR: f64 = 3.0;
 

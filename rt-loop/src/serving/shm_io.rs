@@ -15,8 +15,8 @@ use crate::features::SCHEMA_NAMES;
 use crate::percentiles::quantiles;
 use crate::record::row::Row;
 use crate::record::RecorderReport;
-use crate::shm_model::ShmClient;
-use crate::sink::{RunFigures, SinkTotals, StepAction, StepSink};
+use crate::serving::shm_model::ShmClient;
+use crate::serving::sink::{RunFigures, SinkTotals, StepAction, StepSink};
 use anyhow::{anyhow, bail, Result};
 use haptics_proto::experiment_args::ExperimentArgs;
 use haptics_proto::{
@@ -81,7 +81,7 @@ pub fn create_segment(instance: &str, answer_wait: WaitStrategy) -> Result<LoopS
     );
     let mut io = LoopIo::new(side.telemetry_tx, side.commands_rx, side.link);
     // The keeper: audits the segment and re-creates it when it is found corrupt.
-    let (c, i) = crate::shm_renew::Renewal::start(io.link.clone(), answer_wait)?;
+    let (c, i) = crate::serving::shm_renew::Renewal::start(io.link.clone(), answer_wait)?;
     (client.renewal, io.renewal) = (Some(c), Some(i));
     Ok(LoopSegment { client, io, name })
 }
@@ -171,7 +171,7 @@ pub struct LoopIo {
     status_countdown: u32,
     last_status: Instant,
     /// Fresh endpoints when the segment is re-created after corruption (`shm_renew`).
-    pub renewal: Option<crate::shm_renew::Renewal>,
+    pub renewal: Option<crate::serving::shm_renew::Renewal>,
     /// The keeper's corruption count when the current run began.
     corrupt_at_run_start: u64,
 }
@@ -383,7 +383,7 @@ impl LoopIo {
             &mut self.commands_rx,
             &mut self.link,
         );
-        renewal.swap_io(|new| crate::shm_renew::IoEnds {
+        renewal.swap_io(|new| crate::serving::shm_renew::IoEnds {
             telemetry_tx: std::mem::replace(tx, new.telemetry_tx),
             commands_rx: std::mem::replace(rx, new.commands_rx),
             link: std::mem::replace(link, new.link),

@@ -17,7 +17,7 @@
 //! [`LIVENESS_EVERY`] steps (and when a new server attachment is seen).
 
 use crate::features::Features;
-use crate::model::{Answer, ForceModel, Miss};
+use crate::serving::model::{Answer, ForceModel, Miss};
 use crate::stop::Shutdown;
 use haptics_proto::{FeatureMsg, ForceMsg};
 use hdrhistogram::Histogram;
@@ -166,7 +166,7 @@ pub struct ShmClient {
     pub round_trip_ns: Histogram<u64>,
     pub counters: Arc<ShmCounters>,
     /// Fresh endpoints when the segment is re-created after corruption (`shm_renew`).
-    pub renewal: Option<crate::shm_renew::Renewal>,
+    pub renewal: Option<crate::serving::shm_renew::Renewal>,
     /// Ends the waits for a server or a model early (Ctrl-C while waiting).
     shutdown: Option<Shutdown>,
     /// The server's id of the model whose answer was last used (`ForceMsg.model_id`; 0: none
@@ -231,7 +231,7 @@ impl ShmClient {
             return;
         };
         let (tx, rx, link) = (&mut self.features_tx, &mut self.forces_rx, &mut self.link);
-        if renewal.swap_client(|new| crate::shm_renew::ClientEnds {
+        if renewal.swap_client(|new| crate::serving::shm_renew::ClientEnds {
             features_tx: std::mem::replace(tx, new.features_tx),
             forces_rx: std::mem::replace(rx, new.forces_rx),
             link: std::mem::replace(link, new.link),

@@ -1,6 +1,6 @@
 //! [`StepSink`]: where a run's per-step output goes besides its recording. The run
 //! ([`crate::run::run_with`]) only knows this trait; the shared-memory side channel
-//! ([`crate::shm_io::LoopIo`]: telemetry, heartbeat, mailbox, status block) implements it. So
+//! ([`crate::serving::shm_io::LoopIo`]: telemetry, heartbeat, mailbox, status block) implements it. So
 //! the run does not import the shared-memory modules, and they do not import the run.
 
 use crate::clock::RealtimeClock;

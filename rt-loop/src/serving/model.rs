@@ -35,7 +35,7 @@ pub enum Miss {
     Rejected,
 }
 
-/// What a model has for one step (see [`crate::ladder`]).
+/// What a model has for one step (see [`crate::serving::ladder`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Answer {
     /// The answer to this step, in time: F_pred, N.

@@ -34,7 +34,7 @@
 
 use crate::features::Features;
 use crate::invalid::{require_within, InvalidSetting};
-use crate::model::{Answer, ForceModel, Miss, SpringDamper};
+use crate::serving::model::{Answer, ForceModel, Miss, SpringDamper};
 use serde::{Deserialize, Serialize};
 
 /// `[ladder]` of the run configuration.

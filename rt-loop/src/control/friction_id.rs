@@ -1,6 +1,6 @@
 //! Friction identification (`rt-loop identify-friction`, issue 11 item 1): slow constant-velocity
 //! sweeps in free air under position control, the DOB's force averaged over each segment, the
-//! Coulomb/Stribeck/viscous model fitted ([`crate::friction::fit`]) and written to the bench
+//! Coulomb/Stribeck/viscous model fitted ([`crate::control::friction::fit`]) and written to the bench
 //! file that `rt-loop run --bench` (and `serve --bench`) read into the RFOB's friction model.
 //!
 //! Why the DOB: at constant velocity the nominal-mass term vanishes and the disturbance the
@@ -15,10 +15,10 @@ use crate::board::sim::SimConfig;
 use crate::board::Board;
 use crate::clock::RealtimeClock;
 use crate::config::{ClockKind, RunConfig};
+use crate::control::friction::{fit, BenchFile, FrictionFit, SweepPoint};
+use crate::control::rig::{Rig, Stop};
 use crate::experiment::{Experiment, PositionPid, Trajectory};
-use crate::friction::{fit, BenchFile, FrictionFit, SweepPoint};
 use crate::invalid::InvalidSetting;
-use crate::rig::{Rig, Stop};
 use anyhow::{anyhow, bail, Result};
 use serde::Serialize;
 
@@ -130,13 +130,13 @@ pub struct Identification {
     pub loop_time_s: f64,
     /// On the simulated bench: its true friction, expressed in the loop's units (times
     /// K_fn / K_f,true), to compare the identified values with.
-    pub sim_truth_loop_units: Option<crate::friction::Friction>,
+    pub sim_truth_loop_units: Option<crate::control::friction::Friction>,
 }
 
 /// The simulated bench's friction as the loop sees it (N of K_fn times current).
-pub fn sim_truth(sim: &SimConfig, k_fn: f64) -> crate::friction::Friction {
+pub fn sim_truth(sim: &SimConfig, k_fn: f64) -> crate::control::friction::Friction {
     let s = k_fn / sim.force_constant;
-    crate::friction::Friction {
+    crate::control::friction::Friction {
         coulomb_n: sim.coulomb_n * s,
         static_n: sim.static_n * s,
         stribeck_mps: sim.stribeck_mps,
@@ -235,7 +235,7 @@ pub fn identify(cfg: &RunConfig, plan: &SweepPlan) -> Result<Identification> {
 pub fn bench_toml(id: &Identification, command: &str) -> Result<String> {
     let mut f = id.fit.friction;
     // the smoothing band is a rendering choice, not identified: keep the default
-    f.smooth_mps = crate::friction::Friction::default().smooth_mps;
+    f.smooth_mps = crate::control::friction::Friction::default().smooth_mps;
     let body = toml::to_string(&BenchFile { friction: f })?;
     Ok(format!(
         "# The bench configuration: friction identified by `{command}`\n\
