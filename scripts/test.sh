@@ -16,7 +16,10 @@ cd "$(dirname "$0")/.."
 root=$(pwd)
 export CARGO_TERM_COLOR=never
 
-step() { printf '\n==> %s\n' "$*"; }
+# Each step's header says when it started (minutes:seconds since the test command began), so a
+# slow run shows where its time went; the total is printed just above the last line.
+since_start() { printf '%d:%02d' $((SECONDS / 60)) $((SECONDS % 60)); }
+step() { printf '\n==> %s  [%s]\n' "$*" "$(since_start)"; }
 
 mkdir -p target
 export HAPTICS_SKIP_LOG="$root/target/test-skips.log"
@@ -60,6 +63,7 @@ summary() {
     echo "skipped (recorded by the tests; under CI=true these fail):"
     sed 's/^/  /' "$HAPTICS_SKIP_LOG"
   fi
+  echo "test command: $(since_start) (minutes:seconds)"
   # The last line: read by CI.
   awk -v recorded="${recorded:-0}" -v status="$status" '
     { p += $1; f += $2; s += $3 }
