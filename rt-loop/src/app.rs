@@ -68,13 +68,13 @@ pub fn run_experiment(a: &RunArgs, shutdown: &Shutdown) -> Result<ExitCode> {
     let mut counters = None;
     let mut model: Option<Box<dyn crate::serving::model::ForceModel>> = None;
     if a.model == ModelArg::Oracle {
-        let (material, _) = crate::material::Material::load(&cfg.material)?;
-        // in the loop's force units: K_fn / K_f of the simulated bench (crate::oracle)
+        let (material, _) = crate::object::material::Material::load(&cfg.material)?;
+        // in the loop's force units: K_fn / K_f of the simulated bench (crate::object::oracle)
         let scale = match cfg.board {
             BoardKind::Sim => cfg.params.k_fn / cfg.sim.force_constant,
             BoardKind::Replay | BoardKind::S826 { .. } => 1.0,
         };
-        model = Some(Box::new(crate::oracle::OracleModel::new(
+        model = Some(Box::new(crate::object::oracle::OracleModel::new(
             &material,
             cfg.rate_hz,
             scale,

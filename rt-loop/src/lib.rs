@@ -39,15 +39,3 @@ pub mod rng;
 pub mod run;
 pub mod serving;
 pub mod stop;
-
-/// The old paths of the object's modules (before `object/`), kept so code written against them
-/// still compiles.
-pub mod material {
-    pub use crate::object::material::*;
-}
-pub mod oracle {
-    pub use crate::object::oracle::*;
-}
-pub mod sponge {
-    pub use crate::object::foam::*;
-}

@@ -11,7 +11,7 @@ use crate::clock::{JitterStats, RealtimeClock};
 use crate::config::{BoardKind, ClockKind, ExperimentKind, RunConfig};
 use crate::control::rig::{Rig, Stop};
 use crate::experiment::{Experiment, ModelStats, PositionPid, RampSchedule, Trajectory};
-use crate::material::Material;
+use crate::object::material::Material;
 use crate::percentiles::Percentiles;
 use crate::record::row::Row;
 use crate::record::{RecorderHandle, RecorderReport, Target};

@@ -7,8 +7,8 @@ mod alloc_count;
 
 use rt_loop::config::{ExperimentKind, RunConfig};
 use rt_loop::control::friction::Friction;
-use rt_loop::material::Material;
-use rt_loop::oracle::OracleModel;
+use rt_loop::object::material::Material;
+use rt_loop::object::oracle::OracleModel;
 
 #[test]
 fn oracle_reproduction_with_friction_compensation_allocates_nothing() {

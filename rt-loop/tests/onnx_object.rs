@@ -21,10 +21,10 @@ use std::time::Instant;
 use common::{ramp_tracking_rms, run_rows, short_cfg, tmpdir};
 use rt_loop::control::rig::Stop;
 use rt_loop::features::Features;
-use rt_loop::material::Material;
+use rt_loop::object::material::Material;
 use rt_loop::object::onnx::FAULT_NON_FINITE;
+use rt_loop::object::oracle::OracleModel;
 use rt_loop::object::{Law, Object};
-use rt_loop::oracle::OracleModel;
 use rt_loop::serving::model::ForceModel;
 
 fn repo(rel: &str) -> PathBuf {

@@ -10,7 +10,7 @@ use super::{Board, BoardError, BoardStop, Snapshot};
 use crate::control::dac;
 use crate::experiment::hand::HandConfig;
 use crate::invalid::{require_non_negative, require_positive, InvalidSetting};
-use crate::material::Material;
+use crate::object::material::Material;
 use crate::object::{Law, Object};
 use crate::rng::Rng;
 use serde::{Deserialize, Serialize};

@@ -137,15 +137,16 @@ impl Card {
         if self.sim.is_some() {
             return;
         }
-        let material =
-            match rt_loop::material::Material::load(std::path::Path::new(&self.env.material)) {
-                Ok((m, _)) => Some(m),
-                Err(e) => {
-                    let why = format!("{e:#}");
-                    self.log("material-missing", format_args!("{why} (free air)"));
-                    None
-                }
-            };
+        let material = match rt_loop::object::material::Material::load(std::path::Path::new(
+            &self.env.material,
+        )) {
+            Ok((m, _)) => Some(m),
+            Err(e) => {
+                let why = format!("{e:#}");
+                self.log("material-missing", format_args!("{why} (free air)"));
+                None
+            }
+        };
         let hand = Some(rt_loop::experiment::hand::HandConfig::default());
         let world = match self.env.world.as_str() {
             "hand" => SimWorld { sponge: None, hand },
