@@ -251,16 +251,48 @@ impl Drop for Proc {
     }
 }
 
-/// A fresh temporary directory under the system's temp dir.
-pub fn temp_dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!(
-        "haptics-{tag}-{}-{}",
-        std::process::id(),
-        Instant::now().elapsed().as_nanos() ^ (std::ptr::addr_of!(tag) as usize as u128)
-    ));
+/// A fresh temporary directory under the system's temp dir, removed when the test is done with
+/// it. A test that fails keeps its directory (the loop's logs, recordings and configs are the
+/// evidence) and says where it is.
+pub struct TempDir(PathBuf);
+
+impl TempDir {
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl std::ops::Deref for TempDir {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for TempDir {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            eprintln!("test failed: its files are kept in {}", self.0.display());
+        } else {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+}
+
+/// A fresh [`TempDir`]: `haptics-TAG-PID-N` (N counts this process's directories).
+pub fn temp_dir(tag: &str) -> TempDir {
+    static NEXT: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let d = std::env::temp_dir().join(format!("haptics-{tag}-{}-{n}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).expect("create temp dir");
-    d
+    TempDir(d)
 }
 
 /// A unique instance name for a test (segment `/haptics-<name>`).
@@ -353,4 +385,35 @@ pub fn http_get(addr: &str, path: &str) -> String {
     out.split_once("\r\n\r\n")
         .map(|(_, b)| b.to_string())
         .unwrap_or_default()
+}
+
+#[cfg(test)]
+mod temp_dir_tests {
+    use super::temp_dir;
+
+    #[test]
+    fn a_passing_test_leaves_no_directory_behind() {
+        let dir = temp_dir("unit-pass");
+        std::fs::write(dir.join("f"), b"x").unwrap();
+        let path = dir.to_path_buf();
+        drop(dir);
+        assert!(!path.exists(), "{} still exists", path.display());
+    }
+
+    #[test]
+    fn a_failing_test_keeps_its_files() {
+        let (tx, rx) = std::sync::mpsc::channel();
+        let failed = std::thread::spawn(move || {
+            let dir = temp_dir("unit-fail");
+            std::fs::write(dir.join("evidence.log"), b"x").unwrap();
+            tx.send(dir.to_path_buf()).unwrap();
+            panic!("the test fails");
+        })
+        .join();
+        assert!(failed.is_err());
+        let path = rx.recv().unwrap();
+        let kept = path.join("evidence.log").exists();
+        let _ = std::fs::remove_dir_all(&path);
+        assert!(kept, "{} was removed", path.display());
+    }
 }

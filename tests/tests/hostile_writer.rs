@@ -243,5 +243,4 @@ fn random_writes_into_a_live_segment_never_crash_the_loop_or_the_server() {
     );
     server.signal(libc::SIGINT);
     let _ = server.wait_exit(Duration::from_secs(10));
-    let _ = std::fs::remove_dir_all(&dir);
 }

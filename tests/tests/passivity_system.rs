@@ -201,5 +201,4 @@ fn an_active_model_gains_the_hand_energy_without_the_layer_and_none_with_it() {
         "observer {rec_in} J vs recording {} J",
         on.received
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -19,7 +19,7 @@
 use haptics_system_tests::skip::skip;
 use haptics_system_tests::{
     bin, bin_dir, instance, repo_root, shm_entries, start_infer_server, temp_dir,
-    write_linear_model, Proc,
+    write_linear_model, Proc, TempDir,
 };
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -123,7 +123,7 @@ fn up_sh_models() -> Vec<(String, Vec<&'static str>)> {
 }
 
 /// A scratch working folder: the repository's inputs linked, its own `data/` and `models/`.
-fn scratch(models: &[(String, Vec<&'static str>)]) -> PathBuf {
+fn scratch(models: &[(String, Vec<&'static str>)]) -> TempDir {
     let root = repo_root();
     let dir = temp_dir("readme");
     std::fs::create_dir_all(dir.join("target")).unwrap();
@@ -303,7 +303,7 @@ fn readme_commands_run_as_written_against_a_live_system() {
     lp.wait_for("serving segment", Duration::from_secs(30));
     let (mut server, addr) = start_infer_server(&inst, &dir.join("models"), Some(&served));
     let live = Live {
-        dir: dir.clone(),
+        dir: dir.to_path_buf(),
         addr,
         inst: inst.clone(),
     };
@@ -381,5 +381,4 @@ fn readme_commands_run_as_written_against_a_live_system() {
         lp.output()
     );
     assert!(shm_entries(&inst).is_empty(), "{:?}", shm_entries(&inst));
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -20,7 +20,7 @@ use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 use haptics_system_tests::skip::skip;
-use haptics_system_tests::{bin, instance, python, repo_root, temp_dir, Proc};
+use haptics_system_tests::{bin, instance, python, repo_root, temp_dir, Proc, TempDir};
 
 fn is_root() -> bool {
     // SAFETY: geteuid has no preconditions.
@@ -52,7 +52,7 @@ struct System {
     server: Proc,
     grpc: String,
     http: String,
-    runtime: PathBuf,
+    runtime: TempDir,
     instance: String,
 }
 
@@ -71,7 +71,7 @@ impl System {
             "infer-server",
             Command::new(bin("infer-server"))
                 .env_remove("HAPTICS_TOKEN")
-                .env("XDG_RUNTIME_DIR", &runtime)
+                .env("XDG_RUNTIME_DIR", runtime.path())
                 .args(["serve", "--instance", &inst, "--wait", "park"])
                 .args(["--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0", "--models"])
                 .arg(models)
@@ -108,7 +108,7 @@ impl System {
         Command::new(bin("hapticctl"))
             .env_remove("HAPTICS_TOKEN")
             .env_remove("HAPTICS_ADDR")
-            .env("XDG_RUNTIME_DIR", &self.runtime)
+            .env("XDG_RUNTIME_DIR", self.runtime.path())
             .env("HAPTICS_INSTANCE", &self.instance)
             .args(args)
             .output()
@@ -387,16 +387,14 @@ fn overwrite_refuses_devices_symlinks_directories_and_fifos_and_leaves_them_unto
     assert!(std::fs::read_to_string(&regular)
         .unwrap()
         .starts_with("step,"));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// A small tmpfs, unmounted when dropped.
-struct Tmpfs(PathBuf);
+/// A small tmpfs (a full filesystem), unmounted when dropped; its directory goes after (the field's drop).
+struct Tmpfs(TempDir);
 
 impl Drop for Tmpfs {
     fn drop(&mut self) {
-        let _ = Command::new("umount").arg(&self.0).status();
-        let _ = std::fs::remove_dir(&self.0);
+        let _ = Command::new("umount").arg(self.0.path()).status();
     }
 }
 
@@ -408,11 +406,11 @@ fn a_full_disk_under_serve_is_said_in_every_place_and_the_rows_written_stay_read
     let mnt = temp_dir("trust-full");
     let ok = Command::new("mount")
         .args(["-t", "tmpfs", "-o", "size=64k", "tmpfs"])
-        .arg(&mnt)
+        .arg(mnt.path())
         .status()
         .unwrap();
     assert!(ok.success(), "mount tmpfs");
-    let fs = Tmpfs(mnt.clone());
+    let fs = Tmpfs(mnt);
     let models = temp_dir("trust-full-models");
     fixtures(&models);
     let rec = fs.0.to_str().unwrap().to_string();
