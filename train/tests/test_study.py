@@ -25,8 +25,8 @@ from haptics_train.study import (
     write_config,
     write_fidelity,
 )
-from haptics_train.study.report import floor_section
-from haptics_train.study.score import run_flags
+from haptics_train.study.report import floor_section, phase_section
+from haptics_train.study.score import HAND_PHASES, felt_by_phase, hand_phase, run_flags
 
 
 def test_align_identical_grid_is_identity() -> None:
@@ -269,3 +269,64 @@ def test_oracle_renders_the_floor_with_rt_loop(rt_loop: Path, tmp_path: Path) ->
             rmse[name] = m["rmse"]
         assert rmse["oracle"] < 0.2, (extra, rmse)
         assert rmse["oracle"] < 0.25 * rmse["builtin"], (extra, rmse)
+
+
+def test_hand_phase_follows_rt_loops_programme() -> None:
+    # STUDY_HAND: a 0.5 s rest, then three cycles of press 1.0, hold 0.5, release 1.0,
+    # rest 0.5 s (rt-loop/src/experiment/hand.rs); after the last cycle, rest.
+    t = np.array([0.25, 0.6, 1.6, 2.2, 3.2, 3.6, 6.6, 9.4, 9.6, 12.0]) + 7.0  # any start
+    t = np.concatenate([[7.0], t])
+    names = [HAND_PHASES[i] for i in hand_phase(t, STUDY_HAND)]
+    assert names == ["rest", "rest", "press", "hold", "release", "rest", "press", "press",
+                     "rest", "rest", "rest"]  # fmt: skip
+
+
+def _phase_run(f: np.ndarray, t: np.ndarray) -> Run:
+    return Run(name="m", kind="reproduction", path=Path("m"), ok=True, steps=t.size,
+               series={"time": t, "F_true": f})  # fmt: skip
+
+
+def test_felt_by_phase_puts_the_error_where_it_is() -> None:
+    t = np.arange(0.0, 9.5, 1e-3)
+    ph = np.array([HAND_PHASES[i] for i in hand_phase(t, STUDY_HAND)])
+    ref = np.zeros_like(t)
+    run = np.where(ph == "hold", -0.2, np.where(ph == "rest", 0.1, 0.0))
+    out = felt_by_phase(t, ref, _phase_run(run, t), STUDY_HAND)
+    assert out is not None
+    hold_s, rest_s = 3 * 0.5, 0.5 + 3 * 0.5
+    sq_hold, sq_rest = 0.04 * hold_s, 0.01 * rest_s
+    assert out["hold"]["sq_error_share"] == pytest.approx(sq_hold / (sq_hold + sq_rest), rel=1e-2)
+    assert out["rest"]["sq_error_share"] == pytest.approx(sq_rest / (sq_hold + sq_rest), rel=1e-2)
+    assert out["press"]["sq_error_share"] == 0.0
+    assert out["hold"]["bias_n"] == pytest.approx(-0.2)
+    assert out["hold"]["rmse"] == pytest.approx(0.2)
+    assert out["press"]["time_share"] == pytest.approx(3.0 / 9.5, rel=1e-2)
+    assert sum(v["time_share"] for v in out.values()) == pytest.approx(1.0)
+    # a perfect run: shares of nothing are None, not NaN (results.json stays JSON)
+    perfect = felt_by_phase(t, ref, _phase_run(ref, t), STUDY_HAND)
+    assert perfect is not None and perfect["hold"]["sq_error_share"] is None
+    json.dumps(perfect, allow_nan=False)
+
+
+def test_phase_section_says_where_the_best_models_error_sits() -> None:
+    t = np.arange(0.0, 9.5, 1e-3)
+    ph = np.array([HAND_PHASES[i] for i in hand_phase(t, STUDY_HAND)])
+    ref = np.zeros_like(t)
+    rows = [_row(ORACLE, 0.03, False), _row("sd_poly2", 1.2, False), _row("m", 0.1, True)]
+    errs = {ORACLE: np.where(ph == "release", 0.03, 0.0),
+            "sd_poly2": np.where(ph == "press", 1.0, 0.1),
+            "m": np.where(ph == "press", -0.15, 0.02)}  # fmt: skip
+    for r in rows:
+        r.by_phase = felt_by_phase(t, ref, _phase_run(errs[r.name], t), STUDY_HAND)
+    text = "\n".join(phase_section(rows))
+    m = rows[2].by_phase
+    assert m is not None
+    share = m["press"]["sq_error_share"]
+    assert share is not None and share > 0.9
+    assert (
+        f"The largest share of `m`'s squared felt-force error, {100 * share:.0f} %, falls in "
+        "the press phases, which take 32 % of the time; there the hand pushes 0.150 N less "
+        "than on the object on average (RMSE 0.150 N)." in text
+    ), text
+    assert "| `oracle` | 0 % (0.000 N, +0.000 N) |" in text
+    assert text.count("| `") == 3

@@ -20,6 +20,7 @@ from .protocol import (
     STUDY_HAND,
 )
 from .score import (
+    HAND_PHASES,
     Row,
     best_row,
     felt_rmse,
@@ -259,6 +260,7 @@ def write_readme(
     L.append("![felt force over time](felt_force_time.png)\n")
     L.append("and over depth (felt force against the probe's depth):\n")
     L.append("![felt force over depth](felt_force_depth.png)\n")
+    L.extend(phase_section(rows))
 
     rf = replay["rtob_force"]
     tf = replay["F_true"]
@@ -344,6 +346,55 @@ def write_readme(
     return path
 
 
+def phase_section(rows: list[Row]) -> list[str]:
+    """Where in the hand programme the felt-force error sits, for the oracle, the best learned
+    model and sd_poly2 (each row's `felt_by_phase`); every sentence from the numbers."""
+    best = best_row(rows, True)
+    picked = [r for r in (named_row(rows, ORACLE), best, sd2_row(rows)) if r and r.by_phase]
+    if not picked:
+        return []
+    L = ["### Where the felt error sits in the hand programme\n"]
+    L.append(
+        "Each reproduction's felt-force error split by the phase of the hand programme it "
+        "falls in: the share of the squared error (the phase's RMSE; the mean error, the hand's "
+        "force in the reproduction minus on the object: negative where it pushes with less "
+        "force, i.e. the rendering is softer there). The time each phase takes: "
+        + ", ".join(
+            f"{p} {100 * (picked[0].by_phase.get(p) or {}).get('time_share', 0.0):.0f} %"
+            for p in HAND_PHASES
+        )
+        + ".\n"
+    )
+    L.append("| model | " + " | ".join(HAND_PHASES) + " |")
+    L.append("|---|" + "---|" * len(HAND_PHASES))
+
+    def cell(r: Row, p: str) -> str:
+        v = (r.by_phase or {}).get(p)
+        if not v:
+            return "-"
+        share = v["sq_error_share"]
+        pct = "-" if share is None else f"{100 * share:.0f} %"
+        return f"{pct} ({fmt(v['rmse'])} N, {v['bias_n']:+.3f} N)"
+
+    for r in picked:
+        L.append(f"| `{r.name}` | " + " | ".join(cell(r, p) for p in HAND_PHASES) + " |")
+    L.append("")
+    if best is not None and best.by_phase:
+        shares = {p: v["sq_error_share"] for p, v in best.by_phase.items()}
+        if all(v is not None for v in shares.values()):
+            top = max(shares, key=lambda p: shares[p] or 0.0)
+            v = best.by_phase[top]
+            side = "less" if v["bias_n"] < 0 else "more"
+            L.append(
+                f"The largest share of `{best.name}`'s squared felt-force error, "
+                f"{100 * (v['sq_error_share'] or 0.0):.0f} %, falls in the {top} phases, which "
+                f"take {100 * v['time_share']:.0f} % of the time; there the hand pushes "
+                f"{abs(v['bias_n']):.3f} N {side} than on the object on average (RMSE "
+                f"{fmt(v['rmse'])} N).\n"
+            )
+    return L
+
+
 def floor_section(
     settings: dict[str, tuple[Run, list[Row]]], setup: dict, fast_note: str
 ) -> list[str]:
@@ -422,6 +473,7 @@ def results_json(
                 "how": r.how,
                 "reproduction": r.repro,
                 "prediction_along_real": r.shadow,
+                "felt_by_hand_phase": r.by_phase,
                 "prediction_along_real_against": r.shadow_truth if r.shadow else None,
                 "served": r.run.served,
                 "fallbacks": r.run.fallbacks,

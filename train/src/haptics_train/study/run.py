@@ -32,6 +32,7 @@ from .report import fmt, load_results, results_json, write_fidelity, write_readm
 from .score import (
     Row,
     compare,
+    felt_by_phase,
     felt_rmse,
     floor_summary,
     prediction_along_real,
@@ -271,7 +272,8 @@ def _reproduce_all(
         """The reproduction by rt-loop's own model (no server), scored and kept."""
         r = loop(name, "reproduction", "reproduction", f"repro_{file}", flags)
         score = score_run(t_ref, f_ref, r)
-        rows.append(Row(r.name, how, score, None, r, None, False))
+        phases = felt_by_phase(t_ref, f_ref, r, hand)
+        rows.append(Row(r.name, how, score, None, r, None, False, by_phase=phases))
         return score
 
     ro = rt_loop_row(ORACLE, "oracle", "rt-loop oracle", ("--model", "oracle"))
@@ -288,7 +290,10 @@ def _reproduce_all(
             if sh_note:
                 say(f"{tag}{name}: {sh_note}")
         learned = name not in SPRING_DAMPERS
-        rows.append(Row(name, "served ONNX", repro, sh_m, r, sh, learned, sh_truth, sh_note))
+        phases = felt_by_phase(t_ref, f_ref, r, hand)
+        rows.append(
+            Row(name, "served ONNX", repro, sh_m, r, sh, learned, sh_truth, sh_note, phases)
+        )
         say(
             f"{tag}{name}: felt-force RMSE {fmt(repro['rmse'] if repro else None)} N, "
             f"{r.served} served / {r.fallbacks} fallbacks, stop {r.stop or '-'}, "

@@ -58,6 +58,58 @@ def ratio(sd_rmse: float, best_rmse: float) -> float:
     return sd_rmse / best_rmse
 
 
+#: The hand programme's phases, in the order rt-loop's hand goes through them
+#: (rt-loop/src/experiment/hand.rs, `HandConfig::setpoint`).
+HAND_PHASES = ("press", "hold", "release", "rest")
+
+
+def hand_phase(t: np.ndarray, hand: dict[str, float]) -> np.ndarray:
+    """Which phase of the hand programme each time stamp falls in (an index into
+    HAND_PHASES), as rt-loop's hand computes its set-point: a rest of `rest_s` first, then
+    `repeats` cycles of press, hold, release and rest; after the last cycle, rest. `t` is
+    loop time from the run's start."""
+    t = np.asarray(t, dtype=np.float64) - float(t[0]) - hand["rest_s"]
+    ends = np.cumsum([hand["press_s"], hand["hold_s"], hand["release_s"], hand["rest_s"]])
+    period = float(ends[-1])
+    k = np.floor(t / period)
+    tc = t - k * period
+    phase = np.searchsorted(ends, tc, side="right")
+    outside = (t < 0) | (k >= hand["repeats"])
+    return np.where(outside, HAND_PHASES.index("rest"), np.minimum(phase, 3))
+
+
+def felt_by_phase(
+    t_ref: np.ndarray, f_ref: np.ndarray, r: Run, hand: dict[str, float]
+) -> dict[str, dict[str, float | None]] | None:
+    """Where a run's felt-force error sits in the hand programme: per phase, the share of the
+    time (`time_share`), the share of the squared error (`sq_error_share`), the RMSE and the
+    mean error (`bias_n`, run minus reference: negative when the operator pushes with less
+    force than on the real object, i.e. the rendering is softer there). Scored where the run
+    covered the reference, like `compare` (shares of an error that is exactly zero are None);
+    None for a run with nothing to score."""
+    if not r.series or r.steps == 0:
+        return None
+    y, covered = align(t_ref, r.series["time"], r.series["F_true"])
+    if not covered.any():
+        return None
+    e = (y - np.asarray(f_ref, dtype=np.float64))[covered]
+    ph = hand_phase(t_ref, hand)[covered]
+    total = float(np.sum(e**2))
+    out: dict[str, dict[str, float | None]] = {}
+    for i, name in enumerate(HAND_PHASES):
+        m = ph == i
+        if not m.any():
+            continue
+        sq = float(np.sum(e[m] ** 2))
+        out[name] = {
+            "time_share": float(m.mean()),
+            "sq_error_share": sq / total if total > 0 else None,
+            "rmse": math.sqrt(sq / int(m.sum())),
+            "bias_n": float(e[m].mean()),
+        }
+    return out
+
+
 @dataclass
 class Row:
     name: str
@@ -71,6 +123,8 @@ class Row:
     shadow_truth: str = OBJECT_FORCE
     #: why it is not F_object, when it is not
     shadow_note: str = ""
+    #: `felt_by_phase` of the reproduction: where in the hand programme its error sits
+    by_phase: dict[str, dict[str, float | None]] | None = None
 
 
 def prediction_along_real(sh: Run) -> tuple[dict[str, float] | None, str, str]:
