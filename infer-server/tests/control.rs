@@ -175,11 +175,24 @@ impl ServerProcess {
 }
 
 impl Drop for ServerProcess {
+    /// SIGINT first, as a user stops the server: its clean exit removes the connection file
+    /// (a SIGKILL left one per test in the runtime directory); SIGKILL if it has not exited
+    /// within 5 s.
     fn drop(&mut self) {
-        if self.child.try_wait().ok().flatten().is_none() {
-            let _ = self.child.kill();
-            let _ = self.child.wait();
+        if self.child.try_wait().ok().flatten().is_some() {
+            return;
         }
+        // SAFETY: kill(2) on our own child's pid, which wait() has not reaped yet.
+        unsafe { libc::kill(self.child.id() as libc::pid_t, libc::SIGINT) };
+        let end = Instant::now() + Duration::from_secs(5);
+        while Instant::now() < end {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
     }
 }
 

@@ -175,7 +175,9 @@ fn lockstep_reproduction_renders_exactly_what_onnx_runtime_computes() {
         "two lockstep runs with the served model gave different recordings"
     );
 
-    drop(server.child.kill());
+    // Stopped as a user stops it (Ctrl-C): a clean exit removes its connection file, which a
+    // SIGKILL would leave behind in the runtime directory.
+    server.signal(libc::SIGINT);
     let _ = server.wait_exit(Duration::from_secs(10));
     assert!(
         shm_entries(&inst).is_empty(),
