@@ -74,8 +74,10 @@ def hand_phase(t: np.ndarray, hand: dict[str, float]) -> np.ndarray:
     k = np.floor(t / period)
     tc = t - k * period
     phase = np.searchsorted(ends, tc, side="right")
+    rest = HAND_PHASES.index("rest")
     outside = (t < 0) | (k >= hand["repeats"])
-    return np.where(outside, HAND_PHASES.index("rest"), np.minimum(phase, 3))
+    # min: a time stamp rounding onto the period's end is still its rest
+    return np.where(outside, rest, np.minimum(phase, rest))
 
 
 def felt_by_phase(
