@@ -107,8 +107,15 @@ run_counted() {
 step "generated name lists current (haptics-vocab --check: train/ vocab.py, web-ui/ vocab.ts)"
 run_counted vocab count_check cargo run --release -q -p haptics-proto --bin haptics-vocab -- --check
 
-step "the Sensoray 826 double (target/release/libs826_double.so: the system tests' --board s826) and the fused ONNX operators (target/release/libhaptics_fused_ops.so: train's parity tests)"
-cargo build --release -p s826-double -p haptics-fused-ops
+# One build for everything the tests run: the test binaries, the binaries they start, the Sensoray
+# 826 double (target/release/libs826_double.so: the system tests' --board s826) and the fused ONNX
+# operators (target/release/libhaptics_fused_ops.so: train's parity tests). It selects the same
+# targets as `cargo test --workspace`, so cargo unifies dependency features the same way and the
+# test step below compiles nothing. Building the two libraries alone (`-p s826-double -p
+# haptics-fused-ops`) resolved features without the workspace's dev-dependencies, and the test
+# step then compiled Arrow, Parquet, rt-loop and 50 more crates a second time: 4-5 minutes.
+step "release build of the workspace's libraries, binaries, tests and examples (the 826 double and the fused operators among them)"
+cargo build --release --workspace --lib --bins --tests --examples
 
 step "cargo test (workspace, release: real-time tests need optimised code)"
 run_counted rust count_rust cargo test --workspace --release --no-fail-fast
