@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from haptics_train.data import recording_from_columns
-from haptics_train.evaluate import pooled_metrics
+from haptics_train.evaluate import SLIDING_MPS, pooled_metrics, sliding_rows, sliding_speed
 from haptics_train.features import NINE
 from haptics_train.fidelity import FIDELITY_KEYS, merge, rank, recommendation
 from haptics_train.ood import diverged, write_readme_section
@@ -63,6 +63,37 @@ def test_ranked_on_the_sliding_rows_where_scored():
     old = {k: {**e, "validation_pooled": {"closed_loop": e["validation_pooled"]["closed_loop"]}}
            for k, e in scored.items()}  # fmt: skip
     assert [r["model"] for r in rank(old)] == ["biased", "follows"]
+
+
+def _ramp(name: str, rate_mps: float, depth_m: float = 0.01) -> tuple:
+    """A testing machine's loading-unloading test at `rate_mps` (50 Hz, a rest either side)
+    whose force is the depth in N/mm, as a recording."""
+    n_ramp = int(round(depth_m / rate_mps * 50))
+    x = np.concatenate([np.zeros(20), np.linspace(0, depth_m, n_ramp),
+                        np.linspace(depth_m, 0, n_ramp), np.zeros(20)])  # fmt: skip
+    v = np.gradient(x, 0.02)
+    n = len(x)
+    cols = {"time": np.arange(n) * 0.02, "rtob_force": 1e3 * x, "position_x": x, "velocity": v,
+            "acceleration": np.zeros(n), **{c: np.zeros(n) for c in NINE[3:]}}  # fmt: skip
+    return recording_from_columns(name, cols), 1e3 * x
+
+
+def test_a_slow_validation_test_is_scored_not_dropped():
+    """A testing machine loads at well under 1 mm/s: its pressing rows slide at its own speed,
+    so a slow validation test counts in the sliding score beside a fast one (each recording's
+    threshold, `sliding_speed`), instead of leaving the choice to the fast one alone."""
+    slow, y_slow = _ramp("rate_0.25", 0.25e-3)
+    fast, y_fast = _ramp("rate_16", 16e-3)
+    assert sliding_speed(fast) == SLIDING_MPS  # fast enough: the bench's threshold
+    assert sliding_speed(slow) == pytest.approx(0.1 * 0.25e-3, rel=0.05)
+    rows = sliding_rows(slow)
+    assert rows.sum() > 0.9 * (len(rows) - 40)  # every pressing row but the turning points
+    assert not rows[:20].any() and not rows[-20:].any()  # not the rests
+    # a model right on the fast test and 0.5 N off on the slow one scores the slow one's error
+    wrong_when_slow = [{"closed_loop": y_slow + 0.5}, {"closed_loop": y_fast}]
+    m = pooled_metrics([slow, fast], wrong_when_slow, "rtob_force")["sliding"]
+    assert m["rows"] > sliding_rows(fast).sum() + 0.9 * len(rows) - 40
+    assert m["rmse"] > 0.45
 
 
 def test_felt_force_counts_where_measured():
