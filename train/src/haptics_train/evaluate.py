@@ -110,13 +110,15 @@ def sliding_speed(rec: Recording) -> float:
     """The speed (m/s) above which `rec`'s probe counts as sliding: `SLIDING_MPS`, or a tenth
     of the recording's own pressing speed where that is lower.
 
-    Why both: on the bench a stuck probe reads a velocity of encoder noise, well under 1 mm/s,
-    and the bench's programmes press at 13-47 mm/s (99th percentile in contact), so the
-    absolute threshold decides there. A testing machine loads at a constant rate that can be
-    well under 1 mm/s (0.25-0.5 mm/s in the leave-one-rate-out tests, docs/examples at 0.5):
-    every row of such a test was below the absolute threshold, so the whole recording dropped
-    out of the pooled score, and a validation choice over a slow and a fast rate saw only the
-    fast one (docs/laws.md, "A slow validation test was not scored")."""
+    Why both: on the bench a stuck probe reads under 0.01 mm/s, and the bench's programmes
+    press at 10-47 mm/s (99th percentile in contact) on the sponge, the foams and the gel, so
+    the absolute threshold decides there; on the slower Bouc-Wen and Hunt-Crossley objects
+    (5-14 mm/s) the relative one counts the rows that creep at 0.5-1 mm/s too. A testing
+    machine loads at a constant rate that can be well under 1 mm/s (0.25-0.5 mm/s in the
+    leave-one-rate-out tests, docs/examples at 0.5): every row of such a test was below the
+    absolute threshold, so the whole recording dropped out of the pooled score, and a
+    validation choice over a slow and a fast rate saw only the fast one (docs/laws.md, "A slow
+    validation test was not scored")."""
     x, v = rec.column("position_x"), np.abs(rec.column("velocity"))
     pressed = v[x > 0.0]
     if len(pressed) == 0:
