@@ -124,3 +124,6 @@ def test_loro_runs_end_to_end_quick(rt_loop: Path, tmp_path: Path) -> None:
     text = loro.table(out, ("sd_poly2", "lawfree"))
     assert "**No model shares this law's class** (bouc-wen)" in text
     assert text.count("Law-free learner `lawfree`") == 3
+    # run again on the same work folder (the default one, data/loro-NAME, is reused): same folds
+    again = loro.run(tmp_path, ("sd_poly2", "lawfree"), quick=True, generator="bouc-wen")
+    assert again["folds"]["rate_2"]["test"] == pytest.approx(out["folds"]["rate_2"]["test"])

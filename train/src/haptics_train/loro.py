@@ -66,8 +66,10 @@ def run(work: Path, specs: tuple[str, ...], quick: bool = False, seed: int = 0,
     csvs = gen.write_tests(work / "csv")
     imported = {}
     for c in csvs:
+        # the work folder is this run's own: the CSVs were just written again, so their imports
+        # are replaced too (a second run on the default folder refused to start before)
         rec = import_series(c, work / "imported" / f"{c.stem}.parquet", "time", "displacement",
-                            "force")  # fmt: skip
+                            "force", overwrite=True)  # fmt: skip
         imported[c.stem] = rec
         print(f"[loro] {c.name}: {describe_import(rec)}", flush=True)
     vals = [f"rate_{r:g}" for r in VALIDATION_RATES_MM_S]
