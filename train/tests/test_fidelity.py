@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from haptics_train.data import recording_from_columns
+from haptics_train.data import Recording, recording_from_columns
 from haptics_train.evaluate import SLIDING_MPS, pooled_metrics, sliding_rows, sliding_speed
 from haptics_train.features import NINE
 from haptics_train.fidelity import FIDELITY_KEYS, merge, rank, recommendation
@@ -65,9 +65,9 @@ def test_ranked_on_the_sliding_rows_where_scored():
     assert [r["model"] for r in rank(old)] == ["biased", "follows"]
 
 
-def _ramp(name: str, rate_mps: float, depth_m: float = 0.01) -> tuple:
+def _ramp(name: str, rate_mps: float, depth_m: float = 0.01) -> tuple[Recording, np.ndarray]:
     """A testing machine's loading-unloading test at `rate_mps` (50 Hz, a rest either side)
-    whose force is the depth in N/mm, as a recording."""
+    whose force is the depth in N/mm: (the recording, its force)."""
     n_ramp = int(round(depth_m / rate_mps * 50))
     x = np.concatenate([np.zeros(20), np.linspace(0, depth_m, n_ramp),
                         np.linspace(depth_m, 0, n_ramp), np.zeros(20)])  # fmt: skip
