@@ -8,11 +8,19 @@ if [ -d "$_root/.venv/bin" ]; then
 fi
 unset _root
 
-# One build command for every script: cargo unifies dependency features over the packages it is
-# asked for, so building a different set (rt-loop alone, say) recompiles shared dependencies.
+# One build command for every script: cargo unifies dependency features over the packages and
+# targets it is asked for, so building a different set (rt-loop alone, say) recompiles shared
+# dependencies with other features, and the next command recompiles them back.
+#
+# Every library and binary of the workspace, and its examples: selecting examples makes cargo
+# resolve features with the workspace's dev-dependencies, exactly as scripts/test.sh's `cargo
+# build ... --tests --examples` and `cargo test --workspace` do. So up.sh, the record and bench
+# scripts and the test command share every compiled dependency: run one after another, none
+# recompiles anything (before, each switch rebuilt ~50 crates, Arrow and Parquet among them, and
+# replaced target/release/libhaptics_fused_ops.so under any Python process loading it).
+# Among the libraries: libs826_double.so (the C-ABI double of the Sensoray 826 library,
+# HAPTICS_BOARD=s826) and libhaptics_fused_ops.so (the fused ONNX operators Python onnxruntime
+# registers for train's export parity and cost; infer-server links the same crate).
 haptics_build() {
-  # s826-double: the C-ABI double of the Sensoray 826 library (test support; HAPTICS_BOARD=s826)
-  # haptics-fused-ops: libhaptics_fused_ops.so, the fused ONNX operators Python onnxruntime
-  # registers (train's export parity and cost; infer-server links the same crate)
-  cargo build --release -p rt-loop -p infer-server -p hapticctl -p s826-double -p haptics-fused-ops
+  cargo build --release --workspace --lib --bins --examples
 }

@@ -125,7 +125,9 @@ echo "test result: $([ $failed = 0 ] && echo ok || echo FAILED). $passed passed;
 
 if [ "$hostile" = 1 ]; then
   echo "fuzz.sh: hostile-writer system test for ${hostile_s} s"
-  cargo build --release -p rt-loop -p infer-server -p hapticctl
+  # the binaries the test starts, built as every script builds them (scripts/env.sh)
+  source scripts/env.sh
+  haptics_build
   log=fuzz/work/hostile_writer.log
   mkdir -p fuzz/work
   if HAPTICS_HOSTILE_S=$hostile_s cargo test --release -p haptics-system-tests \
