@@ -72,7 +72,9 @@ def test_structured_is_dissipative_and_identifies_the_friction(fitted):
     served, full = m.predict_served(X), m.predict(X)
     assert np.all(served >= 0) and np.all(served[x <= 0] == 0)  # pushes only, in contact
     assert np.sqrt(np.mean((full - y) ** 2)) < 0.15
-    assert np.sqrt(np.mean((served - obj) ** 2)) < 0.15  # the friction is not rendered
+    # the friction is not rendered, and no branch is credited out of contact (0.136 N when the
+    # fit counted the decaying branch states of a release there; 0.073 N without)
+    assert np.sqrt(np.mean((served - obj) ** 2)) < 0.1
     assert loop_work(x, served) > 0  # a press and release dissipates energy
 
 
@@ -120,6 +122,34 @@ def test_structured_takes_no_constant_from_a_material_it_measures_and_chooses_th
     deep.fit([np.column_stack([3 * x, 3 * v])], [y], info=[info(len(x))])
     for key in ("yield_m", "densification_m", "hysteresis_lengths_m"):
         np.testing.assert_allclose(deep.basis_[key], 3 * np.asarray(without.basis_[key]))
+
+
+def test_the_friction_is_told_from_the_object_by_the_free_air_both_ways():
+    """Inside the object a hysteresis of one size at every depth is what the bench's friction
+    looks like; out of contact the target is the friction alone, moving toward the object
+    (+0.5 N) and away from it (-0.5 N). The fit counts both ways: when it kept only the rows
+    whose target exceeded the contact threshold (toward the object), it gave the friction
+    0.56 N here (12 % over) and the sponge's bench 0.98 N where it reads 0.91 N; with both,
+    0.53 N (7 %)."""
+    from haptics_train.models.structured import dahl
+
+    def with_play(x: np.ndarray) -> np.ndarray:
+        e = np.maximum(x, 0.0)
+        feq = 3.0 * np.tanh(e / 0.004) + 0.5 * ((1 - e / 0.04) ** -2 - 1)
+        play = 0.3 * np.minimum(e / 0.002, 1.0) * dahl(e, 2e-4, e <= 0)  # not in the basis
+        return np.where(e > 0, np.maximum(feq + play, 0.0), 0.0)
+
+    x, v = presses([0.01, 0.02, 0.015, 0.025], 2.0)
+    t = np.arange(0, 4.0, 1 / RATE)
+    xa = -0.03 + 0.02 * np.sin(2 * np.pi * t / 2.0)  # free-air sweeps, both ways
+    va = np.gradient(xa, 1 / RATE)
+    m = make_model("structured", hyper=SMALL)
+    m.fit(
+        [np.column_stack([x, v]), np.column_stack([xa, va])],
+        [with_play(x) + FRICTION_N * np.tanh(v / 1e-4), FRICTION_N * np.tanh(va / 1e-4)],
+        info=[info(len(x)), info(len(xa))],
+    )
+    assert m.c_.sum() == pytest.approx(FRICTION_N, rel=0.08), (m.c_, m.b_)
 
 
 def test_nnls_on_the_gram_matrix_is_scipys_nnls():

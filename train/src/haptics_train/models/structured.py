@@ -54,7 +54,13 @@ What is fitted and what is a grid (issue 23: no number is read off a material fi
 The target the bench records (the RFOB estimate) is the object's force plus the bench's own
 friction; the friction is fitted as its own term on the rows where the probe slides (|v| above
 `fit_min_speed_mps`: when it sticks, the friction is any value the force controller leaves,
-which kinematics cannot tell) and `predict` returns object + bench: what the RFOB reads in
+which kinematics cannot tell), in contact and out of it, both ways: out of contact the target
+is the friction alone (record-dataset.sh's free-air sweeps), which is what tells it from the
+object's hysteresis and damping, the same columns inside the object. (Until 2026-11-27 the
+rows out of contact counted only where their target exceeded the contact threshold, i.e.
+moving toward the object: the fit then gave the sponge's bench 0.98 N and 3.2 N s/m where it
+reads 0.91 N in contact, and the rendered object was 0.07 N too soft on every press:
+docs/laws.md.) `predict` returns object + bench: what the RFOB reads in
 reproduction too. The ONNX graph renders the object only (`predict_served`): the bench adds its
 own friction under the hand, so rendering it as well would count it twice (issue 11).
 
@@ -192,16 +198,21 @@ def _object_columns(
     basis = equilibrium_basis(e, h)
     taus = np.asarray(h["taus_s"], dtype=float)
     decay = np.exp(-dt / taus)
+    # Every column is 0 where the probe is out of the object (e <= 0), as the served force
+    # is: a branch's state still decays there after a release, and the fit, which counts the
+    # rows out of contact (the bench's friction alone), must not credit it with a force the
+    # model never renders.
+    inside = (e > 0.0)[:, None]
     if a is None:
         br = [lfilter([t * (1 - d)], [1.0, -d], v) for t, d in zip(taus, decay, strict=True)]
-        return np.column_stack([basis, *br]), e
+        return np.column_stack([basis, *br]) * inside, e
     feq = basis @ a
     dfeq = np.diff(feq, prepend=0.0)
     br = [lfilter([1.0], [1.0, -d], dfeq) for d in decay]
     out = e <= 0.0
     ep = np.maximum(e, 0.0)
     hy = [feq * dahl(ep, L, out) for L in h["hysteresis_lengths_m"]]
-    return np.column_stack([basis, *br, *hy]), e
+    return np.column_stack([basis, *br, *hy]) * inside, e
 
 
 def _bench_columns(x: np.ndarray, v: np.ndarray, h: dict) -> np.ndarray:
@@ -320,7 +331,9 @@ class StructuredModel(ForceModel):
         for xv, yy, i in zip(seqs, targets, info, strict=True):
             k = max(1, i.stride)
             x, v, t = xv[::k, 0], xv[::k, 1], yy[::k]
-            keep = (t > i.contact_off_n) & (np.abs(v) > float(h["fit_min_speed_mps"]))
+            # sliding, in contact or out of it (there the target is the bench's alone)
+            slide = np.abs(v) > float(h["fit_min_speed_mps"])
+            keep = slide & ((x <= 0) | (t > i.contact_off_n))
             rows.append((x, v, t, keep, self.dt_ * k, _bench_columns(x, v, h)))
             if keep.any():
                 depth = max(depth, float(x[keep].max()))
