@@ -21,6 +21,7 @@ unset _root
 # Among the libraries: libs826_double.so (the C-ABI double of the Sensoray 826 library,
 # HAPTICS_BOARD=s826) and libhaptics_fused_ops.so (the fused ONNX operators Python onnxruntime
 # registers for train's export parity and cost; infer-server links the same crate).
+# Extra arguments select more targets of the same build (scripts/test.sh: --tests).
 haptics_build() {
-  cargo build --release --workspace --lib --bins --examples
+  cargo build --release --workspace --lib --bins --examples "$@"
 }

@@ -115,7 +115,7 @@ run_counted vocab count_check cargo run --release -q -p haptics-proto --bin hapt
 # haptics-fused-ops`) resolved features without the workspace's dev-dependencies, and the test
 # step then compiled Arrow, Parquet, rt-loop and 50 more crates a second time: 4-5 minutes.
 step "release build of the workspace's libraries, binaries, tests and examples (the 826 double and the fused operators among them)"
-cargo build --release --workspace --lib --bins --tests --examples
+haptics_build --tests # scripts/env.sh: every script's build, with the test targets
 
 step "cargo test (workspace, release: real-time tests need optimised code)"
 run_counted rust count_rust cargo test --workspace --release --no-fail-fast

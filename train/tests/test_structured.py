@@ -34,10 +34,15 @@ def presses(depths: list[float], period_s: float) -> tuple[np.ndarray, np.ndarra
     return x, np.gradient(x, 1 / RATE)
 
 
+def equilibrium(e: np.ndarray) -> np.ndarray:
+    """The synthetic foams' equilibrium force at compression e >= 0 (a plateau and a pole)."""
+    return 3.0 * np.tanh(e / 0.004) + 0.5 * ((1 - e / 0.04) ** -2 - 1)
+
+
 def foam(x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(object force, measured force = object + Coulomb friction of the bench)."""
     e = np.maximum(x, 0.0)
-    feq = 3.0 * np.tanh(e / 0.004) + 0.5 * ((1 - e / 0.04) ** -2 - 1)
+    feq = equilibrium(e)
     q = np.zeros_like(x)
     d = np.exp(-1 / (RATE * 0.5))
     df = np.diff(feq, prepend=0.0)
@@ -135,9 +140,8 @@ def test_the_friction_is_told_from_the_object_by_the_free_air_both_ways():
 
     def with_play(x: np.ndarray) -> np.ndarray:
         e = np.maximum(x, 0.0)
-        feq = 3.0 * np.tanh(e / 0.004) + 0.5 * ((1 - e / 0.04) ** -2 - 1)
         play = 0.3 * np.minimum(e / 0.002, 1.0) * dahl(e, 2e-4, e <= 0)  # not in the basis
-        return np.where(e > 0, np.maximum(feq + play, 0.0), 0.0)
+        return np.where(e > 0, np.maximum(equilibrium(e) + play, 0.0), 0.0)
 
     x, v = presses([0.01, 0.02, 0.015, 0.025], 2.0)
     t = np.arange(0, 4.0, 1 / RATE)

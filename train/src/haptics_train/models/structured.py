@@ -209,7 +209,7 @@ def _object_columns(
     feq = basis @ a
     dfeq = np.diff(feq, prepend=0.0)
     br = [lfilter([1.0], [1.0, -d], dfeq) for d in decay]
-    out = e <= 0.0
+    out = ~inside[:, 0]
     ep = np.maximum(e, 0.0)
     hy = [feq * dahl(ep, L, out) for L in h["hysteresis_lengths_m"]]
     return np.column_stack([basis, *br, *hy]) * inside, e
