@@ -13,7 +13,8 @@
 #        docs/infer-server.md; later runs re-export the models already trained)
 # Env:   BENCH_DATASET (default data/dataset when it holds a test recording, else a small
 #        dataset recorded once into BENCH_DIR/dataset with rt-loop run), BENCH_DIR (default
-#        target/bench-models), BENCH_STEPS (measured steps per model, default 20000).
+#        target/bench-models), BENCH_STEPS (measured steps per model, default 20000), BENCH_CPU
+#        (the inference thread's CPU instead of the one its profile picks).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD

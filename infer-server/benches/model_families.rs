@@ -17,7 +17,8 @@
 //! without it a synthetic press is fed). Env: BENCH_STEPS (measured steps per model, default
 //! 20000), BENCH_WARM (steps before measuring, default 2000), BENCH_IO_BINDING=1|0 (bind the
 //! inputs and outputs once and step with `RunWithBinding`, or step with `Run`; default: what
-//! infer-server does, `SessionConfig::default()`), BENCH_PROFILE (`bench_profile`).
+//! infer-server does, `SessionConfig::default()`), BENCH_PROFILE (`bench_profile`), BENCH_CPU
+//! (the inference thread's CPU instead of the profile's).
 //! Prints a table, and as its last line one JSON object:
 //! `{"families": {NAME: {"p50_us", "p99_us", "p999_us", "max_us", "allocs_per_call", "nodes",
 //!   "delayed_calls", "faulted_calls", "p999_clean_us"}}, "identity_p50_us": .., "floor": {..},
@@ -65,6 +66,17 @@ fn bench_profile() -> Profile {
         Ok("auto") | Err(_) => Profile::Auto,
         Ok(other) => panic!("BENCH_PROFILE={other}: one of auto, dedicated, period, shared"),
     }
+}
+
+/// The inference thread's settings on `machine`: the profile's ([`bench_profile`]), its CPU
+/// replaced by BENCH_CPU where that is set (on a many-core machine: does the CPU the profile
+/// picks, the first that is not the loop's, have a noisier tail than another?).
+fn bench_settings(machine: &Machine) -> profile::Settings {
+    let mut chosen = profile::settings(bench_profile(), machine);
+    if let Some(cpu) = env_usize("BENCH_CPU") {
+        chosen.cpu = Some(cpu);
+    }
+    chosen
 }
 
 fn env_usize(name: &str) -> Option<usize> {
@@ -196,7 +208,7 @@ impl ThreadEvents {
 /// CPU, caches flushed by other work) stretches every model's alike.
 fn floor_samples(warm: usize, steps: usize) -> Vec<u64> {
     let machine = Machine::detect();
-    let chosen = profile::settings(bench_profile(), &machine);
+    let chosen = bench_settings(&machine);
     std::thread::spawn(move || {
         let _rt = RtRequest {
             fifo_priority: chosen.rt_priority,
@@ -265,7 +277,7 @@ fn serve(
     lp.forces_rx
         .set_wait_strategy(WaitStrategy::DEFAULT_SPIN_THEN_PARK);
     let machine = Machine::detect();
-    let chosen = profile::settings(bench_profile(), &machine);
+    let chosen = bench_settings(&machine);
     let (mut activator, taker) = handoff::channel();
     let thread = InferenceThread::spawn(
         InferenceConfig {
@@ -380,7 +392,7 @@ fn main() {
         .unwrap_or(SessionConfig::default().io_binding);
     println!(
         "model families served by the inference thread ({}), ONNX Runtime {}, {}, 10 kHz, {steps} steps each after {warm}; per call, us; load average {load}",
-        profile::settings(bench_profile(), &machine).describe(),
+        bench_settings(&machine).describe(),
         rt.version(),
         if binding { "RunWithBinding" } else { "Run" },
     );
