@@ -185,3 +185,20 @@ def test_the_set_law_is_refined_between_the_grids_points():
     assert _between([0.0, 0.1, 0.2], 0.0, 0) == []
     # a refined value (between two points) is refined toward the points around it
     assert _between([1.0, 4.0, 16.0], 8.0, 1) == pytest.approx([8.0 * 0.5**0.25, 8.0 * 2**0.25])
+
+
+def test_releases_near_the_surface_are_fitted(fitted):
+    """Releasing, the target is the object less the bench's friction: near the surface it
+    falls below the contact threshold while the object still pushes. Those rows decide where
+    the probe comes to rest after a release (where the object's force falls under the
+    friction), so where the hand meets it on the next press. The fit counts a row in contact by
+    the object's force (the target less the friction the free air shows, in the direction of
+    motion); when it counted it by the target, it dropped them, and on a faster press than it
+    was fitted on the rendered object there was 0.029 N off (0.011 N now)."""
+    assert fitted.train_info_["free_air_friction_n"] == pytest.approx(FRICTION_N, rel=0.05)
+    x, v = presses([0.012, 0.022], 1.0)
+    obj, _ = foam(x, v)
+    served = fitted.predict_served(np.column_stack([x, v]))
+    band = (x > 0) & (v < 0) & (obj < FRICTION_N + 0.05)
+    assert band.sum() > 50
+    assert np.sqrt(np.mean((served - obj)[band] ** 2)) < 0.02

@@ -77,6 +77,7 @@ from ..data import SequenceInfo
 from ..features import KINEMATICS
 from ..metrics import loop_work
 from .base import ForceModel, check_sequences, serve_dt, served_dt, step_dt
+from .contact_rows import fitted_rows, free_air_friction
 from .lawfree_graph import lawfree_fused, lawfree_graph
 from .structured import dahl
 
@@ -170,16 +171,18 @@ class LawFreeModel(ForceModel):
         t0 = time.perf_counter()
         self.dt_ = step_dt("lawfree", info)
         self.serve_dt_ = serve_dt("lawfree", info)
+        min_speed = float(h["fit_min_speed_mps"])
+        friction = free_air_friction(seqs, targets, info, min_speed)
         picked = []
         for xv, yy, i in zip(seqs, targets, info, strict=True):
             k = max(1, i.stride)
             x, v, t = xv[::k, 0], xv[::k, 1], yy[::k]
-            # sliding rows: in contact where the force is above the contact threshold, and out
-            # of contact too, where the object is 0 and the target is the bench's friction
-            # alone: that is what tells the friction from a hysteresis of the object, which
-            # inside the object looks the same (a force step with the direction of motion)
-            slide = np.abs(v) > float(h["fit_min_speed_mps"])
-            keep = slide & ((x <= 0) | (t > i.contact_off_n))
+            # sliding rows: in contact where the object's force is above the contact threshold,
+            # and out of contact too, where the object is 0 and the target is the bench's
+            # friction alone: that is what tells the friction from a hysteresis of the object,
+            # which inside the object looks the same (a force step with the direction of
+            # motion); contact_rows.py
+            keep = fitted_rows(x, v, t, i.contact_off_n, friction, min_speed)
             picked.append((x, v, t, keep, self.dt_ * k))
         xs = np.concatenate([x[kp & (x > 0)] for x, _, _, kp, _ in picked])
         if len(xs) == 0:
@@ -232,6 +235,7 @@ class LawFreeModel(ForceModel):
             "serve_dt_s": self.serve_dt_,
             "depth_scale_m": self.depth_scale_m_,
             "speed_scale_mps": self.speed_scale_mps_,
+            "free_air_friction_n": friction,
             "readout_terms": int(n_obj),
             "fit_rmse_n": float(np.sqrt(np.mean(resid**2))),
             "friction_n": self.c_.tolist(),

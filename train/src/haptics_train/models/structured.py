@@ -60,9 +60,13 @@ object's hysteresis and damping, the same columns inside the object. (Until 2026
 rows out of contact counted only where their target exceeded the contact threshold, i.e.
 moving toward the object: the fit then gave the sponge's bench 0.98 N and 3.2 N s/m where it
 reads 0.91 N in contact, and the rendered object was 0.07 N too soft on every press:
-docs/laws.md.) `predict` returns object + bench: what the RFOB reads in
-reproduction too. The ONNX graph renders the object only (`predict_served`): the bench adds its
-own friction under the hand, so rendering it as well would count it twice (issue 11).
+docs/laws.md.) Inside the object a row counts where the object's own force, the target less
+the friction in the direction of motion, exceeds the contact threshold, the friction being
+what the free air shows (`free_air_friction_n`; contact_rows.py, which says why: until
+2026-11-27 the target itself had to exceed it, and the end of every release went unfitted).
+`predict` returns object + bench: what the RFOB reads in reproduction too. The ONNX graph
+renders the object only (`predict_served`): the bench adds its own friction under the hand, so
+rendering it as well would count it twice (issue 11).
 
 The state steps once per row at the training period `dt` when fitted, and at the loop's period
 `serve_dt_` when exported (`haptics.step_s`), like `prony`. Exported as a stateful
@@ -90,6 +94,7 @@ from threadpoolctl import threadpool_limits
 from ..data import SequenceInfo
 from ..features import KINEMATICS
 from .base import ForceModel, check_sequences, serve_dt, step_dt
+from .contact_rows import fitted_rows, free_air_friction
 from .structured_graph import structured_fused, structured_graph
 
 #: The grids (see the module docstring for each range and why). Lengths are fractions of the
@@ -326,14 +331,15 @@ class StructuredModel(ForceModel):
         self.serve_dt_ = serve_dt("structured", info)
         # Fitted on every stride-th row, the states stepped at that rate (the Dahl states are
         # rate-independent, the branches exact for the increments they are driven by).
+        min_speed = float(h["fit_min_speed_mps"])
+        friction = free_air_friction(seqs, targets, info, min_speed)
         rows = []
         depth = 0.0
         for xv, yy, i in zip(seqs, targets, info, strict=True):
             k = max(1, i.stride)
             x, v, t = xv[::k, 0], xv[::k, 1], yy[::k]
-            # sliding, in contact or out of it (there the target is the bench's alone)
-            slide = np.abs(v) > float(h["fit_min_speed_mps"])
-            keep = slide & ((x <= 0) | (t > i.contact_off_n))
+            # sliding, out of contact or pressing the object (contact_rows.py)
+            keep = fitted_rows(x, v, t, i.contact_off_n, friction, min_speed)
             rows.append((x, v, t, keep, self.dt_ * k, _bench_columns(x, v, h)))
             if keep.any():
                 depth = max(depth, float(x[keep].max()))
@@ -400,6 +406,7 @@ class StructuredModel(ForceModel):
             "dt_s": self.dt_,
             "serve_dt_s": self.serve_dt_,
             "depth_scale_m": depth,
+            "free_air_friction_n": friction,
             "set_law": self.set_law_,
             "set_max_m": self.set_max_m_,
             "set_candidates_scored": len(scores),

@@ -1,0 +1,50 @@
+"""Which rows the models that fit the bench's friction beside the object (`structured`,
+`lawfree`) learn from.
+
+The recorded target (the RFOB estimate) is the object's force plus the bench's friction, which
+opposes the motion: pressing, the target is the object plus the friction; releasing, the object
+less it. A row counts where the probe slides (|v| above a threshold: when it sticks, the
+friction is any value the force controller leaves, which kinematics cannot tell), and either
+out of contact (x <= 0: the target is the friction alone, which is what tells it from the
+object's hysteresis) or pressing the object: its force, the target less the friction in the
+direction of motion, above the contact threshold.
+
+Why the friction and not the target: with the target compared to the threshold, every release
+was dropped while the object pushed less than the friction plus the threshold (on the sponge
+bench, 0.9 + 0.25 N). That stretch of a release decides where the probe comes to rest (where the
+object's force falls under the friction), so where the hand meets it on the next press; unfitted,
+the rendered sponge rested the probe 0.3 mm further out than the real one and the hand felt
++0.4 N for 50 ms at each re-contact (docs/laws.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..data import SequenceInfo
+
+
+def free_air_friction(
+    seqs: list[np.ndarray], targets: list[np.ndarray], info: list[SequenceInfo], min_speed: float
+) -> float:
+    """The bench's friction as the free air shows it: the median |target| over the rows (every
+    `stride`-th) where the probe slides out of contact, x <= 0 and |v| > `min_speed`; there the
+    target is the friction alone. 0 when no recording has such a row (a testing machine's): the
+    rule of `fitted_rows` is then the target's own."""
+    air = []
+    for xv, yy, i in zip(seqs, targets, info, strict=True):
+        k = max(1, i.stride)
+        x, v, t = xv[::k, 0], xv[::k, 1], yy[::k]
+        air.append(np.abs(t[(x <= 0) & (np.abs(v) > min_speed)]))
+    pooled = np.concatenate(air) if air else np.empty(0)
+    return float(np.median(pooled)) if len(pooled) else 0.0
+
+
+def fitted_rows(
+    x: np.ndarray, v: np.ndarray, t: np.ndarray, contact_off_n: float, friction_n: float,
+    min_speed: float,
+) -> np.ndarray:  # fmt: skip
+    """The rows to fit (module docstring): sliding, and out of contact or with the object's
+    force, `t - friction_n sign(v)`, above `contact_off_n`."""
+    slide = np.abs(v) > min_speed
+    return slide & ((x <= 0) | (t - friction_n * np.sign(v) > contact_off_n))
