@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from haptics_train.data import SequenceInfo
-from haptics_train.models.contact_rows import fitted_rows, free_air_friction
+from haptics_train.models.contact_rows import fitted_rows, sliding_rows
 
 OFF = 0.25  # rt-loop's contact_off_n
 
@@ -36,6 +36,6 @@ def test_the_friction_is_what_the_free_air_shows():
     info = SequenceInfo(sample_rate_hz=1000.0, duration_s=0.8, stride=1, row_step=1,
                         contact_off_n=OFF, loop_rate_hz=1000.0)  # fmt: skip
     xv = np.column_stack([x, v])
-    assert free_air_friction([xv], [t], [info], 1e-4) == pytest.approx(0.7, abs=0.01)
+    assert sliding_rows([xv], [t], [info], 1e-4)[0] == pytest.approx(0.7, abs=0.01)
     inside = np.column_stack([x[400:], v[400:]])
-    assert free_air_friction([inside], [t[400:]], [info], 1e-4) == 0.0
+    assert sliding_rows([inside], [t[400:]], [info], 1e-4)[0] == 0.0

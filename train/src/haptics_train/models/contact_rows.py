@@ -24,18 +24,29 @@ import numpy as np
 from ..data import SequenceInfo
 
 
-def free_air_friction(
+def sliding_rows(
     seqs: list[np.ndarray], targets: list[np.ndarray], info: list[SequenceInfo], min_speed: float
-) -> float:
-    """The bench's friction as the free air shows it: the median |target| over the rows (every
-    `stride`-th) where the probe slides out of contact, x <= 0 and |v| > `min_speed`; there the
-    target is the friction alone. 0 when no recording has such a row (a testing machine's): the
-    rule of `fitted_rows` is then the target's own."""
-    air = []
+) -> tuple[float, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]]]:
+    """Each recording thinned to every `stride`-th row, once, for both steps: the friction
+    the free air shows over all of them ([`free_air_friction`]), then each recording's
+    (x, v, target, rows to fit ([`fitted_rows`]), stride)."""
+    thin = []
     for xv, yy, i in zip(seqs, targets, info, strict=True):
         k = max(1, i.stride)
-        x, v, t = xv[::k, 0], xv[::k, 1], yy[::k]
-        air.append(np.abs(t[(x <= 0) & (np.abs(v) > min_speed)]))
+        thin.append((xv[::k, 0], xv[::k, 1], yy[::k], i.contact_off_n, k))
+    friction = free_air_friction([(x, v, t) for x, v, t, _, _ in thin], min_speed)
+    return friction, [(x, v, t, fitted_rows(x, v, t, off, friction, min_speed), k)
+                      for x, v, t, off, k in thin]  # fmt: skip
+
+
+def free_air_friction(
+    rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]], min_speed: float
+) -> float:
+    """The bench's friction as the free air shows it: the median |target| over the rows
+    (x, v, target) where the probe slides out of contact, x <= 0 and |v| > `min_speed`; there
+    the target is the friction alone. 0 when no recording has such a row (a testing
+    machine's): the rule of [`fitted_rows`] is then the target's own."""
+    air = [np.abs(t[(x <= 0) & (np.abs(v) > min_speed)]) for x, v, t in rows]
     pooled = np.concatenate(air) if air else np.empty(0)
     return float(np.median(pooled)) if len(pooled) else 0.0
 

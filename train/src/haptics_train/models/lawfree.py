@@ -77,7 +77,7 @@ from ..data import SequenceInfo
 from ..features import KINEMATICS
 from ..metrics import loop_work
 from .base import ForceModel, check_sequences, serve_dt, served_dt, step_dt
-from .contact_rows import fitted_rows, free_air_friction
+from .contact_rows import sliding_rows
 from .lawfree_graph import lawfree_fused, lawfree_graph
 from .structured import dahl
 
@@ -171,19 +171,12 @@ class LawFreeModel(ForceModel):
         t0 = time.perf_counter()
         self.dt_ = step_dt("lawfree", info)
         self.serve_dt_ = serve_dt("lawfree", info)
-        min_speed = float(h["fit_min_speed_mps"])
-        friction = free_air_friction(seqs, targets, info, min_speed)
-        picked = []
-        for xv, yy, i in zip(seqs, targets, info, strict=True):
-            k = max(1, i.stride)
-            x, v, t = xv[::k, 0], xv[::k, 1], yy[::k]
-            # sliding rows: in contact where the object's force is above the contact threshold,
-            # and out of contact too, where the object is 0 and the target is the bench's
-            # friction alone: that is what tells the friction from a hysteresis of the object,
-            # which inside the object looks the same (a force step with the direction of
-            # motion); contact_rows.py
-            keep = fitted_rows(x, v, t, i.contact_off_n, friction, min_speed)
-            picked.append((x, v, t, keep, self.dt_ * k))
+        # sliding rows: in contact where the object's force is above the contact threshold, and
+        # out of contact too, where the object is 0 and the target is the bench's friction
+        # alone: that is what tells the friction from a hysteresis of the object, which inside
+        # the object looks the same (a force step with the direction of motion); contact_rows.py
+        friction, thinned = sliding_rows(seqs, targets, info, float(h["fit_min_speed_mps"]))
+        picked = [(x, v, t, keep, self.dt_ * k) for x, v, t, keep, k in thinned]
         xs = np.concatenate([x[kp & (x > 0)] for x, _, _, kp, _ in picked])
         if len(xs) == 0:
             raise ValueError("lawfree: no training row in contact with the probe sliding")

@@ -94,7 +94,7 @@ from threadpoolctl import threadpool_limits
 from ..data import SequenceInfo
 from ..features import KINEMATICS
 from .base import ForceModel, check_sequences, serve_dt, step_dt
-from .contact_rows import fitted_rows, free_air_friction
+from .contact_rows import sliding_rows
 from .structured_graph import structured_fused, structured_graph
 
 #: The grids (see the module docstring for each range and why). Lengths are fractions of the
@@ -331,15 +331,11 @@ class StructuredModel(ForceModel):
         self.serve_dt_ = serve_dt("structured", info)
         # Fitted on every stride-th row, the states stepped at that rate (the Dahl states are
         # rate-independent, the branches exact for the increments they are driven by).
-        min_speed = float(h["fit_min_speed_mps"])
-        friction = free_air_friction(seqs, targets, info, min_speed)
+        # sliding, out of contact or pressing the object (contact_rows.py)
+        friction, thinned = sliding_rows(seqs, targets, info, float(h["fit_min_speed_mps"]))
         rows = []
         depth = 0.0
-        for xv, yy, i in zip(seqs, targets, info, strict=True):
-            k = max(1, i.stride)
-            x, v, t = xv[::k, 0], xv[::k, 1], yy[::k]
-            # sliding, out of contact or pressing the object (contact_rows.py)
-            keep = fitted_rows(x, v, t, i.contact_off_n, friction, min_speed)
+        for x, v, t, keep, k in thinned:
             rows.append((x, v, t, keep, self.dt_ * k, _bench_columns(x, v, h)))
             if keep.any():
                 depth = max(depth, float(x[keep].max()))
