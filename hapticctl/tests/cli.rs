@@ -322,7 +322,10 @@ async fn status_experiments_and_telemetry() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn no_server_says_so() {
-    let free = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    // A port free a moment ago on 127.0.0.1 can be taken by a server of a test running beside
+    // this one (that made this test fail once in CI); no test here listens on 127.0.0.77, so a
+    // port freed there stays refused.
+    let free = std::net::TcpListener::bind("127.0.0.77:0").unwrap();
     let addr = free.local_addr().unwrap().to_string();
     drop(free);
     let o = ctl_env(&addr, &["status"], &[]).await;
