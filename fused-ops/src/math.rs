@@ -230,17 +230,6 @@ impl Activation {
     }
 }
 
-/// Transposes `w` [rows][cols] (row-major) into [cols][rows].
-pub(crate) fn transpose(w: &[f32], rows: usize, cols: usize) -> Vec<f32> {
-    let mut t = vec![0.0; w.len()];
-    for r in 0..rows {
-        for c in 0..cols {
-            t[c * rows + r] = w[r * cols + c];
-        }
-    }
-    t
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
