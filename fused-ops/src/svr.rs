@@ -38,6 +38,8 @@ pub struct SvrParams {
     sv_blocks: Vec<f32>,
     /// the dual coefficients, [S] padded with zeros to whole blocks
     coef: Vec<f32>,
+    /// S, the support vectors without the padding
+    vectors: usize,
     neg_gamma: f32,
     intercept: f64,
     /// scratch: the row's scaled features
@@ -89,6 +91,7 @@ impl RowModel for SvrParams {
             inv_scale: scale.iter().map(|&v| (1.0 / v) as f32).collect(),
             sv_blocks,
             coef,
+            vectors: s,
             neg_gamma: -gamma as f32,
             intercept: r.float("intercept")?,
             z: vec![0.0; n],
@@ -136,6 +139,22 @@ impl RowModel for SvrParams {
             }
         }
         (self.intercept + acc.iter().sum::<f64>()) as f32
+    }
+}
+
+impl SvrParams {
+    /// One row's force, compiled for this CPU (AVX2 and FMA where it has them), as the kernel
+    /// runs it (examples/svr_cost.rs times it).
+    pub fn predict(&mut self, x: &[f32]) -> f32 {
+        math::fast!(M => self.row::<M>(x))
+    }
+
+    /// The support vectors (without the padding).
+    pub fn support_vectors(&self) -> usize {
+        self.coef
+            .iter()
+            .rposition(|&c| c != 0.0)
+            .map_or(0, |i| i + 1)
     }
 }
 
@@ -206,6 +225,7 @@ mod tests {
             ("intercept", vec![-0.3]),
         ]);
         let mut p = SvrParams::from_attrs(&attrs).unwrap();
+        assert_eq!(p.support_vectors(), s);
         for x in [[0.0f32, 1.0, -1.0], [0.4, 0.6, 1.5], [-1.0, 1.9, -3.0]] {
             let z = [
                 f64::from(x[0]),
