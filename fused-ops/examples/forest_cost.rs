@@ -19,49 +19,13 @@
 //!
 //! Run: `cargo run --release -p haptics-fused-ops --example forest_cost [ROWS]` (default 20000).
 
-use std::collections::HashMap;
 use std::hint::black_box;
 use std::time::Instant;
 
-use haptics_fused_ops::{Attrs, ForestParams};
+use haptics_fused_ops::ForestParams;
 
-/// Attributes from maps (what the exporter would write).
-#[derive(Default)]
-struct Map {
-    floats: HashMap<&'static str, Vec<f32>>,
-    ints: HashMap<&'static str, Vec<i64>>,
-}
-
-impl Attrs for Map {
-    fn float(&self, name: &str) -> Option<f32> {
-        self.floats.get(name).and_then(|v| v.first().copied())
-    }
-    fn floats(&self, name: &str) -> Option<Vec<f32>> {
-        self.floats.get(name).cloned()
-    }
-    fn ints(&self, name: &str) -> Option<Vec<i64>> {
-        self.ints.get(name).cloned()
-    }
-    fn string(&self, _: &str) -> Option<String> {
-        None
-    }
-}
-
-/// A small deterministic generator (xorshift64*), so every run measures the same forest.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
-    }
-    /// Uniform in [-1, 1).
-    fn unit(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 23) as f32 - 1.0
-    }
-}
+mod common;
+use common::{load_average, quantile, Map, Rng};
 
 const FEATURES: usize = 6;
 
@@ -130,10 +94,6 @@ fn huge_kib() -> u64 {
         .unwrap_or(0)
 }
 
-fn quantile(sorted: &[u64], q: f64) -> f64 {
-    sorted[((sorted.len() - 1) as f64 * q).round() as usize] as f64 / 1000.0
-}
-
 fn main() {
     let rows: usize = std::env::args()
         .nth(1)
@@ -142,13 +102,9 @@ fn main() {
     let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
     let mut small = vec![0u8; 8 << 20];
     let mut big = vec![0u8; 64 << 20];
-    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
     println!(
         "ForestStep's row alone, {rows} rows each, per row in us; load average {}",
-        load.split_whitespace()
-            .take(3)
-            .collect::<Vec<_>>()
-            .join(" ")
+        load_average()
     );
     println!(
         "{:<24} {:>9} {:>8} {:>12} {:>7} {:>7} {:>7} {:>7} {:>10}",

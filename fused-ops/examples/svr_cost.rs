@@ -11,66 +11,30 @@
 //!
 //! Run: `cargo run --release -p haptics-fused-ops --example svr_cost [ROWS]` (default 20000).
 
-use std::collections::HashMap;
 use std::hint::black_box;
 use std::time::Instant;
 
-use haptics_fused_ops::{Attrs, RowModel, SvrParams};
+use haptics_fused_ops::{RowModel, SvrParams};
 
-/// Attributes from a map (what the exporter would write).
-#[derive(Default)]
-struct Map(HashMap<&'static str, Vec<f32>>);
-
-impl Attrs for Map {
-    fn float(&self, name: &str) -> Option<f32> {
-        self.0.get(name).and_then(|v| v.first().copied())
-    }
-    fn floats(&self, name: &str) -> Option<Vec<f32>> {
-        self.0.get(name).cloned()
-    }
-    fn ints(&self, _: &str) -> Option<Vec<i64>> {
-        None
-    }
-    fn string(&self, _: &str) -> Option<String> {
-        None
-    }
-}
-
-/// A small deterministic generator (xorshift64*), so every run measures the same model.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
-    }
-    /// Uniform in [-1, 1).
-    fn unit(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 23) as f32 - 1.0
-    }
-}
+mod common;
+use common::{load_average, quantile, Map, Rng};
 
 const FEATURES: usize = 6;
 
 /// An RBF SVR with `s` support vectors over standardised features.
 fn svr(s: usize, rng: &mut Rng) -> Map {
     let mut m = Map::default();
-    m.0.insert("feature_mean", vec![0.0; FEATURES]);
-    m.0.insert("feature_scale", vec![1.0; FEATURES]);
-    m.0.insert(
+    m.floats.insert("feature_mean", vec![0.0; FEATURES]);
+    m.floats.insert("feature_scale", vec![1.0; FEATURES]);
+    m.floats.insert(
         "support_vectors",
         (0..s * FEATURES).map(|_| 2.0 * rng.unit()).collect(),
     );
-    m.0.insert("coefficients", (0..s).map(|_| 10.0 * rng.unit()).collect());
-    m.0.insert("gamma", vec![1.0 / FEATURES as f32]);
-    m.0.insert("intercept", vec![0.5]);
+    m.floats
+        .insert("coefficients", (0..s).map(|_| 10.0 * rng.unit()).collect());
+    m.floats.insert("gamma", vec![1.0 / FEATURES as f32]);
+    m.floats.insert("intercept", vec![0.5]);
     m
-}
-
-fn quantile(sorted: &[u64], q: f64) -> f64 {
-    sorted[((sorted.len() - 1) as f64 * q).round() as usize] as f64 / 1000.0
 }
 
 fn main() {
@@ -79,13 +43,9 @@ fn main() {
         .and_then(|s| s.parse().ok())
         .unwrap_or(20_000);
     let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
-    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
     println!(
         "SvrStep's row alone, {rows} rows each, warm, per row in us; load average {}",
-        load.split_whitespace()
-            .take(3)
-            .collect::<Vec<_>>()
-            .join(" ")
+        load_average()
     );
     println!(
         "{:<18} {:>7} {:>7} {:>7} {:>7} {:>10}",

@@ -151,10 +151,7 @@ impl SvrParams {
 
     /// The support vectors (without the padding).
     pub fn support_vectors(&self) -> usize {
-        self.coef
-            .iter()
-            .rposition(|&c| c != 0.0)
-            .map_or(0, |i| i + 1)
+        self.vectors
     }
 }
 
