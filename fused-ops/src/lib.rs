@@ -21,6 +21,7 @@
 //! error); the kernels' `compute` allocates nothing (tensors read and written through the raw C
 //! API: the safe wrappers build shape vectors on every call).
 
+mod ahead;
 mod attrs;
 mod dense;
 mod forest;
@@ -39,6 +40,7 @@ mod structured;
 mod svr;
 mod tensors;
 
+pub use ahead::{run_ahead, serve_ahead_on_this_thread};
 pub use attrs::{AttrError, Attrs};
 pub use dense::{DenseParams, DenseStep};
 pub use forest::{ForestParams, ForestStep};

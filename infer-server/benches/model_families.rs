@@ -21,8 +21,12 @@
 //! (the inference thread's CPU instead of the profile's).
 //! Prints a table, and as its last line one JSON object:
 //! `{"families": {NAME: {"p50_us", "p99_us", "p999_us", "max_us", "allocs_per_call", "nodes",
-//!   "delayed_calls", "faulted_calls", "p999_clean_us"}}, "identity_p50_us": .., "floor": {..},
-//!   "load": "..", "steps": ..}`.
+//!   "delayed_calls", "faulted_calls", "p999_clean_us", "ahead_us"}}, "identity_p50_us": ..,
+//!   "floor": {..}, "load": "..", "steps": ..}`.
+//! `ahead_us` (column `ahead`) is the work the inference thread did after each answer for the
+//! next step (fused-ops ahead.rs: an LSTM's recurrent product reads only the state the step
+//! wrote), mean per answer; null where a model has none. It is not in the call's latency and it
+//! is in the thread's CPU time: a step costs p50 + ahead of it.
 //! `delayed_calls` counts the measured calls during whose round trip the inference thread
 //! waited on the run queue (its schedstat's wait time rose: the scheduler ran something else on
 //! its core), `faulted_calls` those during which it took a page fault; `p999_clean_us` is the
@@ -134,6 +138,8 @@ struct Row {
     delayed: Option<usize>,
     faulted: Option<usize>,
     p999_clean: Option<u64>,
+    /// work done ahead after each answer, mean ns (Served::ahead_ns)
+    ahead_ns: Option<f64>,
 }
 
 /// What the kernel counts for the inference thread, read before each request and after its
@@ -255,6 +261,10 @@ struct Served {
     samples: Vec<u64>,
     clean: Option<(Vec<u64>, usize, usize)>,
     allocs: f64,
+    /// Work done ahead after the answers of the measured steps (fused-ops ahead.rs), mean per
+    /// answer that had some, in ns; `None`: none had. Off the answer's latency (`samples`),
+    /// on the thread's CPU: a call costs p50 + this.
+    ahead_ns: Option<f64>,
 }
 
 /// Serves `path` through the inference thread for `warm + steps` steps at 10 kHz.
@@ -315,9 +325,15 @@ fn serve(
     let mut events = ThreadEvents::of_inference_thread();
     let mut clean = events.as_ref().map(|_| Vec::with_capacity(steps));
     let (mut delayed, mut faulted) = (0usize, 0usize);
+    let ahead_of = |t: &InferenceThread| {
+        let s = t.stats().snapshot();
+        (s.ahead_runs, s.ahead_ns)
+    };
+    let mut ahead_from = (0, 0);
     for i in 0..warm + steps {
         if i == warm {
             malloc_count::start();
+            ahead_from = ahead_of(&thread);
         }
         // Paced like the loop (on two cores a spinning "loop" would take the core the
         // inference thread needs).
@@ -347,12 +363,18 @@ fn serve(
         }
     }
     let allocs = malloc_count::stop() as f64 / steps as f64;
+    // The last answer's work ahead may still be running: a period is plenty.
+    std::thread::sleep(period);
+    let ahead_to = ahead_of(&thread);
+    let runs = ahead_to.0 - ahead_from.0;
+    let ahead_ns = (runs > 0).then(|| (ahead_to.1 - ahead_from.1) as f64 / runs as f64);
     drop(lp);
     let _ = thread.join();
     Served {
         samples,
         clean: clean.map(|c| (c, delayed, faulted)),
         allocs,
+        ahead_ns,
     }
 }
 
@@ -397,7 +419,7 @@ fn main() {
         if binding { "RunWithBinding" } else { "Run" },
     );
     println!(
-        "{:<22} {:>6} {:>8} {:>8} {:>8} {:>8} {:>12} {:>8} {:>8} {:>12}",
+        "{:<22} {:>6} {:>8} {:>8} {:>8} {:>8} {:>12} {:>8} {:>8} {:>12} {:>8}",
         "model",
         "nodes",
         "p50",
@@ -407,7 +429,8 @@ fn main() {
         "allocs/call",
         "delayed",
         "faulted",
-        "p99.9 clean"
+        "p99.9 clean",
+        "ahead"
     );
     let us = |ns: u64| ns as f64 / 1000.0;
     // the floor's half before the models, half after: the load of the whole run
@@ -419,6 +442,7 @@ fn main() {
             mut samples,
             clean,
             allocs,
+            ahead_ns,
         } = serve(rt, path, &rows, warm, steps);
         samples.sort_unstable();
         let (delayed, faulted) = (clean.as_ref().map(|c| c.1), clean.as_ref().map(|c| c.2));
@@ -436,10 +460,11 @@ fn main() {
             delayed,
             faulted,
             p999_clean,
+            ahead_ns,
             name,
         };
         println!(
-            "{:<22} {:>6} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>12.2} {:>8} {:>8} {:>12}",
+            "{:<22} {:>6} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>12.2} {:>8} {:>8} {:>12} {:>8}",
             row.name,
             row.nodes.map_or("-".into(), |n| n.to_string()),
             us(row.p50),
@@ -451,6 +476,8 @@ fn main() {
             row.faulted.map_or("-".into(), |n| n.to_string()),
             row.p999_clean
                 .map_or("-".into(), |n| format!("{:.2}", us(n))),
+            row.ahead_ns
+                .map_or("-".into(), |n| format!("{:.2}", n / 1000.0)),
         );
         out.push(row);
     }
@@ -470,6 +497,7 @@ fn main() {
                     "delayed_calls": r.delayed,
                     "faulted_calls": r.faulted,
                     "p999_clean_us": r.p999_clean.map(us),
+                    "ahead_us": r.ahead_ns.map(|n| n / 1000.0),
                 }),
             )
         })

@@ -117,6 +117,11 @@ pub struct InferenceCounters {
     /// Why the period-synchronised wait let go of its lock ([`crate::period_sync::LetGo`]):
     /// the loop went quiet, sent faster than the learnt period, left a gap, restarted.
     pub sync_let_go: [AtomicU64; 4],
+    /// Work done ahead after answering (fused-ops ahead.rs: an LSTM's next recurrent product):
+    /// the answers after which some ran, and the time it took in all. It is off the answer's
+    /// latency, not off the thread's CPU time: `ahead_ns / ahead_runs` is what each costs.
+    pub ahead_runs: AtomicU64,
+    pub ahead_ns: AtomicU64,
 }
 
 #[inline(always)]
@@ -153,6 +158,8 @@ pub struct StatsSnapshot {
     pub sync_missed_wakes: u64,
     /// quiet, faster, gap, restart.
     pub sync_let_go: [u64; 4],
+    pub ahead_runs: u64,
+    pub ahead_ns: u64,
 }
 
 impl InferenceCounters {
@@ -184,6 +191,8 @@ impl InferenceCounters {
             sync_relearns: l(&self.sync_relearns),
             sync_missed_wakes: l(&self.sync_missed_wakes),
             sync_let_go: [0, 1, 2, 3].map(|i| l(&self.sync_let_go[i])),
+            ahead_runs: l(&self.ahead_runs),
+            ahead_ns: l(&self.ahead_ns),
         }
     }
 }
@@ -337,6 +346,8 @@ impl Worker {
         for warning in obtained.warnings() {
             eprintln!("infer-server: {warning}; the inference thread runs without it");
         }
+        // Kernels stepped here queue their next step's state-only work, done after each answer.
+        haptics_ort_host::serve_ahead_on_this_thread();
         let mut active: Option<Box<Offered>> = None;
         let mut attached_once = false;
         while !self.stop.load(Ordering::Relaxed) {
@@ -530,6 +541,20 @@ impl Worker {
             stats.model_generation.store(generation, Ordering::Relaxed);
             link.heartbeat();
             // ---- end of real-time section ----
+
+            // The answer is out: do the next step's state-only work now, while the loop has
+            // nothing for this thread (a stateful model's; none queued: one clock read). No
+            // allocation, no lock; it delays nothing a step waits for, since the next request
+            // comes a period after this one.
+            let t_ahead = Instant::now();
+            if haptics_ort_host::run_ahead() > 0 {
+                bump(&stats.ahead_runs);
+                let ns = stats.ahead_ns.load(Ordering::Relaxed);
+                let spent = t_ahead.elapsed().as_nanos() as u64;
+                stats
+                    .ahead_ns
+                    .store(ns.wrapping_add(spent), Ordering::Relaxed);
+            }
         };
         stats.attached.store(false, Ordering::Relaxed);
         self.endpoints.clear();

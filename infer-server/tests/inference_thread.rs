@@ -213,6 +213,67 @@ fn serves_every_step_in_order_swaps_models_and_resets_state() {
     activator.collect_retired();
 }
 
+/// A fused LSTM's next recurrent product is done after each answer (fused-ops ahead.rs, the
+/// thread's `ahead_runs`); every answer is still the same bits as a local engine's, which does
+/// all of the work inside each step, across a reset to a zero state (a new run id).
+#[test]
+fn the_work_done_ahead_changes_no_answer() {
+    let Some(dir) = common::fixtures() else {
+        return;
+    };
+    let rt = common::runtime();
+    let schema_names = ["position_x", "velocity"];
+    let schema = FeatureSchema::new(schema_names).unwrap();
+    let name = segment_name("ahead");
+    let config = Config {
+        feature_names: schema_names.iter().map(|s| s.to_string()).collect(),
+        ..haptics_proto::layout::config()
+    };
+    let (mut lp, mut activator, thread) = common::parked_inference_thread(&name, &config);
+    wait_attached(&thread);
+    let load = || {
+        StepEngine::load(
+            rt,
+            &dir.join("lstm_fused.onnx"),
+            &schema,
+            &SessionConfig::default(),
+        )
+        .unwrap()
+    };
+    let g = activator.offer(load());
+    assert!(activator.wait_active(g, TIMEOUT));
+    let mut reference = load();
+    let mut seq = 1;
+    for run in [1u32, 2] {
+        reference.reset();
+        for k in 0..200 {
+            let t = k as f64;
+            let x = [0.004 * (t * 0.05).sin(), 0.02 * (t * 0.11).cos()];
+            let flags = if k == 0 { FeatureMsg::RUN_START } else { 0 };
+            let a = round_trip(&mut lp, features(seq, run, flags, &x));
+            seq += 1;
+            assert_eq!(a.flags, 0);
+            let want = reference.step(&x).unwrap() as f64;
+            assert_eq!(
+                a.force.to_bits(),
+                want.to_bits(),
+                "run {run} step {k}: {} vs {want}",
+                a.force
+            );
+        }
+    }
+    let end = std::time::Instant::now() + TIMEOUT;
+    while thread.stats().snapshot().ahead_runs < 400 && std::time::Instant::now() < end {
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let stats = thread.stats().snapshot();
+    assert_eq!(stats.ahead_runs, 400, "work ahead after every answer");
+    assert!(stats.ahead_ns > 0);
+    drop(lp);
+    thread.join().unwrap();
+    activator.collect_retired();
+}
+
 #[test]
 fn a_model_for_another_schema_is_not_fed_wrong_columns() {
     let Some(dir) = common::fixtures() else {

@@ -22,5 +22,8 @@ pub mod runtime;
 pub mod session;
 
 pub use binding::Binding;
+/// Work done ahead (fused-ops ahead.rs): a serving thread opts in once, then runs what the
+/// kernels it stepped queued after each answer.
+pub use haptics_fused_ops::{run_ahead, serve_ahead_on_this_thread};
 pub use runtime::{one_line, Runtime, RuntimeError, REPO_LIB_PATH, SETUP_COMMAND};
 pub use session::{SessionError, SessionSettings};
