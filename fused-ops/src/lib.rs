@@ -16,6 +16,10 @@
 //!   `libhaptics_fused_ops.so`, with `SessionOptions.register_custom_ops_library`, which calls
 //!   [`RegisterCustomOps`].
 //!
+//! A stateful kernel may leave the part of its next step that reads only the state for after
+//! the answer: a serving thread opts in ([`serve_ahead_on_this_thread`]) and runs it
+//! ([`run_ahead`]) once the answer is out; elsewhere every step does all its work (ahead.rs).
+//!
 //! Every constant a model needs travels as node attributes, parsed and checked once when ONNX
 //! Runtime creates the kernel (a bad attribute fails the session's creation with a one-line
 //! error); the kernels' `compute` allocates nothing (tensors read and written through the raw C

@@ -13,7 +13,9 @@
 //! (i, f, g, o); `head_weights` [H] and `head_bias` with the target scaling folded in.
 //!
 //! The cell is two column-sum products (math.rs: an axpy of 4H per input and per state
-//! element, vectorised, AVX2 where the CPU has it) and 5H exps, in float32 as torch's.
+//! element, vectorised, AVX2 where the CPU has it) and 5H exps, in float32 as torch's. The
+//! recurrent one, three quarters of the step at H = 100, reads only the state: a serving thread
+//! does it for the next step after sending this one's answer (ahead.rs).
 
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
