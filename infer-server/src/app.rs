@@ -363,7 +363,7 @@ fn report_stats(server: &InferenceControl) {
     let s = server.stats();
     let l = server.latency().snapshot();
     eprintln!(
-        "infer-server: answered {} (model {}, no model {}, errors {}, schema mismatch {}, non-finite {}, bad features {}, undecodable {}), resets {}, attachments {}; period-sync period {} ns margin {} ns locks {} relearns {} (quiet {}, faster {}, gap {}, restart {}) missed wake-ups {}; ring-to-ring p50 {} ns p99 {} ns p99.9 {} ns max {} ns",
+        "infer-server: answered {} (model {}, no model {}, errors {}, schema mismatch {}, non-finite {}, bad features {}, undecodable {}), resets {}, attachments {}; period-sync period {} ns margin {} ns locks {} relearns {} (quiet {}, faster {}, gap {}, restart {}) missed wake-ups {}; ring-to-ring p50 {} ns p99 {} ns p99.9 {} ns max {} ns; work ahead after {} answers, {} ns each",
         s.answered,
         s.predicted,
         s.no_model,
@@ -386,6 +386,8 @@ fn report_stats(server: &InferenceControl) {
         l.quantile(0.5),
         l.quantile(0.99),
         l.quantile(0.999),
-        l.max
+        l.max,
+        s.ahead_runs,
+        s.ahead_ns.checked_div(s.ahead_runs).unwrap_or(0),
     );
 }
