@@ -28,7 +28,7 @@
 //! its contents until it stores the next state (Release); whoever finds it `BUSY` works without
 //! it. Nothing waits: no lock, no allocation, no syscall on either side.
 
-use std::cell::{RefCell, UnsafeCell};
+use std::cell::{Cell, RefCell, UnsafeCell};
 use std::ops::{Deref, DerefMut};
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::Arc;
@@ -51,7 +51,11 @@ struct Queue {
 }
 
 thread_local! {
-    /// `None`: this thread does not serve ahead (the default).
+    /// Whether this thread serves ahead. Read before [`QUEUE`] is touched: a `Cell<bool>` needs
+    /// no destructor, so a thread that never serves (rt-loop's loop thread stepping an ONNX
+    /// object, Python's) never registers one, which could allocate, in its first step.
+    static SERVES: Cell<bool> = const { Cell::new(false) };
+    /// The work queued on a serving thread (`None` until it serves).
     static QUEUE: RefCell<Option<Queue>> = const { RefCell::new(None) };
 }
 
@@ -59,6 +63,7 @@ thread_local! {
 /// state-only work, which [`run_ahead`] then does. Call once, before serving (its first call
 /// sets up the thread's queue: the only allocation here, if any).
 pub fn serve_ahead_on_this_thread() {
+    SERVES.with(|s| s.set(true));
     QUEUE.with(|q| {
         let mut q = q.borrow_mut();
         if q.is_none() {
@@ -75,6 +80,9 @@ pub fn serve_ahead_on_this_thread() {
 /// Allocates nothing and takes no lock; the one exception is a kernel that a model swap dropped
 /// meanwhile: its work is skipped and its weights are freed here, once per swap.
 pub fn run_ahead() -> usize {
+    if !SERVES.with(Cell::get) {
+        return 0;
+    }
     QUEUE.with(|q| {
         let Ok(mut q) = q.try_borrow_mut() else {
             return 0;
@@ -103,6 +111,9 @@ pub fn run_ahead() -> usize {
 pub(crate) fn queue<W: Ahead + 'static>(work: &Arc<W>) -> bool {
     if work.queued().load(Ordering::Relaxed) {
         return true;
+    }
+    if !SERVES.with(Cell::get) {
+        return false;
     }
     QUEUE.with(|q| {
         let Ok(mut q) = q.try_borrow_mut() else {
