@@ -627,19 +627,32 @@ async function pollStatus(): Promise<void> {
 // ---------------------------------------------------------------------------------------------
 // Models
 
-async function refreshModels(): Promise<void> {
+async function refreshModels(force = false): Promise<void> {
   try {
     models = normalizeModels(await api.models());
     modelNames.learn(models);
     dirty = true; // the model strip may now name an id it showed by number
-    renderModels();
+    renderModels(force);
   } catch (e) {
     if (conn === "open") log(`Model list: ${(e as Error).message}`, "err");
   }
 }
 
-function renderModels(): void {
+/** What the model rows were last built from: a refresh that brings the same list and active
+ * model (most of the 5 s safety-net refreshes) leaves the rows, and a keyboard user's focus on
+ * one of their buttons, as they are. */
+let modelsShown = "";
+
+function renderModels(force = false): void {
   const body = $("models-body");
+  const shown = JSON.stringify([models, status.active_model?.name ?? null]);
+  if (!force && shown === modelsShown && body.childElementCount) return;
+  modelsShown = shown;
+  // A rebuild replaces the buttons: give the focus back to the same model's button, so a
+  // keyboard user's Tab and Enter stay where they were (a replaced element takes the focus
+  // away to the page's body).
+  const focused = document.activeElement;
+  const focusedModel = focused && body.contains(focused) ? focused.closest("tr")?.dataset.model : undefined;
   body.replaceChildren();
   if (!models.length) {
     const tr = document.createElement("tr");
@@ -678,6 +691,7 @@ function renderModels(): void {
     act.append(b);
     tr.append(name, state, kind, cost, act);
     body.append(tr);
+    if (m.name === focusedModel) b.focus();
   }
 }
 
@@ -695,9 +709,10 @@ async function swapModel(m: ModelInfo, button: HTMLButtonElement): Promise<void>
     log(`Could not activate ${m.name}: ${(e as Error).message}`, "err");
   }
   await pollStatus();
-  await refreshModels();
+  // Rebuilt even if nothing changed (a refused swap): the button says "Swapping…" until then.
+  await refreshModels(true);
 }
-$("models-refresh").addEventListener("click", () => void refreshModels());
+$("models-refresh").addEventListener("click", () => void refreshModels(true));
 
 // ---------------------------------------------------------------------------------------------
 // Experiment

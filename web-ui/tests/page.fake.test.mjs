@@ -316,6 +316,21 @@ describe("page against the fake server", () => {
     await waitFor(async () => (await hook.status(page)).active_model?.name === target, { what: `${target} active by keyboard` });
   });
 
+  test("a rebuilt model list gives the keyboard focus back to the same model's button", async () => {
+    const active = (await hook.status(page)).active_model?.name;
+    const target = ["lstm6", "spring_damper2", "rf6"].find((n) => n !== active);
+    const button = `#models-body tr[data-model="${target}"] button`;
+    await page.focus(button);
+    await page.evaluate(() => {
+      window.__focusedBefore = document.activeElement;
+      // a click from script, as a refresh from elsewhere: the focus does not move to it
+      document.getElementById("models-refresh").click();
+    });
+    await waitFor(() => page.evaluate(() => document.activeElement !== window.__focusedBefore), { what: "the list rebuilt (its buttons replaced)" });
+    const where = await page.evaluate(() => ({ tag: document.activeElement?.tagName, model: document.activeElement?.closest("tr")?.dataset.model }));
+    assert.deepEqual(where, { tag: "BUTTON", model: target }, "the focus is on the same model's new button, not on the page's body");
+  });
+
   test("frame times while drawing 10 kHz telemetry (printed, not asserted)", async () => {
     await page.click("#live");
     await page.selectOption("#window", "10");
