@@ -7,7 +7,8 @@
 //! blocks": the step 3.0-3.9 us, 0.67-0.99 without the product). h is known the moment a step
 //! ends and the next step's product reads nothing else, so it can be done before the next
 //! request arrives (the period is 100 us). The answer's latency loses it; the CPU time per
-//! step stays the same (infer-server counts it: `ahead_ns`).
+//! step does not (measured, it grew by about 0.9 us: docs/infer-server.md, "The LSTMs'
+//! recurrent product, done after the answer"; infer-server counts it: `ahead_ns`).
 //!
 //! Who does what:
 //! - a thread that serves (infer-server's inference thread) calls [`serve_ahead_on_this_thread`]
