@@ -51,6 +51,17 @@ struct Queue {
     len: usize,
 }
 
+impl Drop for Queue {
+    /// A serving thread that ends with work queued: that work is in no queue any more, so the
+    /// next serving thread to step its kernel may queue it again (else its flag would say
+    /// "queued" forever and the kernel would never be served ahead again).
+    fn drop(&mut self) {
+        for work in self.items[..self.len].iter().flatten() {
+            work.queued().store(false, Ordering::Relaxed);
+        }
+    }
+}
+
 thread_local! {
     /// Whether this thread serves ahead. Read before [`QUEUE`] is touched: a `Cell<bool>` needs
     /// no destructor, so a thread that never serves (rt-loop's loop thread stepping an ONNX
@@ -295,6 +306,29 @@ mod tests {
             drop(w);
             assert_eq!(run_ahead(), 0);
             assert!(weak.upgrade().is_none());
+        })
+        .join()
+        .unwrap();
+    }
+
+    #[test]
+    fn work_left_queued_by_a_thread_that_ended_is_queued_again_elsewhere() {
+        let w = count();
+        let w2 = w.clone();
+        std::thread::spawn(move || {
+            serve_ahead_on_this_thread();
+            w2.slot.claim().unwrap().release(QUEUED);
+            assert!(queue(&w2));
+            // ends without run_ahead
+        })
+        .join()
+        .unwrap();
+        assert!(!w.queued().load(Ordering::Relaxed));
+        std::thread::spawn(move || {
+            serve_ahead_on_this_thread();
+            assert!(queue(&w));
+            assert_eq!(run_ahead(), 1);
+            assert_eq!(w.runs.load(Ordering::Relaxed), 1);
         })
         .join()
         .unwrap();
