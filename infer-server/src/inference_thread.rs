@@ -126,7 +126,13 @@ pub struct InferenceCounters {
 
 #[inline(always)]
 fn bump(a: &AtomicU64) {
-    a.store(a.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed);
+    add(a, 1);
+}
+
+/// `a += v` for a counter with this thread as its only writer (a load and a store, no RMW).
+#[inline(always)]
+fn add(a: &AtomicU64, v: u64) {
+    a.store(a.load(Ordering::Relaxed).wrapping_add(v), Ordering::Relaxed);
 }
 
 /// A plain snapshot of [`InferenceCounters`] for reports.
@@ -549,11 +555,7 @@ impl Worker {
             let t_ahead = Instant::now();
             if haptics_ort_host::run_ahead() > 0 {
                 bump(&stats.ahead_runs);
-                let ns = stats.ahead_ns.load(Ordering::Relaxed);
-                let spent = t_ahead.elapsed().as_nanos() as u64;
-                stats
-                    .ahead_ns
-                    .store(ns.wrapping_add(spent), Ordering::Relaxed);
+                add(&stats.ahead_ns, t_ahead.elapsed().as_nanos() as u64);
             }
         };
         stats.attached.store(false, Ordering::Relaxed);

@@ -29,6 +29,14 @@ fn features(seq: u64, run_id: u32, flags: u32, values: &[f64]) -> FeatureMsg {
     }
 }
 
+/// The standard segment layout with the loop's own feature schema `names`.
+fn config_for(names: &[&str]) -> Config {
+    Config {
+        feature_names: names.iter().map(|s| s.to_string()).collect(),
+        ..haptics_proto::layout::config()
+    }
+}
+
 /// Waits until the thread has attached: features sent before that are skipped at attach (they
 /// would be requests to a previous server), as a real loop knows from `peer_alive`.
 fn wait_attached(thread: &InferenceThread) {
@@ -65,10 +73,7 @@ fn serves_every_step_in_order_swaps_models_and_resets_state() {
     let schema_names = ["velocity", "f_previous_x", "position_x"];
     let schema = FeatureSchema::new(schema_names).unwrap();
     let name = segment_name("swap");
-    let config = Config {
-        feature_names: schema_names.iter().map(|s| s.to_string()).collect(),
-        ..haptics_proto::layout::config()
-    };
+    let config = config_for(&schema_names);
     let (mut lp, mut activator, thread) = common::parked_inference_thread(&name, &config);
     wait_attached(&thread);
 
@@ -225,10 +230,7 @@ fn the_work_done_ahead_changes_no_answer() {
     let schema_names = ["position_x", "velocity"];
     let schema = FeatureSchema::new(schema_names).unwrap();
     let name = segment_name("ahead");
-    let config = Config {
-        feature_names: schema_names.iter().map(|s| s.to_string()).collect(),
-        ..haptics_proto::layout::config()
-    };
+    let config = config_for(&schema_names);
     let (mut lp, mut activator, thread) = common::parked_inference_thread(&name, &config);
     wait_attached(&thread);
     let load = || {

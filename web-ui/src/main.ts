@@ -646,7 +646,7 @@ let modelsShown = "";
 function renderModels(force = false): void {
   const body = $("models-body");
   const shown = JSON.stringify([models, status.active_model?.name ?? null]);
-  if (!force && shown === modelsShown && body.childElementCount) return;
+  if (!force && shown === modelsShown) return;
   modelsShown = shown;
   // A rebuild replaces the buttons: give the focus back to the same model's button, so a
   // keyboard user's Tab and Enter stay where they were (a replaced element takes the focus
