@@ -8,6 +8,7 @@ import onnx
 import pytest
 
 from haptics_train.cli import main
+from haptics_train.models.lawfree import LAWFREE_DEFAULT
 from haptics_train.synthetic import write_dataset
 
 
@@ -184,13 +185,14 @@ def test_defaults_scale_with_the_data(tmp_path):
 
 
 def test_lawfree_readout_is_chosen_on_validation(tmp_path):
-    """`lawfree`'s readout and ridge (`pipeline.lawfree_candidates`) are chosen on the
+    """`lawfree`'s readout, ridge and memory span (`pipeline.lawfree_candidates`) are chosen on the
     validation recording's free run over its sliding rows, like the recommendation; what the
     user sets is not searched."""
     from haptics_train.data import load_manifest
     from haptics_train.pipeline import (
         LAWFREE_READOUTS,
         LAWFREE_RIDGES,
+        LAWFREE_SPANS_S,
         SELECTION_METRIC,
         _candidates,
         lawfree_candidates,
@@ -204,7 +206,7 @@ def test_lawfree_readout_is_chosen_on_validation(tmp_path):
     res = json.loads((models / "results.json").read_text())["lawfree"]
     sel = res["training"]["selection"]
     options = dict(lawfree_candidates({}))
-    assert len(options) == len(LAWFREE_READOUTS) * len(LAWFREE_RIDGES)
+    assert len(options) == len(LAWFREE_READOUTS) * len(LAWFREE_RIDGES) * len(LAWFREE_SPANS_S)
     assert sel["parameter"] == "readout" and sel["validation"] == ["v"]
     assert sel["metric"] == SELECTION_METRIC
     assert list(sel["candidates"]) == list(options)
@@ -216,10 +218,21 @@ def test_lawfree_readout_is_chosen_on_validation(tmp_path):
     assert sliding["rows"] > 0
     assert sel["candidates"][sel["chosen"]] == pytest.approx(sliding["rmse"], rel=1e-6)
     ds = load_manifest(man)
+    taus = LAWFREE_DEFAULT["taus_s"]
+    spans = [(f"memory {s:g} s", [t for t in taus if t <= s]) for s in LAWFREE_SPANS_S]
+    # every span keeps the fastest filters and drops the slowest: a span is a prefix of the grid
+    assert [len(t) for _, t in spans] == sorted({len(t) for _, t in spans})
+    assert spans[-1][1] == taus and len(spans[0][1]) < len(taus)
     assert _candidates("lawfree", {"lawfree": {"memory_at_surface": True}}, None, ds) == (
-        "readout", [(f"ridge {r:g}", {"ridge": r}) for r in LAWFREE_RIDGES])  # fmt: skip
+        "readout", [(f"ridge {r:g}, {sl}", {"ridge": r, "taus_s": st})
+                    for r in LAWFREE_RIDGES for sl, st in spans])  # fmt: skip
     only_ridge = _candidates("lawfree", {"lawfree": {"ridge": 1e-3}}, None, ds)
-    assert only_ridge == ("readout", [(label, dict(h)) for label, h in LAWFREE_READOUTS])
-    both = {"lawfree": {"memory_at_surface": True, "ridge": 1e-3}}
-    assert _candidates("lawfree", both, None, ds) is None
+    readouts = [(f"{label}, {sl}", {**h, "taus_s": st})
+                for label, h in LAWFREE_READOUTS for sl, st in spans]  # fmt: skip
+    assert only_ridge == ("readout", readouts)
+    only_span = _candidates("lawfree", {"lawfree": {"memory_at_surface": True, "ridge": 1e-3}},
+                            None, ds)  # fmt: skip
+    assert only_span == ("readout", [(sl, {"taus_s": st}) for sl, st in spans])
+    all_set = {"lawfree": {"memory_at_surface": True, "ridge": 1e-3, "taus_s": [0.1, 1.0]}}
+    assert _candidates("lawfree", all_set, None, ds) is None
     assert _candidates("structured", None, None, ds) is None
