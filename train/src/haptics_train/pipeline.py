@@ -181,7 +181,8 @@ LAWFREE_RIDGES: tuple[float, ...] = (1e-4, 1e-3, 1e-2)
 #: `lawfree` 0.28 N off on its 0.25 mm/s validation test where a 1 s span was 0.06 N
 #: (Hunt-Crossley, 0.5 mm/s held out); on the bench's minute-long recordings, with a set that
 #: recovers over tens of seconds, the slow ones may be what the data need: validation says
-#: which (docs/laws.md, "`lawfree`'s memory span chosen on validation").
+#: which, on the sliding rows and over every row (`choose_on_both`; docs/laws.md, "`lawfree`'s
+#: memory span chosen on validation").
 LAWFREE_SPANS_S: tuple[float, ...] = (1.0, 10.0, 100.0)
 
 
@@ -241,8 +242,10 @@ def train_models(
     has validation recordings and candidates are given, each candidate fraction of the force
     range is trained and the one with the lowest free-run RMSE on the validation recordings is
     kept (the test recordings play no part in the choice; `train_info_["selection"]`); for
-    `lawfree` likewise its readout and ridge (`lawfree_candidates`), less what `hyper` sets. The
-    score is `validation_free_run_rmse`: the sliding rows, as the recommendation ranks."""
+    `lawfree` likewise its readout, ridge and memory span (`lawfree_candidates`), less what
+    `hyper` sets. The score is `validation_free_run_rmse`: the sliding rows, as the
+    recommendation ranks; `lawfree`'s candidates must also be near the best over every
+    validation row (`choose_on_both`)."""
     for spec in specs:
         parse_spec(spec, preset)  # an unknown algorithm or feature set stops before any training
     out.mkdir(parents=True, exist_ok=True)

@@ -25,9 +25,11 @@ tau_k 0.01..100 s half a decade apart, r 0.005..0.4 of D and a_s 0.1, 0.3 of D a
 the time, path and depth scales, not of any material; D (the largest compression) and V (the
 99th percentile of |v|) are measured on the training data. How far the memory reaches is the
 data's to say: `haptics-train train` fits the filters up to 1, 10 and 100 s and keeps the span
-with the best validation free run (`pipeline.LAWFREE_SPANS_S`): a filter much slower than the
-training recordings is fitted as a copy of the compression and extrapolates when a slower
-motion moves it (docs/laws.md, "`lawfree`'s memory span"). Every input's weight is a function
+whose validation free run is near the best both on the sliding rows and over every row
+(`pipeline.LAWFREE_SPANS_S`, `choose_on_both`): a filter much slower than the training
+recordings is fitted as a copy of the compression and extrapolates when a slower motion moves
+it, while a foam's compression set needs the slow ones (docs/laws.md, "`lawfree`'s memory
+span"). Every input's weight is a function
 of the depth (phi), so a memory may grow with the compression as a relaxing or hysteretic force
 does in soft materials: as a power (w, w^2) or saturating within a tenth or a third of the
 deepest press (1 - exp(-w/a): soft materials stiffen early, and their memory with them), up to
