@@ -177,7 +177,7 @@ LAWFREE_RIDGES: tuple[float, ...] = (1e-4, 1e-3, 1e-2)
 #: a decade apart) up to the span. A grid of decades, not a material's number. Why it is chosen
 #: and not fixed: a filter much slower than the training recordings barely moves in them, so it
 #: is fitted as a copy of the compression, and a slower motion (or a longer one) then moves it
-#: and the readout extrapolates. On testing-machine tests of 2.5-10 s, the slow filters made
+#: and the readout extrapolates. On testing-machine tests of 4.5-42 s, the slow filters made
 #: `lawfree` 0.28 N off on its 0.25 mm/s validation test where a 1 s span was 0.06 N
 #: (Hunt-Crossley, 0.5 mm/s held out); on the bench's minute-long recordings, with a set that
 #: recovers over tens of seconds, the slow ones may be what the data need: validation says
