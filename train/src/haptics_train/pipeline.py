@@ -13,6 +13,7 @@ Layout of the models folder:
 
 from __future__ import annotations
 
+import itertools
 import json
 import time
 from pathlib import Path
@@ -191,24 +192,19 @@ def lawfree_candidates(user: dict) -> list[tuple[str, dict]]:
     `LAWFREE_READOUTS` at every ridge of `LAWFREE_RIDGES` and every memory span of
     `LAWFREE_SPANS_S`, less what the user set (a ridge or filters the user gives are used for
     every candidate; a readout the user gives is not searched)."""
-    readouts = [("", {})] if user.keys() & {"memory_at_surface", "readout_depth_scales"} else [
-        (label, h) for label, h in LAWFREE_READOUTS]  # fmt: skip
-    ridges: list[float | None] = [None] if "ridge" in user else list(LAWFREE_RIDGES)
-    spans: list[float | None] = [None] if "taus_s" in user else list(LAWFREE_SPANS_S)
+    # each axis: (its part of the label, its hyper-parameters); one unsearched entry where the
+    # user set it
+    unset: list[tuple[str, dict]] = [("", {})]
+    readouts = unset if user.keys() & {"memory_at_surface", "readout_depth_scales"} else list(
+        LAWFREE_READOUTS)  # fmt: skip
+    ridges = unset if "ridge" in user else [(f"ridge {r:g}", {"ridge": r}) for r in LAWFREE_RIDGES]
     taus = LAWFREE_DEFAULT["taus_s"]
-    out = []
-    for label, h in readouts:
-        for r in ridges:
-            for span in spans:
-                parts = (label, "" if r is None else f"ridge {r:g}",
-                         "" if span is None else f"memory {span:g} s")  # fmt: skip
-                name = ", ".join(x for x in parts if x)
-                extra = dict(h)
-                if r is not None:
-                    extra["ridge"] = r
-                if span is not None:
-                    extra["taus_s"] = [t for t in taus if t <= span * (1 + 1e-9)]
-                out.append((name, extra))
+    spans = unset if "taus_s" in user else [
+        (f"memory {s:g} s", {"taus_s": [t for t in taus if t <= s]})
+        for s in LAWFREE_SPANS_S]  # fmt: skip
+    out = [(", ".join(label for label, _ in axes if label),
+            {k: v for _, h in axes for k, v in h.items()})
+           for axes in itertools.product(readouts, ridges, spans)]  # fmt: skip
     return out if len(out) > 1 else []
 
 
@@ -273,8 +269,8 @@ def train_models(
                           flush=True)  # fmt: skip
                     # the value itself where the parameter is a hyper-parameter, else its label
                     fitted[label] = (extra.get(parameter, label), cand)
-                lowest = min(scored, key=lambda k: scored[k] if np.isfinite(scored[k]) else np.inf)
-                pick = choose_on_both(scored, every) if both else lowest
+                pick = choose_on_both(scored, every) if both else min(
+                    scored, key=lambda k: scored[k] if np.isfinite(scored[k]) else np.inf)
                 chosen, m = fitted[pick]
                 m.train_info_["selection"] = {
                     "parameter": parameter,
