@@ -9,6 +9,13 @@
 # apart; out of contact the force is the bench's alone, so the models that identify the
 # friction beside the object (structured, lawfree) are told which is which. Any rig can record
 # it (the probe moved away from the object). Spring-dampers fit contact rows only.
+# With PRESSES=1, also `train_hold` and `validation_hold`: presses at a hand's speeds (peaks
+# of 10, 40 and 80 mm/s) to five depths (0.25-0.95 of the ramps' deepest compression), each
+# held 1.5-3.5 s, driven by the position controller (`haptics-train presses`, then `rt-loop run
+# --experiment position-replay`; two programmes, seeds 5 and 6). Off by default: on the
+# bench's six laws it made the recommended model's felt force closer on some and further on
+# others (docs/laws.md, "Presses and holds at a hand's speeds in training"). Needs the
+# project's .venv (setup.sh).
 #
 # Usage: scripts/record-dataset.sh [--material FILE] [--bench FILE] [OUTDIR=data/dataset]
 #        --material: the simulated object (default materials/sponge.toml; e.g. materials/foam-b.toml)
@@ -16,7 +23,8 @@
 #        default none, as the thesis code); both are written into each recording's metadata.
 # Env:   DECIMATE (default 1: every step, lossless, ~575 MB for the seven files; 2 halves that:
 #        5 kHz rows, ~290 MB; the loop and its online features always run at 10 kHz),
-#        SEED (default 1; the test recording uses SEED + 1).
+#        SEED (default 1; the test recording uses SEED + 1), PRESSES (default 0; 1 adds the
+#        two press-and-hold recordings above, ~145 MB at DECIMATE=1).
 # Existing files are kept (delete one to record it again).
 set -euo pipefail
 who=record-dataset
@@ -40,4 +48,18 @@ record test_2.1 2.1 $((seed + 1))
 record validation_5.0 5.0 $((seed + 2))
 # the bench alone, out of contact (above): training data of the bench's friction
 record_run train_air "$seed" --friction-sweep
+# PRESSES=1: presses and holds at a hand's speeds, scaled by the ramps above (presses.py says
+# why): one programme to train on, another (its own order and holds) to validate on
+presses() { # name programme-seed loop-seed
+  if [ ! -f "$out/$1.parquet" ]; then
+    [ -x .venv/bin/haptics-train ] || { echo "$who: .venv/bin/haptics-train missing (bash scripts/setup.sh)" >&2; exit 2; }
+    .venv/bin/haptics-train presses --dataset "$out" --seed "$2" --out "$out/.presses.parquet"
+  fi
+  record_run "$1" "$3" --experiment position-replay --trajectory "$out/.presses.parquet"
+  rm -f "$out/.presses.parquet"
+}
+if [ "${PRESSES:-0}" = 1 ]; then
+  presses train_hold 5 "$seed"
+  presses validation_hold 6 $((seed + 2))
+fi
 du -ch "$out"/*.parquet | tail -1

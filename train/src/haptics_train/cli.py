@@ -1,5 +1,6 @@
 """Command line of haptics-train: analyze, train, evaluate, ood, export, report, import,
-validate, pipeline, study. Run from the repository root (default paths are relative to it)."""
+validate, pipeline, study, presses. Run from the repository root (default paths are relative
+to it)."""
 
 from __future__ import annotations
 
@@ -272,6 +273,14 @@ def cmd_validate(a: argparse.Namespace) -> None:
         print(f"{p}: ok ({meta['haptics.kind']}, features {meta['haptics.features']})")
 
 
+def cmd_presses(a: argparse.Namespace) -> None:
+    from .presses import write_trajectory
+
+    depth, duration = write_trajectory(Path(a.dataset), Path(a.out), a.seed)
+    print(f"{a.out}: press-and-hold programme, {duration:.1f} s, depths scaled by the ramps' "
+          f"deepest compression {1e3 * depth:.2f} mm")  # fmt: skip
+
+
 def cmd_pipeline(a: argparse.Namespace) -> None:
     from .analysis import analyze
     from .pipeline import evaluate_models, export_models, train_models
@@ -417,6 +426,17 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--notes", help="remarks recorded in the manifest")
     s.add_argument("--rt-loop", help="rt-loop binary (else $HAPTICS_RT_LOOP, target/release)")
     s.set_defaults(fn=cmd_import)
+
+    s = sub.add_parser(
+        "presses",
+        help="the press-and-hold programme of a dataset's train_hold recording (rt-loop "
+        "position-replay reads it; scripts/record-dataset.sh)",
+    )
+    s.add_argument("--dataset", default=DEFAULT_DATASET,
+                   help="its force ramps (train_*.parquet) set the depths (default %(default)s)")
+    s.add_argument("--out", required=True, help="trajectory Parquet (time, position_x)")
+    s.add_argument("--seed", type=int, default=5, help="the presses' order and holds")
+    s.set_defaults(fn=cmd_presses)
 
     s = sub.add_parser("validate", help="check ONNX files against docs/model-contract.md")
     s.add_argument("files", nargs="+")
