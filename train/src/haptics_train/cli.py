@@ -16,6 +16,7 @@ from .features import FEATURE_SETS
 from .importer import DEFAULT_MAX_GAP_FACTOR, FORCE_UNITS, POSITION_UNITS, TIME_UNITS
 from .models import ALGOS, TrainConfig
 from .pipeline import DEFAULT_SPECS
+from .presses import DEFAULT_SEED
 
 DEFAULT_DATASET = "data/dataset"
 DEFAULT_MODELS = "models"
@@ -429,13 +430,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser(
         "presses",
-        help="the press-and-hold programme of a dataset's train_hold recording (rt-loop "
-        "position-replay reads it; scripts/record-dataset.sh)",
+        help="the press-and-hold programme of a dataset's train_hold / validation_hold "
+        "recordings (rt-loop position-replay reads it; PRESSES=1 scripts/record-dataset.sh)",
     )
     s.add_argument("--dataset", default=DEFAULT_DATASET,
                    help="its force ramps (train_*.parquet) set the depths (default %(default)s)")
     s.add_argument("--out", required=True, help="trajectory Parquet (time, position_x)")
-    s.add_argument("--seed", type=int, default=5, help="the presses' order and holds")
+    s.add_argument("--seed", type=int, default=DEFAULT_SEED,
+                   help="the presses' order and holds (default %(default)s)")
     s.set_defaults(fn=cmd_presses)
 
     s = sub.add_parser("validate", help="check ONNX files against docs/model-contract.md")

@@ -1,6 +1,6 @@
 """Press-and-hold presses at a hand's speeds: the position programme of the dataset's
-`train_hold` recording (scripts/record-dataset.sh replays it with rt-loop's position
-controller, `--experiment position-replay`).
+`train_hold` and `validation_hold` recordings (`PRESSES=1 scripts/record-dataset.sh` replays
+one of each seed with rt-loop's position controller, `--experiment position-replay`).
 
 Why: the thesis's recordings are force-controlled ramps of 0.8-6.2 N/s that turn round at
 their peak. A hand presses at 10-100 mm/s and holds, and what it feels there (the fast
@@ -36,10 +36,14 @@ REST_S = (1.0, 2.5)
 CLEAR_M = -0.001
 #: The programme's time step, s (rt-loop interpolates between the rows at its own rate).
 STEP_S = 1e-3
+#: The seed of the presses' order and holds (record-dataset.sh validates on another).
+DEFAULT_SEED = 5
+#: The training recordings that are not force ramps, so never the depth scale.
+NOT_RAMPS = ("train_air", "train_hold")
 
 
 def press_hold_trajectory(
-    depth_m: float, seed: int = 5, step_s: float = STEP_S
+    depth_m: float, seed: int = DEFAULT_SEED, step_s: float = STEP_S
 ) -> tuple[np.ndarray, np.ndarray]:
     """(time s, position m) of the programme: every depth fraction at every speed once, in an
     order drawn by `seed`; each a press with a cosine speed profile, a hold, a release to
@@ -71,10 +75,9 @@ def press_hold_trajectory(
 
 
 def ramp_depth_m(dataset: Path) -> float:
-    """The deepest compression of the dataset's force ramps (`train_*.parquet`, other than
-    `train_air` and `train_hold`): the largest `position_x`."""
-    files = [p for p in sorted(Path(dataset).glob("train_*.parquet"))
-             if p.stem not in ("train_air", "train_hold")]  # fmt: skip
+    """The deepest compression of the dataset's force ramps (`train_*.parquet` but
+    `NOT_RAMPS`): the largest `position_x`."""
+    files = [p for p in sorted(Path(dataset).glob("train_*.parquet")) if p.stem not in NOT_RAMPS]
     if not files:
         raise FileNotFoundError(f"{dataset}: no train_*.parquet ramp recording to scale by")
     deepest = max(float(pq.read_table(p, columns=["position_x"]).column(0).to_numpy().max())
@@ -84,7 +87,7 @@ def ramp_depth_m(dataset: Path) -> float:
     return deepest
 
 
-def write_trajectory(dataset: Path, out: Path, seed: int = 5) -> tuple[float, float]:
+def write_trajectory(dataset: Path, out: Path, seed: int = DEFAULT_SEED) -> tuple[float, float]:
     """Writes the programme for `dataset`'s ramps to `out` (columns time, position_x: what
     `rt-loop run --trajectory` reads). Returns (depth scale m, duration s)."""
     depth = ramp_depth_m(dataset)
