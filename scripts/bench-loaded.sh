@@ -36,7 +36,9 @@
 #        benchmark as machine_floor: nothing is built, installed or trained, for a machine without
 #        cargo; the model must be in models/), BENCH_PAGE (1, default; 0 on a machine without
 #        Chromium: no page rows, the JSON's page keys are null, and the run says so),
-#        BENCH_PYTHON (the Python with numpy and pyarrow for the figures, default .venv/bin/python).
+#        BENCH_PYTHON (the Python with numpy and pyarrow for the figures, default .venv/bin/python),
+#        SERVER_ARGS (more infer-server flags for every server of the run, e.g. "--keep-awake off":
+#        the JSON's `server_args` and `keep_awake` say what the default profile ran with).
 #        Without stress-ng, BENCH_PREBUILT runs the hog as a Python busy loop pinned with taskset.
 # Spins both cores during the floor (a benchmark, never a test). Needs root or sudo only to
 # install stress-ng (Debian: apt-get install -y stress-ng rt-tests) when it is missing.
@@ -135,9 +137,10 @@ FLOOR_SECONDS=${FLOOR_SECONDS:-20} BENCH_MODEL="$root/models/$model.onnx" floor_
 tail -n 1 "$work/floor.txt" > "$work/floor.json"
 
 # ---- the product ----------------------------------------------------------------------------
+read -r -a server_args <<<"${SERVER_ARGS:-}"
 start_server() { # profile suffix: infer-server on $instance; sets server, grpc, http
   "$bin/infer-server" serve --instance "$instance" --models "$work/models" --model "$model.onnx" \
-    --profile "$1" --grpc 127.0.0.1:0 --http 127.0.0.1:0 --stats-every 0 \
+    --profile "$1" "${server_args[@]}" --grpc 127.0.0.1:0 --http 127.0.0.1:0 --stats-every 0 \
     >"$work/infer-server$2.out" 2>"$work/infer-server$2.err" &
   server=$!
   pids+=($server)
@@ -441,6 +444,9 @@ out = {
     "tuned_idle_p50_us": rows["idle_tuned"]["p50"] if "idle_tuned" in rows else None,
 }
 out["page_loaded"] = page_cpu is not None
+# what the default profile's server ran with (its start-up line: docs/infer-server.md)
+out["server_args"] = os.environ.get("SERVER_ARGS", "")
+out["keep_awake"] = "kept awake" in (work / "infer-server.err").read_text()
 if not page_on:
     print("no page rows (BENCH_PAGE=0): the page-open keys are null; this run does not measure them")
 print(json.dumps(out))

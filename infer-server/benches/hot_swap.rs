@@ -84,6 +84,7 @@ fn main() {
                 cpu: env_usize("BENCH_SERVER_CPU"),
                 rt_priority: rt_prio,
                 exit_when_loop_gone: true,
+                keep_awake: false,
             },
             SessionConfig::default(),
         )

@@ -296,6 +296,7 @@ fn serve(
             cpu: chosen.cpu,
             rt_priority: chosen.rt_priority,
             exit_when_loop_gone: true,
+            keep_awake: false,
         },
         taker,
     )

@@ -363,7 +363,7 @@ fn report_stats(server: &InferenceControl) {
     let s = server.stats();
     let l = server.latency().snapshot();
     eprintln!(
-        "infer-server: answered {} (model {}, no model {}, errors {}, schema mismatch {}, non-finite {}, bad features {}, undecodable {}), resets {}, attachments {}; period-sync period {} ns margin {} ns locks {} relearns {} (quiet {}, faster {}, gap {}, restart {}) missed wake-ups {}; ring-to-ring p50 {} ns p99 {} ns p99.9 {} ns max {} ns; work ahead after {} answers, {} ns each",
+        "infer-server: answered {} (model {}, no model {}, errors {}, schema mismatch {}, non-finite {}, bad features {}, undecodable {}), resets {}, attachments {}; period-sync period {} ns margin {} ns locks {} relearns {} (quiet {}, faster {}, gap {}, restart {}) missed wake-ups {}; keep-awake {}; ring-to-ring p50 {} ns p99 {} ns p99.9 {} ns max {} ns; work ahead after {} answers, {} ns each",
         s.answered,
         s.predicted,
         s.no_model,
@@ -383,6 +383,15 @@ fn report_stats(server: &InferenceControl) {
         s.sync_let_go[2],
         s.sync_let_go[3],
         s.sync_missed_wakes,
+        if s.keep_awake_cpu >= 0 {
+            format!(
+                "CPU {} spun {:.1} s",
+                s.keep_awake_cpu,
+                s.keep_awake_spun_us as f64 / 1e6
+            )
+        } else {
+            "off".to_string()
+        },
         l.quantile(0.5),
         l.quantile(0.99),
         l.quantile(0.999),

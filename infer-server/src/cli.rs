@@ -160,6 +160,11 @@ pub struct ServeArgs {
     /// (the profiles do where permitted; reported and ignored where not permitted).
     #[arg(long)]
     pub mlock: bool,
+    /// Keep the inference thread's CPU awake between steps with a spinner at SCHED_IDLE, the
+    /// scheduler's lowest class (on: the period profile's default on a pinned CPU; off: let
+    /// the CPU halt between steps). Needs a pinned CPU (--cpu or the profile's).
+    #[arg(long, value_enum)]
+    pub keep_awake: Option<OnOff>,
     /// Let ONNX Runtime's threads spin (off by default; only matters with --ort-threads > 1).
     #[arg(long)]
     pub ort_spin: bool,
@@ -172,6 +177,13 @@ pub struct ServeArgs {
     /// Print statistics to stderr every SECS seconds (0: only at exit).
     #[arg(long, default_value_t = 5.0)]
     pub stats_every: f64,
+}
+
+/// A switch given as `on` or `off`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum OnOff {
+    On,
+    Off,
 }
 
 /// `--wait`: how the inference thread waits for features.
@@ -226,8 +238,20 @@ impl ServeArgs {
             chosen.rt_priority = (p > 0).then_some(p);
         }
         chosen.mlock |= self.mlock;
-        let overridden =
-            self.wait.is_some() || self.cpu.is_some() || self.rt_priority.is_some() || self.mlock;
+        if let Some(k) = self.keep_awake {
+            if k == OnOff::On && chosen.cpu.is_none() {
+                return Err(AppError::Usage(
+                    "--keep-awake on needs a pinned CPU (--cpu N, or a profile that pins one)"
+                        .into(),
+                ));
+            }
+            chosen.keep_awake = k == OnOff::On;
+        }
+        let overridden = self.wait.is_some()
+            || self.cpu.is_some()
+            || self.rt_priority.is_some()
+            || self.mlock
+            || self.keep_awake.is_some();
         eprintln!(
             "infer-server: profile {}{} on {}: {}",
             profile_name(chosen.profile),
@@ -326,6 +350,7 @@ impl ServeArgs {
                 cpu: chosen.cpu,
                 rt_priority: chosen.rt_priority,
                 exit_when_loop_gone: self.exit_when_loop_gone,
+                keep_awake: chosen.keep_awake,
             },
             session,
             control,

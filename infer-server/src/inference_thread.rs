@@ -34,6 +34,7 @@ use crate::attachment::{LoopEndpoints, SharedEndpoints};
 use crate::contract::{FeatureSchema, ModelKind};
 use crate::engine::StepError;
 use crate::handoff::{Offered, Taker};
+use crate::keep_awake::KeepAwake;
 use crate::latency::{self, LatencyReader, LatencyRecorder};
 use crate::period_sync::{PeriodSync, Plan};
 
@@ -66,6 +67,9 @@ pub struct InferenceConfig {
     pub rt_priority: Option<i32>,
     /// Return when the loop goes away instead of waiting for the next one.
     pub exit_when_loop_gone: bool,
+    /// Keep `cpu` awake between steps with a `SCHED_IDLE` spinner ([`crate::keep_awake`]);
+    /// only with a `cpu`.
+    pub keep_awake: bool,
 }
 
 /// Counters the inference thread keeps; any thread may read them. Each has a single writer
@@ -104,6 +108,10 @@ pub struct InferenceCounters {
     pub rt_priority: AtomicI64,
     /// Feature messages whose words did not decode: skipped (see [`InferenceCounters::last_undecodable`]).
     pub undecodable: AtomicU64,
+    /// The CPU the keep-awake spinner keeps awake once set up; -1: none.
+    pub keep_awake_cpu: AtomicI64,
+    /// Time it spent spinning, microseconds (the CPU time it took from the halt).
+    pub keep_awake_spun_us: AtomicU64,
     /// Why the last undecodable message was refused (written with `try_lock`, never waited on).
     pub last_undecodable: Mutex<Option<DecodeError>>,
     /// The period-synchronised wait ([`crate::period_sync`]): the learnt period (0: not locked),
@@ -157,6 +165,8 @@ pub struct StatsSnapshot {
     pub pinned_cpu: i64,
     pub rt_priority: i64,
     pub undecodable: u64,
+    pub keep_awake_cpu: i64,
+    pub keep_awake_spun_us: u64,
     pub sync_period_ns: u64,
     pub sync_margin_ns: u64,
     pub sync_locks: u64,
@@ -191,6 +201,8 @@ impl InferenceCounters {
             pinned_cpu: self.pinned_cpu.load(Ordering::Relaxed),
             rt_priority: self.rt_priority.load(Ordering::Relaxed),
             undecodable: l(&self.undecodable),
+            keep_awake_cpu: self.keep_awake_cpu.load(Ordering::Relaxed),
+            keep_awake_spun_us: l(&self.keep_awake_spun_us),
             sync_period_ns: l(&self.sync_period_ns),
             sync_margin_ns: l(&self.sync_margin_ns),
             sync_locks: l(&self.sync_locks),
@@ -223,6 +235,8 @@ pub struct InferenceThread {
     latency: LatencyReader,
     schema: Arc<Mutex<Option<FeatureSchema>>>,
     endpoints: Arc<SharedEndpoints>,
+    /// The spinner keeping the inference CPU awake, when asked for (stopped on drop).
+    _keep_awake: Option<KeepAwake>,
 }
 
 impl InferenceThread {
@@ -232,8 +246,15 @@ impl InferenceThread {
         let stop = Arc::new(AtomicBool::new(false));
         let stats = Arc::new(InferenceCounters {
             pinned_cpu: AtomicI64::new(-1),
+            keep_awake_cpu: AtomicI64::new(-1),
             ..Default::default()
         });
+        let keep_awake = match (cfg.keep_awake, cfg.cpu) {
+            (true, Some(cpu)) => {
+                Some(KeepAwake::spawn(cpu, Arc::clone(&stats)).map_err(InferenceError::Spawn)?)
+            }
+            _ => None,
+        };
         let (recorder, latency) = latency::histogram();
         let schema = Arc::new(Mutex::new(None));
         let endpoints = Arc::new(SharedEndpoints::default());
@@ -257,6 +278,7 @@ impl InferenceThread {
             latency,
             schema,
             endpoints,
+            _keep_awake: keep_awake,
         })
     }
 

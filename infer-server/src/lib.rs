@@ -39,6 +39,7 @@ pub mod exit;
 pub mod handoff;
 pub mod inference_control;
 pub mod inference_thread;
+pub mod keep_awake;
 pub mod latency;
 pub mod memory_limit;
 pub mod model;

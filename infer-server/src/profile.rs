@@ -53,6 +53,9 @@ pub struct Settings {
     pub cpu: Option<usize>,
     pub rt_priority: Option<i32>,
     pub mlock: bool,
+    /// Keep the inference CPU awake between steps with a `SCHED_IDLE` spinner
+    /// ([`crate::keep_awake`]): the period-synchronised wait on a pinned CPU.
+    pub keep_awake: bool,
 }
 
 /// rt-loop's default CPU: the last online one (`RealtimeConfig::cpu == -2`).
@@ -102,6 +105,8 @@ pub fn settings(profile: Profile, machine: &Machine) -> Settings {
                 // A spinning FIFO thread owns its core: only where nothing else is scheduled.
                 rt_priority: fifo.filter(|_| isolated),
                 mlock: machine.mlock_permitted,
+                // A spinning thread keeps its CPU busy by itself.
+                keep_awake: false,
             }
         }
         Profile::Period => Settings {
@@ -110,6 +115,8 @@ pub fn settings(profile: Profile, machine: &Machine) -> Settings {
             cpu: spare,
             rt_priority: fifo,
             mlock: machine.mlock_permitted,
+            // The thread sleeps most of each period: its CPU would halt (module keep_awake).
+            keep_awake: spare.is_some(),
         },
         Profile::Shared | Profile::Auto => Settings {
             profile: Profile::Shared,
@@ -117,6 +124,8 @@ pub fn settings(profile: Profile, machine: &Machine) -> Settings {
             cpu: None,
             rt_priority: None,
             mlock: machine.mlock_permitted,
+            // Not pinned: there is no one CPU to keep awake.
+            keep_awake: false,
         },
     }
 }
@@ -205,14 +214,20 @@ impl Settings {
             .map_or("default scheduler".to_string(), |p| {
                 format!("SCHED_FIFO {p}")
             });
+        let awake = match (self.keep_awake, self.cpu) {
+            (true, Some(c)) => {
+                format!(", CPU {c} kept awake (a SCHED_IDLE spinner while steps flow)")
+            }
+            _ => String::new(),
+        };
         format!(
-            "wait {wait}, {cpu}, {prio}, memory {}",
+            "wait {wait}, {cpu}, {prio}, memory {}{awake}",
             if self.mlock { "locked" } else { "not locked" }
         )
     }
 }
 
-fn allowed_cpus() -> Vec<usize> {
+pub(crate) fn allowed_cpus() -> Vec<usize> {
     // SAFETY: cpu_set_t is plain data; CPU_ISSET reads within it.
     unsafe {
         let mut set: libc::cpu_set_t = std::mem::zeroed();

@@ -248,3 +248,16 @@ fn serve_answers_a_loop_over_shared_memory_and_exits_when_it_leaves() {
     );
     assert!(stderr.contains(&format!("answered {seq}")), "{stderr}");
 }
+
+#[test]
+fn keep_awake_without_a_pinned_cpu_is_a_usage_error() {
+    // The shared profile pins nothing: a spinner kept on "some CPU" would keep none awake.
+    let out = bin()
+        .args(["serve", "--profile", "shared", "--keep-awake", "on"])
+        .args(["--segment", "/infer-server-cli-keep-awake-never-created"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2), "{out:?}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--keep-awake on needs a pinned CPU"), "{err}");
+}

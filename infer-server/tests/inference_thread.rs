@@ -335,6 +335,7 @@ fn server_activates_refuses_and_revalidates_when_a_new_loop_brings_another_schem
             cpu: None,
             rt_priority: None,
             exit_when_loop_gone: false, // wait for the next loop
+            keep_awake: false,
         },
         SessionConfig::default(),
     )
@@ -439,6 +440,7 @@ fn a_spinning_server_notices_the_loop_leaving_and_attaches_to_the_next() {
             cpu: None,
             rt_priority: None,
             exit_when_loop_gone: false,
+            keep_awake: false,
         },
         SessionConfig::default(),
     )

@@ -135,6 +135,7 @@ fn registry(tag: &str, models: &[&str], session: SessionConfig) -> Option<Regist
             cpu: None,
             rt_priority: None,
             exit_when_loop_gone: false,
+            keep_awake: false,
         },
         session,
     )

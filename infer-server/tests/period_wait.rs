@@ -29,6 +29,7 @@ fn start(tag: &str, wait: WaitStrategy) -> (LoopSide, InferenceThread) {
             cpu: None,
             rt_priority: None,
             exit_when_loop_gone: true,
+            keep_awake: false,
         },
         taker,
     )

@@ -180,6 +180,7 @@ pub fn parked_inference_thread(
             cpu: None,
             rt_priority: None,
             exit_when_loop_gone: true,
+            keep_awake: false,
         },
         taker,
     )

@@ -330,6 +330,16 @@ pub fn set_normal() -> io::Result<()> {
     cvt(unsafe { libc::sched_setscheduler(0, libc::SCHED_OTHER, &param) })
 }
 
+/// Puts the calling thread in `SCHED_IDLE`: it runs only when nothing else on its CPU wants to,
+/// and any other thread that wakes there preempts it at once (the kernel's wake-up check), so a
+/// thread that must never take time from anyone (infer-server's keep-awake spinner) can still
+/// keep its CPU busy. Lowering a thread's policy needs no privilege.
+pub fn set_idle() -> io::Result<()> {
+    let param = libc::sched_param { sched_priority: 0 };
+    // SAFETY: pid 0 is the calling thread; `param` is initialised.
+    cvt(unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) })
+}
+
 /// What this process may do, found by a short-lived probe thread (so the caller's own thread is
 /// left as it was).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
