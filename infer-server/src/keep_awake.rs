@@ -13,6 +13,9 @@
 //! so what it takes is the halt, not anyone's time. Measured: docs/infer-server.md, "Keeping the
 //! inference CPU awake".
 //!
+//! What it costs is power and appearances: while a loop runs, its CPU shows busy (`top` shows
+//! infer-server near 100 % of a CPU, the load average counts the spinner as runnable).
+//!
 //! It spins only while steps flow (the inference thread's `answered` counter moved within the
 //! last [`IDLE_AFTER`]) and sleeps otherwise, so a server with no loop, or a loop between
 //! experiments, burns nothing. Its loop has no `pause` instruction: a hypervisor's pause-loop
