@@ -30,6 +30,9 @@ pub struct Machine {
     pub mlock_permitted: bool,
     /// Whether a thread may set its own CPU affinity.
     pub affinity_permitted: bool,
+    /// The CPU quota of this process's cgroup (or an ancestor's), as the kernel states it,
+    /// where there is one ([`cpu_quota`]): a spinner would spend it.
+    pub cpu_quota: Option<String>,
 }
 
 /// The profiles, from most to least dedicated.
@@ -116,7 +119,9 @@ pub fn settings(profile: Profile, machine: &Machine) -> Settings {
             rt_priority: fifo,
             mlock: machine.mlock_permitted,
             // The thread sleeps most of each period: its CPU would halt (module keep_awake).
-            keep_awake: spare.is_some(),
+            // Not under a CPU quota: the spinner's time counts against it, and a throttled
+            // cgroup stops the inference thread too.
+            keep_awake: spare.is_some() && machine.cpu_quota.is_none(),
         },
         Profile::Shared | Profile::Auto => Settings {
             profile: Profile::Shared,
@@ -176,6 +181,9 @@ impl Machine {
             rt_permitted,
             mlock_permitted: root || unlimited,
             affinity_permitted,
+            cpu_quota: std::fs::read_to_string("/proc/self/cgroup")
+                .ok()
+                .and_then(|t| cpu_quota(&t, |p| std::fs::read_to_string(p).ok())),
         }
     }
 
@@ -187,8 +195,12 @@ impl Machine {
         } else {
             format!("{:?}", self.isolated)
         };
+        let quota = self
+            .cpu_quota
+            .as_ref()
+            .map_or(String::new(), |q| format!(", CPU quota {q}"));
         format!(
-            "{} CPUs, isolated {isolated}, RT priority {}, mlock {}, affinity {}",
+            "{} CPUs, isolated {isolated}, RT priority {}, mlock {}, affinity {}{quota}",
             self.cpus.len(),
             yes(self.rt_permitted),
             yes(self.mlock_permitted),
@@ -227,6 +239,48 @@ impl Settings {
     }
 }
 
+/// The CPU quota that applies to this process, from `/proc/self/cgroup`'s text and a reader of
+/// cgroup files: cgroup v2's `cpu.max` ("QUOTA PERIOD", "max" for none) or v1's
+/// `cpu.cfs_quota_us` (-1 for none), in the process's cgroup or any ancestor (a quota set on a
+/// parent, e.g. a container's, limits every cgroup below it). `None`: no quota found.
+pub fn cpu_quota(cgroup: &str, read: impl Fn(&str) -> Option<String>) -> Option<String> {
+    for line in cgroup.lines() {
+        let mut parts = line.splitn(3, ':');
+        let (Some(_), Some(controllers), Some(path)) = (parts.next(), parts.next(), parts.next())
+        else {
+            continue;
+        };
+        // v2 (the unified hierarchy, "0::/path") and v1's cpu controller ("N:cpu,cpuacct:/path").
+        let files: Vec<(String, &str)> = if controllers.is_empty() {
+            vec![("/sys/fs/cgroup".into(), "cpu.max")]
+        } else if controllers.split(',').any(|c| c == "cpu") {
+            vec![
+                (format!("/sys/fs/cgroup/{controllers}"), "cpu.cfs_quota_us"),
+                ("/sys/fs/cgroup/cpu".into(), "cpu.cfs_quota_us"),
+            ]
+        } else {
+            continue;
+        };
+        let mut dir = path.trim_end_matches('/').to_string();
+        loop {
+            for (root, file) in &files {
+                let Some(text) = read(&format!("{root}{dir}/{file}")) else {
+                    continue;
+                };
+                let quota = text.split_whitespace().next().unwrap_or("max");
+                if quota != "max" && quota != "-1" {
+                    return Some(format!("{} ({root}{dir}/{file})", text.trim()));
+                }
+            }
+            match dir.rfind('/') {
+                Some(i) => dir.truncate(i),
+                None => break,
+            }
+        }
+    }
+    None
+}
+
 pub(crate) fn allowed_cpus() -> Vec<usize> {
     // SAFETY: cpu_set_t is plain data; CPU_ISSET reads within it.
     unsafe {
@@ -252,7 +306,57 @@ mod tests {
             rt_permitted: rt,
             mlock_permitted: rt,
             affinity_permitted: true,
+            cpu_quota: None,
         }
+    }
+
+    #[test]
+    fn the_period_profile_keeps_its_cpu_awake_unless_under_a_cpu_quota() {
+        let mut m = machine(2, &[], true);
+        assert!(settings(Profile::Auto, &m).keep_awake);
+        assert!(!settings(Profile::Dedicated, &m).keep_awake);
+        assert!(!settings(Profile::Shared, &m).keep_awake);
+        m.cpu_quota = Some("100000 100000 (/sys/fs/cgroup/cpu.max)".into());
+        let s = settings(Profile::Auto, &m);
+        assert_eq!(s.profile, Profile::Period);
+        assert!(!s.keep_awake, "a spinner would spend the quota");
+        assert!(m.describe().contains("CPU quota 100000 100000"));
+    }
+
+    #[test]
+    fn a_cpu_quota_is_found_in_the_cgroup_or_an_ancestor_v1_and_v2() {
+        use std::collections::HashMap;
+        let files: HashMap<&str, &str> = HashMap::from([
+            ("/sys/fs/cgroup/cpu.max", "max 100000\n"),
+            ("/sys/fs/cgroup/docker/cpu.max", "50000 100000\n"),
+            ("/sys/fs/cgroup/docker/abc/cpu.max", "max 100000\n"),
+            ("/sys/fs/cgroup/free/cpu.max", "max 100000\n"),
+            ("/sys/fs/cgroup/cpu,cpuacct/cpu.cfs_quota_us", "-1\n"),
+            (
+                "/sys/fs/cgroup/cpu,cpuacct/lxc/x/cpu.cfs_quota_us",
+                "200000\n",
+            ),
+            ("/sys/fs/cgroup/cpu,cpuacct/none/cpu.cfs_quota_us", "-1\n"),
+        ]);
+        let read = |p: &str| files.get(p).map(|s| s.to_string());
+        // v2, the quota on the parent
+        let q = cpu_quota("0::/docker/abc\n", read).unwrap();
+        assert!(
+            q.starts_with("50000 100000 (/sys/fs/cgroup/docker/cpu.max)"),
+            "{q}"
+        );
+        // v2, none anywhere up to the root
+        assert_eq!(cpu_quota("0::/free\n", read), None);
+        // v1's cpu controller (the unified line empty at the root, as on hybrid systems)
+        let v1 = "4:memory:/m\n2:cpu,cpuacct:/lxc/x\n0::/\n";
+        assert!(cpu_quota(v1, read).unwrap().starts_with("200000 ("));
+        assert_eq!(cpu_quota("2:cpu,cpuacct:/none\n0::/\n", read), None);
+        // unreadable files and odd lines: no quota, no panic
+        assert_eq!(cpu_quota("garbage\n0::/nowhere\n", |_| None), None);
+        assert!(
+            cpu_quota("garbage\n0::/docker\n", read).is_some(),
+            "an odd line hid the rest"
+        );
     }
 
     #[test]
