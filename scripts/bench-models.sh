@@ -14,7 +14,8 @@
 # Env:   BENCH_DATASET (default data/dataset when it holds a test recording, else a small
 #        dataset recorded once into BENCH_DIR/dataset with rt-loop run), BENCH_DIR (default
 #        target/bench-models), BENCH_STEPS (measured steps per model, default 20000), BENCH_CPU
-#        (the inference thread's CPU instead of the one its profile picks).
+#        (the inference thread's CPU instead of the one its profile picks), BENCH_KEEP_AWAKE
+#        (1|0: the keep-awake spinner on that CPU or none; default: the profile's, as infer-server).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD

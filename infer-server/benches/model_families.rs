@@ -18,11 +18,12 @@
 //! 20000), BENCH_WARM (steps before measuring, default 2000), BENCH_IO_BINDING=1|0 (bind the
 //! inputs and outputs once and step with `RunWithBinding`, or step with `Run`; default: what
 //! infer-server does, `SessionConfig::default()`), BENCH_PROFILE (`bench_profile`), BENCH_CPU
-//! (the inference thread's CPU instead of the profile's).
+//! (the inference thread's CPU instead of the profile's), BENCH_KEEP_AWAKE=1|0 (the keep-awake
+//! spinner on the inference thread's CPU, or none; default: the profile's, as infer-server).
 //! Prints a table, and as its last line one JSON object:
 //! `{"families": {NAME: {"p50_us", "p99_us", "p999_us", "max_us", "allocs_per_call", "nodes",
 //!   "delayed_calls", "faulted_calls", "p999_clean_us", "ahead_us"}}, "identity_p50_us": ..,
-//!   "floor": {..}, "load": "..", "steps": ..}`.
+//!   "floor": {..}, "load": "..", "steps": .., "keep_awake": ..}`.
 //! `ahead_us` (column `ahead`) is the work the inference thread did after each answer for the
 //! next step (fused-ops ahead.rs: an LSTM's recurrent product reads only the state the step
 //! wrote), mean per answer; null where a model has none. It is not in the call's latency and it
@@ -80,6 +81,14 @@ fn bench_settings(machine: &Machine) -> profile::Settings {
     if let Some(cpu) = env_usize("BENCH_CPU") {
         chosen.cpu = Some(cpu);
     }
+    match std::env::var("BENCH_KEEP_AWAKE").as_deref() {
+        Ok("1") => chosen.keep_awake = true,
+        Ok("0") => chosen.keep_awake = false,
+        Ok(other) => panic!("BENCH_KEEP_AWAKE={other}: 1 or 0"),
+        Err(_) => {}
+    }
+    // The spinner needs a pinned CPU (infer-server refuses --keep-awake on without one).
+    chosen.keep_awake &= chosen.cpu.is_some();
     chosen
 }
 
@@ -296,7 +305,7 @@ fn serve(
             cpu: chosen.cpu,
             rt_priority: chosen.rt_priority,
             exit_when_loop_gone: true,
-            keep_awake: false,
+            keep_awake: chosen.keep_awake,
         },
         taker,
     )
@@ -525,6 +534,7 @@ fn main() {
             "floor": {"p50_us": fq(0.5), "p99_us": fq(0.99), "p999_us": fq(0.999), "max_us": us(*floor.last().unwrap())},
             "steps": steps,
             "load": load,
+            "keep_awake": bench_settings(&Machine::detect()).keep_awake,
             "io_binding": binding,
         })
     );
