@@ -133,8 +133,9 @@ mod tests {
         // Fields after the command name (which is in parentheses and may hold spaces).
         let rest: Vec<&str> = stat[stat.rfind(')').unwrap() + 2..].split(' ').collect();
         let state = rest[0].chars().next().unwrap();
-        let policy: i32 = rest[38].parse().unwrap(); // field 41 of proc(5)
-                                                     // SAFETY: cpu_set_t is plain data, filled by the kernel.
+        // field 41 of proc(5)
+        let policy: i32 = rest[38].parse().unwrap();
+        // SAFETY: cpu_set_t is plain data, filled by the kernel.
         let cpus = unsafe {
             let mut set: libc::cpu_set_t = std::mem::zeroed();
             assert_eq!(
