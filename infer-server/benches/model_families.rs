@@ -419,12 +419,13 @@ fn main() {
         .collect::<Vec<_>>()
         .join(" ");
     let machine = Machine::detect();
+    let settings = bench_settings(&machine);
     let binding = std::env::var("BENCH_IO_BINDING")
         .map(|v| v == "1")
         .unwrap_or(SessionConfig::default().io_binding);
     println!(
         "model families served by the inference thread ({}), ONNX Runtime {}, {}, 10 kHz, {steps} steps each after {warm}; per call, us; load average {load}",
-        bench_settings(&machine).describe(),
+        settings.describe(),
         rt.version(),
         if binding { "RunWithBinding" } else { "Run" },
     );
@@ -534,7 +535,7 @@ fn main() {
             "floor": {"p50_us": fq(0.5), "p99_us": fq(0.99), "p999_us": fq(0.999), "max_us": us(*floor.last().unwrap())},
             "steps": steps,
             "load": load,
-            "keep_awake": bench_settings(&Machine::detect()).keep_awake,
+            "keep_awake": settings.keep_awake,
             "io_binding": binding,
         })
     );

@@ -110,7 +110,8 @@ pub struct InferenceCounters {
     pub undecodable: AtomicU64,
     /// The CPU the keep-awake spinner keeps awake once set up; -1: none.
     pub keep_awake_cpu: AtomicI64,
-    /// Time it spent spinning, microseconds (the CPU time it took from the halt).
+    /// Time it spent spinning, microseconds: the wall time of its spin chunks (preemptions by
+    /// other threads included, so at most the CPU time it took from the halt).
     pub keep_awake_spun_us: AtomicU64,
     /// Why the last undecodable message was refused (written with `try_lock`, never waited on).
     pub last_undecodable: Mutex<Option<DecodeError>>,
