@@ -1,4 +1,4 @@
-//! The model contract (infer-server/src/contract.rs and contract_check.rs, compiled here as
+//! The model contract (infer-server/src/model/contract.rs and contract_check.rs, compiled here as
 //! they are, so the target needs neither ONNX Runtime nor the server): a model's `haptics.*`
 //! metadata entries and its declared inputs and outputs, as ONNX Runtime reports them, are
 //! accepted or refused with a `ModelError`, never a panic; what is accepted is what the engine
@@ -8,10 +8,10 @@
 //! empty line is a missing entry), a 0xFF byte, then the declared tensors, 3 bytes + dims each.
 #![no_main]
 
-#[path = "../../infer-server/src/contract.rs"]
+#[path = "../../infer-server/src/model/contract.rs"]
 #[allow(dead_code)]
 mod contract;
-#[path = "../../infer-server/src/contract_check.rs"]
+#[path = "../../infer-server/src/model/contract_check.rs"]
 #[allow(dead_code)]
 mod contract_check;
 

@@ -19,9 +19,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use haptics_proto::{FeatureMsg, Segment};
-use infer_server::inference_control::InferenceControl;
-use infer_server::inference_thread::InferenceConfig;
-use infer_server::registry::Registry;
+use infer_server::control::inference_control::InferenceControl;
+use infer_server::control::registry::Registry;
+use infer_server::serving::inference_thread::InferenceConfig;
 use infer_server::{Runtime, SessionConfig};
 use shm_ring::{SegmentName, WaitStrategy};
 

@@ -45,9 +45,9 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use haptics_proto::{FeatureMsg, Segment};
-use infer_server::handoff;
-use infer_server::inference_thread::{InferenceConfig, InferenceThread};
-use infer_server::profile::{self, Machine, Profile};
+use infer_server::serving::handoff;
+use infer_server::serving::inference_thread::{InferenceConfig, InferenceThread};
+use infer_server::serving::profile::{self, Machine, Profile};
 use infer_server::{FeatureSchema, Runtime, SessionConfig, StepEngine};
 use shm_ring::os::rt_thread::{CpuChoice, RtRequest};
 use shm_ring::{monotonic_ns, SegmentName, WaitStrategy};

@@ -19,8 +19,8 @@ use common::bench_models;
 use std::time::{Duration, Instant};
 
 use haptics_proto::{FeatureMsg, Segment};
-use infer_server::handoff;
-use infer_server::inference_thread::{InferenceConfig, InferenceThread};
+use infer_server::serving::handoff;
+use infer_server::serving::inference_thread::{InferenceConfig, InferenceThread};
 use infer_server::{FeatureSchema, Runtime, SessionConfig, StepEngine};
 use shm_ring::{SegmentName, WaitStrategy};
 

@@ -3,7 +3,7 @@
 //! parses its arguments and tests run the real server in-process ([`App::start`] when they need
 //! the bound addresses first, e.g. with port 0).
 //!
-//! What runs: the inference thread ([`crate::inference_control`]), the model registry, the
+//! What runs: the inference thread ([`crate::control::inference_control`]), the model registry, the
 //! telemetry thread and the control plane (gRPC and HTTP on a runtime and thread of their own),
 //! and, on the calling thread, the housekeeping every 20 ms (attach/detach messages, the start
 //! model once a loop attaches, engines given back, revalidation, statistics). The order they
@@ -20,14 +20,14 @@ use std::time::{Duration, Instant};
 use control_plane::{ControlError, ModelSource, TelemetryHub};
 use shm_ring::os::shutdown::Shutdown;
 
-use crate::control_backend::ControlBackend;
+use crate::control::control_backend::ControlBackend;
+use crate::control::inference_control::InferenceControl;
+use crate::control::registry::Registry;
+use crate::control::telemetry::{LoopObserver, TelemetryThread};
 use crate::exit::{EXIT_REFUSED, EXIT_RUNTIME, EXIT_USAGE};
-use crate::inference_control::InferenceControl;
-use crate::inference_thread::InferenceConfig;
+use crate::model::runtime::{Runtime, RuntimeError};
 use crate::model::SessionConfig;
-use crate::registry::Registry;
-use crate::runtime::{Runtime, RuntimeError};
-use crate::telemetry::{LoopObserver, TelemetryThread};
+use crate::serving::inference_thread::InferenceConfig;
 
 /// How long the start model waits, once a loop is attached, for the loop's status block (its
 /// rate) before it is activated without it.

@@ -11,9 +11,9 @@ use clap::{Args, Parser, Subcommand};
 use shm_ring::{SegmentName, WaitStrategy};
 
 use crate::app::{AppConfig, AppError};
-use crate::inference_thread::InferenceConfig;
 use crate::model::SessionConfig;
-use crate::profile::{self, Machine, Profile};
+use crate::serving::inference_thread::InferenceConfig;
+use crate::serving::profile::{self, Machine, Profile};
 
 #[derive(Parser)]
 #[command(
@@ -114,7 +114,7 @@ pub struct ServeArgs {
     /// Most MiB the models' working memory may take while they run (one ONNX Runtime CPU arena
     /// all models share, capped): a model whose warm-up needs more is refused at load, the
     /// active model untouched (docs/model-contract.md, "Loader limits"). 16 to 65536.
-    #[arg(long, default_value_t = crate::memory_limit::DEFAULT_MODEL_MEMORY_MIB)]
+    #[arg(long, default_value_t = crate::model::memory_limit::DEFAULT_MODEL_MEMORY_MIB)]
     pub model_memory_mib: usize,
     /// A host name the page and /api may be reached under, besides localhost and the
     /// listening addresses (repeatable; also $HAPTICS_ALLOWED_HOSTS, comma-separated). Any

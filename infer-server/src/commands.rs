@@ -6,11 +6,11 @@ use std::io::{BufRead, Write};
 use std::path::Path;
 use std::process::ExitCode;
 
-use crate::contract::FeatureSchema;
-use crate::engine::StepEngine;
 use crate::exit::{EXIT_REFUSED, EXIT_RUNTIME};
+use crate::model::contract::FeatureSchema;
+use crate::model::engine::StepEngine;
+use crate::model::runtime::{Runtime, RuntimeError};
 use crate::model::{ModelError, SessionConfig};
-use crate::runtime::{Runtime, RuntimeError};
 
 fn load_runtime(ort_lib: Option<&Path>, json: bool) -> Result<&'static Runtime, ExitCode> {
     Runtime::init(ort_lib).map_err(|e| {

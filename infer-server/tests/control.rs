@@ -1093,7 +1093,7 @@ async fn a_new_loop_is_served_again_and_the_active_model_revalidated_for_it() {
         .expect("model answers");
     assert!(first.seq < 1000, "revalidated quickly: {first:?}");
     assert!(answers.iter().filter(|a| a.seq < first.seq).all(|a| a.flags
-        == infer_server::inference_thread::force_flags::SCHEMA_MISMATCH
+        == infer_server::serving::inference_thread::force_flags::SCHEMA_MISMATCH
         && a.force.is_nan()));
     check_model_answers(&answers, first.seq, u64::MAX, first.model_id, tree);
     let s = wait_status(&mut l, "second loop alive", |s| s.loop_alive).await;
@@ -1123,7 +1123,7 @@ async fn a_new_loop_is_served_again_and_the_active_model_revalidated_for_it() {
         .unwrap_err();
     assert_eq!(e.code(), Code::NotFound);
     assert!(stepper.answers().iter().all(|a| a.flags
-        == infer_server::inference_thread::force_flags::SCHEMA_MISMATCH
+        == infer_server::serving::inference_thread::force_flags::SCHEMA_MISMATCH
         && a.force.is_nan()));
     drop(stepper.stop());
 }
@@ -1230,7 +1230,7 @@ async fn a_python_grpc_client_uses_the_real_server_through_reflection() {
         .answers()
         .iter()
         .filter(|a| a.seq < eff)
-        .all(|a| a.flags == infer_server::inference_thread::force_flags::NO_MODEL));
+        .all(|a| a.flags == infer_server::serving::inference_thread::force_flags::NO_MODEL));
     assert_eq!(r["bad_name"], "INVALID_ARGUMENT");
     assert_eq!(r["health"], "SERVING");
     drop(stepper.stop());

@@ -4,7 +4,7 @@ mod common;
 
 use std::path::Path;
 
-use infer_server::contract::FEATURE_NAMES;
+use infer_server::model::contract::FEATURE_NAMES;
 use infer_server::{FeatureSchema, ModelError, ModelKind, SessionConfig, StepEngine, StepError};
 
 fn load(path: &Path, schema: &FeatureSchema) -> Result<StepEngine, ModelError> {

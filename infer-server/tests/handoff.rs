@@ -6,7 +6,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use infer_server::handoff::{self, Offered};
+use infer_server::serving::handoff::{self, Offered};
 use infer_server::{FeatureSchema, SessionConfig, StepEngine};
 
 #[test]

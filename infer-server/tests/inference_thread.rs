@@ -6,7 +6,7 @@ mod common;
 use std::time::Duration;
 
 use haptics_proto::{FeatureMsg, LoopSide, Segment, MAX_FEATURES};
-use infer_server::inference_thread::{force_flags, InferenceConfig, InferenceThread};
+use infer_server::serving::inference_thread::{force_flags, InferenceConfig, InferenceThread};
 use infer_server::{FeatureSchema, SessionConfig, StepEngine};
 use shm_ring::{Config, SegmentName, WaitStrategy};
 
@@ -306,7 +306,7 @@ fn a_model_for_another_schema_is_not_fed_wrong_columns() {
 
 #[test]
 fn server_activates_refuses_and_revalidates_when_a_new_loop_brings_another_schema() {
-    use infer_server::inference_control::{InferenceControl, MaintenanceEvent};
+    use infer_server::control::inference_control::{InferenceControl, MaintenanceEvent};
     let Some(dir) = common::fixtures() else {
         return;
     };
@@ -423,7 +423,7 @@ fn server_activates_refuses_and_revalidates_when_a_new_loop_brings_another_schem
 /// rows found it).
 #[test]
 fn a_spinning_server_notices_the_loop_leaving_and_attaches_to_the_next() {
-    use infer_server::inference_control::InferenceControl;
+    use infer_server::control::inference_control::InferenceControl;
     let name = segment_name("spin-left");
     let make = || {
         Segment::create(&name, &haptics_proto::layout::config())

@@ -9,10 +9,10 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use control_plane::{ControlError, ModelSource, ModelState};
-use infer_server::engine::load_bounded;
-use infer_server::inference_control::InferenceControl;
-use infer_server::inference_thread::InferenceConfig;
-use infer_server::registry::Registry;
+use infer_server::control::inference_control::InferenceControl;
+use infer_server::control::registry::Registry;
+use infer_server::model::engine::load_bounded;
+use infer_server::serving::inference_thread::InferenceConfig;
 use infer_server::{FeatureSchema, ModelError, SessionConfig, StepEngine};
 use shm_ring::{SegmentName, WaitStrategy};
 

@@ -7,7 +7,7 @@ mod common;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
-use infer_server::latency;
+use infer_server::serving::latency;
 use infer_server::{FeatureSchema, SessionConfig, StepEngine};
 
 struct Counting;

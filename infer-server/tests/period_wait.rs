@@ -7,8 +7,8 @@ use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use haptics_proto::{FeatureMsg, LoopSide, Segment, MAX_FEATURES};
-use infer_server::handoff;
-use infer_server::inference_thread::{force_flags, InferenceConfig, InferenceThread};
+use infer_server::serving::handoff;
+use infer_server::serving::inference_thread::{force_flags, InferenceConfig, InferenceThread};
 use shm_ring::{monotonic_ns, sleep_until_ns, SegmentName, WaitStrategy};
 
 const TIMEOUT: Duration = Duration::from_secs(10);

@@ -163,8 +163,8 @@ pub fn parked_inference_thread(
     config: &shm_ring::Config,
 ) -> (
     haptics_proto::LoopSide,
-    infer_server::handoff::Activator,
-    infer_server::inference_thread::InferenceThread,
+    infer_server::serving::handoff::Activator,
+    infer_server::serving::inference_thread::InferenceThread,
 ) {
     use shm_ring::WaitStrategy;
     let mut lp = haptics_proto::Segment::create(name, config)
@@ -172,9 +172,9 @@ pub fn parked_inference_thread(
         .loop_side()
         .unwrap();
     lp.forces_rx.set_wait_strategy(WaitStrategy::Park);
-    let (activator, taker) = infer_server::handoff::channel();
-    let thread = infer_server::inference_thread::InferenceThread::spawn(
-        infer_server::inference_thread::InferenceConfig {
+    let (activator, taker) = infer_server::serving::handoff::channel();
+    let thread = infer_server::serving::inference_thread::InferenceThread::spawn(
+        infer_server::serving::inference_thread::InferenceConfig {
             segment: name.clone(),
             wait: WaitStrategy::Park,
             cpu: None,

@@ -1,12 +1,14 @@
 //! The model contract's checks on plain data: the `haptics.*` metadata entries and the declared
-//! input and output names and shapes, as `model.rs` reads them from a model through ONNX
-//! Runtime. Kept apart from `model.rs` (which re-exports everything here) so that they run
-//! without ONNX Runtime: the `model_contract` fuzz target (`fuzz/`) compiles this file and
-//! `contract.rs` as they are and feeds them arbitrary metadata and shapes.
+//! input and output names and shapes, as the model module (`mod.rs`) reads them from a model
+//! through ONNX Runtime. Kept apart from `mod.rs` (which re-exports everything here) so that they
+//! run without ONNX Runtime: the `model_contract` fuzz target (`fuzz/`) compiles this file and
+//! `contract.rs` as they are and feeds them arbitrary metadata and shapes. So this file names its
+//! sibling as `super::contract`, which is the crate root's `contract` there and `model::contract`
+//! here.
 
 use std::path::PathBuf;
 
-use crate::contract::{
+use super::contract::{
     checked_elements, FeatureSchema, ModelKind, FEATURE_NAMES, INPUT_C, INPUT_FEATURES, INPUT_H,
     META_FEATURES, META_KIND, META_PREVIOUS_FORCE, META_PROVENANCE, META_STATE_SIZE, META_STEP_S,
     META_UNITS, OUTPUT_C, OUTPUT_FORCE, OUTPUT_H,

@@ -16,7 +16,7 @@ use std::sync::OnceLock;
 use ort::sys::{OrtAllocatorType, OrtArenaCfg, OrtMemType, OrtMemoryInfo, OrtStatusPtr};
 use ort::AsPointer;
 
-use crate::runtime::Runtime;
+use crate::model::runtime::Runtime;
 
 /// The limit registered for this process (bytes), once.
 static REGISTERED: OnceLock<Result<usize, String>> = OnceLock::new();

@@ -4,7 +4,7 @@
 //!
 //! Activation: load and validate on the caller's thread (never the inference thread), against
 //! the schema of the segment the thread is attached to (the standard nine while detached), then
-//! hand the engine over with one atomic swap ([`crate::handoff`]). A refused model leaves the
+//! hand the engine over with one atomic swap ([`crate::serving::handoff`]). A refused model leaves the
 //! active one in place, and the error says why.
 
 use std::path::{Path, PathBuf};
@@ -14,14 +14,16 @@ use std::time::Duration;
 
 use haptics_proto::LoopStatusLink;
 
-use crate::attachment::SharedEndpoints;
-use crate::contract::FeatureSchema;
-use crate::engine::StepEngine;
-use crate::handoff::{self, Activator, Offered};
-use crate::inference_thread::{InferenceConfig, InferenceError, InferenceThread, StatsSnapshot};
-use crate::latency::LatencyReader;
+use crate::model::contract::FeatureSchema;
+use crate::model::engine::StepEngine;
+use crate::model::runtime::Runtime;
 use crate::model::{ModelError, ModelInfo, SessionConfig};
-use crate::runtime::Runtime;
+use crate::serving::attachment::SharedEndpoints;
+use crate::serving::handoff::{self, Activator, Offered};
+use crate::serving::inference_thread::{
+    InferenceConfig, InferenceError, InferenceThread, StatsSnapshot,
+};
+use crate::serving::latency::LatencyReader;
 
 /// The model the control side last activated.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -255,7 +257,7 @@ impl InferenceControl {
     }
 
     /// The inference thread's counters, read in place (cheap: no snapshot of all of them).
-    pub fn counters(&self) -> &crate::inference_thread::InferenceCounters {
+    pub fn counters(&self) -> &crate::serving::inference_thread::InferenceCounters {
         self.thread.stats()
     }
 

@@ -18,7 +18,7 @@ use control_plane::{Bucket, TelemetryHub};
 use haptics_proto::TelemetryRow;
 use shm_ring::{Link, OverwriteConsumer};
 
-use crate::attachment::SharedEndpoints;
+use crate::serving::attachment::SharedEndpoints;
 
 /// A loop whose heartbeat and telemetry have both been still this long counts as not alive.
 pub const STALE_AFTER: Duration = Duration::from_secs(1);

@@ -1,18 +1,32 @@
-//! Loading a model file and checking it against the contract, before anything runs it.
+//! A model, from its file to the engine that steps it: the contract it must meet, the ONNX
+//! Runtime it runs on, the memory it may take, and the allocation-free per-step runner.
 //!
-//! Everything here runs off the hot path (it allocates freely). [`crate::engine::StepEngine`]
-//! builds on it: it adds the preallocated buffers and the warm-up run.
+//! - this file: loading a model file and checking it against the contract, before anything runs
+//!   it. Everything here runs off the hot path (it allocates freely).
+//!   [`engine::StepEngine`] builds on it: it adds the preallocated buffers and the warm-up run.
+//! - [`contract`]: the model contract (metadata keys, input/output names, the nine features).
+//! - [`contract_check`]: the contract's checks on plain data (no ONNX Runtime: the fuzz target
+//!   compiles it as it is).
+//! - [`runtime`]: finds and loads ONNX Runtime (the PyPI wheel's library, `load-dynamic`).
+//! - [`memory_limit`]: the arena that bounds what a model may allocate while it runs.
+//! - [`engine`]: [`engine::StepEngine`], the allocation-free per-step runner.
+
+pub mod contract;
+pub mod contract_check;
+pub mod engine;
+pub mod memory_limit;
+pub mod runtime;
 
 use std::path::{Path, PathBuf};
 
 use ort::session::Session;
 use ort::value::{TensorElementType, ValueType};
 
-use crate::contract::ModelKind;
-pub use crate::contract_check::{
+use crate::model::contract::ModelKind;
+pub use crate::model::contract_check::{
     check_declared, map_features, parse_metadata, Declared, Metadata, ModelError, Signature,
 };
-use crate::runtime::Runtime;
+use crate::model::runtime::Runtime;
 
 /// How ONNX Runtime runs a session. The defaults are what the inference thread wants: the
 /// caller's thread does all the work (one intra-op thread means ONNX Runtime starts no pool
@@ -33,10 +47,10 @@ pub struct SessionConfig {
     /// at the same speed (`scripts/bench-models.sh`), so it is the default.
     pub io_binding: bool,
     /// How long the server's registry lets a load (session, checks, warm-up) take before it
-    /// stops it ([`crate::engine::load_bounded`]); 10 s by default.
+    /// stops it ([`crate::model::engine::load_bounded`]); 10 s by default.
     pub load_timeout: std::time::Duration,
     /// Most bytes the models' working memory may take, in one CPU arena all sessions share
-    /// ([`crate::memory_limit`]); a model whose run needs more fails its warm-up and is refused.
+    /// ([`crate::model::memory_limit`]); a model whose run needs more fails its warm-up and is refused.
     /// `None`: ONNX Runtime's own arena per session, unbounded (the one-shot subcommands).
     pub memory_limit: Option<usize>,
 }
@@ -146,7 +160,8 @@ fn with_memory_limit(
     let Some(limit) = cfg.memory_limit else {
         return Ok(builder);
     };
-    crate::memory_limit::register(rt, limit).map_err(|reason| ModelError::Session { reason })?;
+    crate::model::memory_limit::register(rt, limit)
+        .map_err(|reason| ModelError::Session { reason })?;
     builder
         .with_env_allocators()
         .map_err(|e| ModelError::Session {
@@ -191,7 +206,7 @@ pub fn read_metadata(session: &Session) -> Result<Metadata, ModelError> {
 /// Refuses a model whose `haptics.*` metadata is over its cap ([`MAX_PROVENANCE_BYTES`],
 /// [`MAX_METADATA_VALUE_BYTES`]); the error names the entry and its size, never its value.
 pub fn check_metadata_sizes(custom: impl Fn(&str) -> Option<String>) -> Result<(), ModelError> {
-    use crate::contract::{
+    use crate::model::contract::{
         META_FEATURES, META_KIND, META_PREVIOUS_FORCE, META_PROVENANCE, META_STATE_SIZE, META_UNITS,
     };
     for key in [

@@ -17,9 +17,9 @@ use haptics_proto::experiment_args::ExperimentArgs;
 use haptics_proto::Command;
 use shm_ring::{FixedStr, SendError};
 
-use crate::latency::LatencySnapshot;
-use crate::registry::Registry;
-use crate::telemetry::LoopObserver;
+use crate::control::registry::Registry;
+use crate::control::telemetry::LoopObserver;
+use crate::serving::latency::LatencySnapshot;
 use haptics_proto::{Phase, PHASE_NAMES};
 
 const PHASE_DONE: u8 = Phase::Done as u8;

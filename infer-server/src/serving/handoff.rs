@@ -17,7 +17,7 @@ use std::ptr;
 use std::sync::atomic::{AtomicPtr, AtomicU64, Ordering};
 use std::sync::Arc;
 
-use crate::engine::StepEngine;
+use crate::model::engine::StepEngine;
 use crate::model::ModelInfo;
 
 /// An engine on its way, with the generation number the control side gave it.

@@ -11,11 +11,11 @@
 //! is refused, so a name always means one model.
 //!
 //! Activation moves the loaded engine to the inference thread through the atomic handoff
-//! ([`crate::handoff`], one pointer swap between two steps) and returns once the thread has
+//! ([`crate::serving::handoff`], one pointer swap between two steps) and returns once the thread has
 //! taken it, with the first step the new model answered. The engine the thread gave back goes
 //! back to its model, which is `Loaded` again (no reload). Activations and unloads are
 //! serialised by one mutex; a load builds its engine off that mutex, within the load time limit
-//! ([`crate::engine::load_bounded`]), and takes it only to record the result, so a slow or
+//! ([`crate::model::engine::load_bounded`]), and takes it only to record the result, so a slow or
 //! crafted model holds up no swap, unload or status. Uploaded models kept in memory are capped
 //! in total ([`Registry::with_max_uploads_held`]). None of this ever touches the inference
 //! thread's path.
@@ -29,9 +29,9 @@ use control_plane::{
     backend::validate_model_name, Activation, ControlError, ModelInfo, ModelSource, ModelState,
 };
 
-use crate::contract::{step_mismatch, FeatureSchema};
-use crate::engine::{load_bounded, StepEngine};
-use crate::inference_control::InferenceControl;
+use crate::control::inference_control::InferenceControl;
+use crate::model::contract::{step_mismatch, FeatureSchema};
+use crate::model::engine::{load_bounded, StepEngine};
 use crate::model::ModelError;
 
 /// How long `activate` waits for the inference thread to take a new engine. It takes it

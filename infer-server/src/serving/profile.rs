@@ -6,7 +6,7 @@
 //! on a small machine a spinning thread would take the core the rest of the system (the page,
 //! the control plane, ONNX Runtime's own work) needs, and a thread that parks makes the loop pay
 //! a futex wake-up every step, so it uses the period-synchronised wait
-//! ([`crate::period_sync`]); on one core it can only park. The profile is picked automatically,
+//! ([`crate::serving::period_sync`]); on one core it can only park. The profile is picked automatically,
 //! printed at start and can be overridden (`infer-server serve --profile`), and each explicit
 //! flag (`--wait`, `--cpu`, `--rt-priority`, `--mlock`) overrides its part of it.
 
@@ -57,7 +57,7 @@ pub struct Settings {
     pub rt_priority: Option<i32>,
     pub mlock: bool,
     /// Keep the inference CPU awake between steps with a `SCHED_IDLE` spinner
-    /// ([`crate::keep_awake`]): the period-synchronised wait on a pinned CPU.
+    /// ([`crate::serving::keep_awake`]): the period-synchronised wait on a pinned CPU.
     pub keep_awake: bool,
 }
 

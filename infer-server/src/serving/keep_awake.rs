@@ -1,7 +1,7 @@
 //! Keeps the inference thread's CPU awake between steps: a spinner at `SCHED_IDLE`, pinned to
 //! that CPU, that runs only while steps flow.
 //!
-//! Why: with the period-synchronised wait ([`crate::period_sync`]) the inference thread sleeps
+//! Why: with the period-synchronised wait ([`crate::serving::period_sync`]) the inference thread sleeps
 //! most of each period. On a virtual machine an idle CPU halts (the guest's idle driver hands the
 //! virtual CPU back to the host), and the timer that wakes the thread must first get the host to
 //! run that virtual CPU again: now and then tens of microseconds late, which makes the step late.
@@ -34,7 +34,7 @@ use std::time::{Duration, Instant};
 
 use shm_ring::os::rt_thread::{pin_current_thread, set_idle};
 
-use crate::inference_thread::InferenceCounters;
+use crate::serving::inference_thread::InferenceCounters;
 
 /// How long after the last answered step the spinner goes on before it sleeps.
 pub const IDLE_AFTER: Duration = Duration::from_millis(50);
@@ -148,7 +148,7 @@ mod tests {
     }
 
     fn first_allowed_cpu() -> usize {
-        crate::profile::allowed_cpus()[0]
+        crate::serving::profile::allowed_cpus()[0]
     }
 
     #[test]
@@ -229,9 +229,16 @@ mod tests {
             "stopping took {:?}",
             t.elapsed()
         );
+        // The join returns when the kernel clears the thread's id at its exit, a moment before
+        // the task (and its /proc entry) is released: allow that moment.
+        let task = format!("/proc/self/task/{tid}");
+        let t = Instant::now();
+        while std::path::Path::new(&task).exists() && t.elapsed() < Duration::from_secs(1) {
+            std::thread::sleep(Duration::from_millis(1));
+        }
         assert!(
-            !std::path::Path::new(&format!("/proc/self/task/{tid}")).exists(),
-            "the thread is gone once dropped"
+            !std::path::Path::new(&task).exists(),
+            "the thread is still there 1 s after it was joined"
         );
     }
 }

@@ -24,12 +24,12 @@ use ort::sys::{OrtRunOptions, OrtStatus, OrtValue};
 use ort::value::Tensor;
 use ort::AsPointer;
 
-use crate::contract::{
+use crate::model::contract::{
     checked_elements, FeatureSchema, ModelKind, INPUT_C, INPUT_FEATURES, INPUT_H, OUTPUT_C,
     OUTPUT_FORCE, OUTPUT_H,
 };
+use crate::model::runtime::Runtime;
 use crate::model::{self, ModelError, ModelInfo, SessionConfig};
-use crate::runtime::Runtime;
 
 /// A feature value as it arrives from a producer (recordings are f64; models take f32).
 pub trait FeatureValue: Copy {

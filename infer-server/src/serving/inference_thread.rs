@@ -3,12 +3,12 @@
 //!
 //! A plain OS thread (never an async task), pinned to a CPU where the OS permits. Per step:
 //! receive from the features ring, pick up a newly activated model if one is pending
-//! ([`crate::handoff`]), reset a stateful model at a run start, run the model
-//! ([`crate::engine::StepEngine::step`]), send the force, record the ring-to-ring latency
-//! ([`crate::latency`]) and bump the counters in [`InferenceCounters`]. None of this allocates, locks
+//! ([`crate::serving::handoff`]), reset a stateful model at a run start, run the model
+//! ([`crate::model::engine::StepEngine::step`]), send the force, record the ring-to-ring latency
+//! ([`crate::serving::latency`]) and bump the counters in [`InferenceCounters`]. None of this allocates, locks
 //! or makes a syscall, except the futex wait/wake of the rings' wait strategy, or with
 //! [`WaitStrategy::PeriodSync`] the one absolute sleep per step before the step is due
-//! ([`crate::period_sync`]). Attaching,
+//! ([`crate::serving::period_sync`]). Attaching,
 //! re-attaching after the loop restarts, and publishing the segment's schema happen between
 //! runs, not per step.
 //!
@@ -30,13 +30,13 @@ use shm_ring::{
 
 use shm_ring::os::rt_thread::{CpuChoice, RtRequest};
 
-use crate::attachment::{LoopEndpoints, SharedEndpoints};
-use crate::contract::{FeatureSchema, ModelKind};
-use crate::engine::StepError;
-use crate::handoff::{Offered, Taker};
-use crate::keep_awake::KeepAwake;
-use crate::latency::{self, LatencyReader, LatencyRecorder};
-use crate::period_sync::{PeriodSync, Plan};
+use crate::model::contract::{FeatureSchema, ModelKind};
+use crate::model::engine::StepError;
+use crate::serving::attachment::{LoopEndpoints, SharedEndpoints};
+use crate::serving::handoff::{Offered, Taker};
+use crate::serving::keep_awake::KeepAwake;
+use crate::serving::latency::{self, LatencyReader, LatencyRecorder};
+use crate::serving::period_sync::{PeriodSync, Plan};
 
 /// Bits of `ForceMsg::flags` the server sets. 0 = a normal answer from the model.
 pub mod force_flags {
@@ -67,7 +67,7 @@ pub struct InferenceConfig {
     pub rt_priority: Option<i32>,
     /// Return when the loop goes away instead of waiting for the next one.
     pub exit_when_loop_gone: bool,
-    /// Keep `cpu` awake between steps with a `SCHED_IDLE` spinner ([`crate::keep_awake`]);
+    /// Keep `cpu` awake between steps with a `SCHED_IDLE` spinner ([`crate::serving::keep_awake`]);
     /// only with a `cpu`.
     pub keep_awake: bool,
 }
@@ -115,7 +115,7 @@ pub struct InferenceCounters {
     pub keep_awake_spun_us: AtomicU64,
     /// Why the last undecodable message was refused (written with `try_lock`, never waited on).
     pub last_undecodable: Mutex<Option<DecodeError>>,
-    /// The period-synchronised wait ([`crate::period_sync`]): the learnt period (0: not locked),
+    /// The period-synchronised wait ([`crate::serving::period_sync`]): the learnt period (0: not locked),
     /// the wake-up margin, how often it locked on and re-learnt, and the planned wake-ups after
     /// which no message came.
     pub sync_period_ns: AtomicU64,
@@ -123,7 +123,7 @@ pub struct InferenceCounters {
     pub sync_locks: AtomicU64,
     pub sync_relearns: AtomicU64,
     pub sync_missed_wakes: AtomicU64,
-    /// Why the period-synchronised wait let go of its lock ([`crate::period_sync::LetGo`]):
+    /// Why the period-synchronised wait let go of its lock ([`crate::serving::period_sync::LetGo`]):
     /// the loop went quiet, sent faster than the learnt period, left a gap, restarted.
     pub sync_let_go: [AtomicU64; 4],
     /// Work done ahead after answering (fused-ops ahead.rs: an LSTM's next recurrent product):
@@ -221,7 +221,7 @@ pub enum InferenceError {
     #[error("shared memory: {0}")]
     Segment(#[from] shm_ring::Error),
     #[error("the segment's feature schema is unusable: {0}")]
-    Schema(#[from] crate::contract::SchemaError),
+    Schema(#[from] crate::model::contract::SchemaError),
     #[error("the features ring failed: {0}")]
     Ring(RecvError),
     #[error("could not start the inference thread: {0}")]
@@ -242,7 +242,7 @@ pub struct InferenceThread {
 
 impl InferenceThread {
     /// Starts the thread. It attaches (and re-attaches) to `cfg.segment` by itself; models
-    /// arrive through `taker`'s [`crate::handoff::Activator`].
+    /// arrive through `taker`'s [`crate::serving::handoff::Activator`].
     pub fn spawn(cfg: InferenceConfig, taker: Taker) -> Result<Self, InferenceError> {
         let stop = Arc::new(AtomicBool::new(false));
         let stats = Arc::new(InferenceCounters {

@@ -2,8 +2,8 @@
 //!
 //! The inference thread attaches to rt-loop's segment (and re-attaches when a new loop starts).
 //! It keeps the features and forces rings for itself and publishes the other endpoints here:
-//! the telemetry ring (taken by the telemetry thread, [`crate::telemetry`]), the command
-//! mailbox (used by the control side to start and stop experiments) and the [`Link`]
+//! the telemetry ring (taken by the control side's telemetry thread, `control::telemetry`), the
+//! command mailbox (used by the control side to start and stop experiments) and the [`Link`]
 //! (liveness, heartbeats). Each endpoint keeps the mapping alive by itself, so a holder that
 //! outlives the attachment reads a dead loop's memory safely and simply sees it go quiet.
 //!
