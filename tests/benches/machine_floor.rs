@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 use haptics_proto::{FeatureMsg, ForceMsg, Segment, MAX_FEATURES};
 use haptics_system_tests::repo_root;
 use hdrhistogram::Histogram;
-use infer_server::profile::{self, Machine, Profile};
+use infer_server::serving::profile::{self, Machine, Profile};
 use infer_server::{FeatureSchema, Runtime, SessionConfig, StepEngine};
 use shm_ring::{monotonic_ns, SegmentName, WaitStrategy};
 
