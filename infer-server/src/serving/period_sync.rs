@@ -29,7 +29,8 @@
 //! loop) or a gap of many periods appears, and learns again from the next messages.
 //!
 //! [`PeriodSync`] is plain arithmetic on numbers the caller passes in (no clock, no syscall,
-//! no allocation), so it is tested with synthetic timelines; `serve.rs` does the sleeping.
+//! no allocation), so it is tested with synthetic timelines; the inference thread
+//! (`inference_thread.rs`, `recv_synced`) does the sleeping.
 
 /// Consecutive steps whose spacing is learnt before locking on.
 pub const LEARN_STEPS: usize = 128;
