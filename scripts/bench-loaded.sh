@@ -40,11 +40,30 @@
 #        SERVER_ARGS (more infer-server flags for every server of the run, e.g. "--keep-awake off":
 #        the JSON's `server_args` and `keep_awake` say what the default profile ran with).
 #        Without stress-ng, BENCH_PREBUILT runs the hog as a Python busy loop pinned with taskset.
+#        BENCH_RUNS (default 1): run the whole benchmark that many times in a row, then print
+#        each key's values run by run and their median (scripts/bench-median.py); the last line
+#        is then one JSON object with the same keys holding the medians, plus `runs` and
+#        `per_run`. These machines are shared and noisy: quote medians of several runs.
 # Spins both cores during the floor (a benchmark, never a test). Needs root or sudo only to
 # install stress-ng (Debian: apt-get install -y stress-ng rt-tests) when it is missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
+runs=${BENCH_RUNS:-1}
+case "$runs" in
+  '' | *[!0-9]* | 0) echo "bench-loaded: BENCH_RUNS must be a whole number >= 1, got '$runs'" >&2; exit 2 ;;
+esac
+if [ "$runs" -gt 1 ]; then
+  # each run is the whole benchmark, in its own work folder under BENCH_DIR; a run that fails
+  # stops the series (set -e, pipefail)
+  outs=$(mktemp -d "${TMPDIR:-/tmp}/bench-loaded-runs.XXXXXX")
+  for i in $(seq 1 "$runs"); do
+    printf '==> run %d of %d\n' "$i" "$runs" >&2
+    BENCH_RUNS=1 bash "$0" | tee "$outs/run$i.out"
+  done
+  python3 scripts/bench-median.py $(for i in $(seq 1 "$runs"); do echo "$outs/run$i.out"; done)
+  exit
+fi
 secs=${BENCH_SECONDS:-20}
 swaps=${SWAPS:-100}
 swap_gap=${SWAP_GAP_S:-0.15}
