@@ -50,7 +50,9 @@ def combine(values: list[Any]) -> Any:
     if not present:
         return None
     if all(_is_number(v) for v in present):
-        return statistics.median(present)
+        m = statistics.median(present)
+        # counts stay whole numbers where the median is one (nodes, steps)
+        return int(m) if all(isinstance(v, int) for v in present) and m == int(m) else m
     if all(isinstance(v, dict) for v in present):
         keys = sorted({k for v in present for k in v})
         return {k: combine([v.get(k) for v in present]) for k in keys}
@@ -82,8 +84,19 @@ def _cell(v: Any) -> str:
     return str(v)
 
 
+def _flat(key: str, values: list[Any], median: Any) -> list[tuple[str, list[Any], Any]]:
+    """(key, per run, median) rows; an object's entries as `key.inner`, one row each."""
+    if isinstance(median, dict):
+        rows = []
+        for k in median:
+            inner = [v.get(k) if isinstance(v, dict) else None for v in values]
+            rows += _flat(f"{key}.{k}", inner, median[k])
+        return rows
+    return [(key, values, median)]
+
+
 def table(result: dict[str, Any]) -> str:
-    """One row per key: each run's value, then the median."""
+    """One row per key (per inner key of an object): each run's value, then the median."""
     n = result["runs"]
     head = (
         f"{'key':34} "
@@ -91,10 +104,11 @@ def table(result: dict[str, Any]) -> str:
         + f" {'median':>12}"
     )
     rows = [head]
-    for k, vals in result["per_run"].items():
-        rows.append(
-            f"{k:34} " + " ".join(f"{_cell(v):>12}" for v in vals) + f" {_cell(result[k]):>12}"
-        )
+    for key, values in result["per_run"].items():
+        for k, vals, med in _flat(key, values, result[key]):
+            rows.append(
+                f"{k:34} " + " ".join(f"{_cell(v):>12}" for v in vals) + f" {_cell(med):>12}"
+            )
     return "\n".join(rows)
 
 

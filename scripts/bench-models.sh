@@ -15,10 +15,18 @@
 #        dataset recorded once into BENCH_DIR/dataset with rt-loop run), BENCH_DIR (default
 #        target/bench-models), BENCH_STEPS (measured steps per model, default 20000), BENCH_CPU
 #        (the inference thread's CPU instead of the one its profile picks), BENCH_KEEP_AWAKE
-#        (1|0: the keep-awake spinner on that CPU or none; default: the profile's, as infer-server).
+#        (1|0: the keep-awake spinner on that CPU or none; default: the profile's, as infer-server),
+#        BENCH_RUNS (default 1): serve every family that many times in a row (the models are
+#        exported once), then print each key run by run and its median (scripts/bench-median.py);
+#        the last line is then the same JSON object holding the medians, plus `runs` and
+#        `per_run`. These machines are shared and noisy: quote medians of several runs.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
+runs=${BENCH_RUNS:-1}
+case "$runs" in
+  '' | *[!0-9]* | 0) echo "bench-models: BENCH_RUNS must be a whole number >= 1, got '$runs'" >&2; exit 2 ;;
+esac
 dir=${BENCH_DIR:-target/bench-models}
 case $dir in /*) ;; *) dir=$root/$dir ;; esac
 say() { printf '==> %s\n' "$*" >&2; }
@@ -57,4 +65,13 @@ say "train (once) and export one model per family from $dataset into $dir"
 nice -n 10 .venv/bin/python infer-server/benches/bench_models_prep.py "$dataset" "$dir" "$@" >&2
 
 say "serve each through the inference thread (${BENCH_STEPS:-20000} steps each, 10 kHz)"
-cargo bench -q -p infer-server --bench model_families -- "$dir/families"
+if [ "$runs" -gt 1 ]; then
+  outs=$(mktemp -d "${TMPDIR:-/tmp}/bench-models-runs.XXXXXX")
+  for i in $(seq 1 "$runs"); do
+    say "serving run $i of $runs"
+    cargo bench -q -p infer-server --bench model_families -- "$dir/families" | tee "$outs/run$i.out"
+  done
+  python3 scripts/bench-median.py $(for i in $(seq 1 "$runs"); do echo "$outs/run$i.out"; done)
+else
+  cargo bench -q -p infer-server --bench model_families -- "$dir/families"
+fi

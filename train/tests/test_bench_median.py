@@ -55,6 +55,9 @@ def test_each_key_is_its_median_and_every_run_is_kept() -> None:
     assert out["per_run"]["idle_late_fraction"] == [0.00173, 0.00292, 0.00575]
     same = _module().median_of_runs(RUNS[:2])
     assert same["model"] == "structured" and same["keep_awake"] is True
+    # whole-number counts stay whole where their median is one
+    counts = _module().median_of_runs([{"steps": 2000, "nodes": 1}, {"steps": 2000, "nodes": 1}])
+    assert counts["steps"] == 2000 and isinstance(counts["steps"], int)
 
 
 def test_the_command_prints_a_table_then_the_medians_as_its_last_line(tmp_path: Path) -> None:
@@ -68,6 +71,8 @@ def test_the_command_prints_a_table_then_the_medians_as_its_last_line(tmp_path: 
     lines = res.stdout.strip().splitlines()
     assert lines[0] == "median of 3 runs:"
     assert any(line.startswith("idle_late_fraction") and "0.00292" in line for line in lines)
+    # an object's entries get a row each (bench-models.sh's families)
+    assert any(line.startswith("family_page_late_fraction.prony") for line in lines)
     last = json.loads(lines[-1])
     assert last["idle_late_fraction"] == pytest.approx(0.00292) and last["runs"] == 3
 
