@@ -61,7 +61,10 @@ if [ "$runs" -gt 1 ]; then
     printf '==> run %d of %d\n' "$i" "$runs" >&2
     BENCH_RUNS=1 bash "$0" | tee "$outs/run$i.out"
   done
-  python3 scripts/bench-median.py $(for i in $(seq 1 "$runs"); do echo "$outs/run$i.out"; done)
+  files=()
+  for i in $(seq 1 "$runs"); do files+=("$outs/run$i.out"); done
+  printf '==> every run'"'"'s output: %s\n' "$outs" >&2
+  python3 scripts/bench-median.py "${files[@]}"
   exit
 fi
 secs=${BENCH_SECONDS:-20}

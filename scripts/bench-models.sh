@@ -71,7 +71,10 @@ if [ "$runs" -gt 1 ]; then
     say "serving run $i of $runs"
     cargo bench -q -p infer-server --bench model_families -- "$dir/families" | tee "$outs/run$i.out"
   done
-  python3 scripts/bench-median.py $(for i in $(seq 1 "$runs"); do echo "$outs/run$i.out"; done)
+  files=()
+  for i in $(seq 1 "$runs"); do files+=("$outs/run$i.out"); done
+  printf '==> every run'"'"'s output: %s\n' "$outs" >&2
+  python3 scripts/bench-median.py "${files[@]}"
 else
   cargo bench -q -p infer-server --bench model_families -- "$dir/families"
 fi
