@@ -54,18 +54,9 @@ case "$runs" in
   '' | *[!0-9]* | 0) echo "bench-loaded: BENCH_RUNS must be a whole number >= 1, got '$runs'" >&2; exit 2 ;;
 esac
 if [ "$runs" -gt 1 ]; then
-  # each run is the whole benchmark, in its own work folder under BENCH_DIR; a run that fails
-  # stops the series (set -e, pipefail)
-  outs=$(mktemp -d "${TMPDIR:-/tmp}/bench-loaded-runs.XXXXXX")
-  for i in $(seq 1 "$runs"); do
-    printf '==> run %d of %d\n' "$i" "$runs" >&2
-    BENCH_RUNS=1 bash "$0" | tee "$outs/run$i.out"
-  done
-  files=()
-  for i in $(seq 1 "$runs"); do files+=("$outs/run$i.out"); done
-  printf '==> every run'"'"'s output: %s\n' "$outs" >&2
-  python3 scripts/bench-median.py "${files[@]}"
-  exit
+  # each run is the whole benchmark (BENCH_RUNS=1), in its own work folder under BENCH_DIR; a
+  # run that fails stops the series
+  exec python3 scripts/bench-median.py --runs "$runs" --label bench-loaded -- bash "$0"
 fi
 secs=${BENCH_SECONDS:-20}
 swaps=${SWAPS:-100}

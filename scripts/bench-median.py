@@ -16,13 +16,19 @@ run by run).
 
 Usage: bench-median.py RUN_OUTPUT... (each a run's standard output; its last line that starts
 with `{` is its JSON)
+       bench-median.py --runs N [--label NAME] -- COMMAND... (runs COMMAND N times with
+       BENCH_RUNS=1 in its environment, its output shown and kept in a temporary folder, then
+       as above; a run that fails stops the series with its exit status)
 """
 
 from __future__ import annotations
 
 import json
+import os
 import statistics
+import subprocess
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -112,7 +118,48 @@ def table(result: dict[str, Any]) -> str:
     return "\n".join(rows)
 
 
+def run_series(runs: int, label: str, command: list[str]) -> int:
+    """Runs `command` `runs` times (BENCH_RUNS=1 in its environment, so a benchmark that calls
+    this for itself runs once each time), shows and keeps each run's standard output, then
+    prints the medians (`main`). The first run that fails stops the series with its status."""
+    outs = Path(tempfile.mkdtemp(prefix=f"{label}-runs.", dir=os.environ.get("TMPDIR")))
+    env = {**os.environ, "BENCH_RUNS": "1"}
+    files = []
+    for i in range(1, runs + 1):
+        print(f"==> run {i} of {runs}", file=sys.stderr, flush=True)
+        path = outs / f"run{i}.out"
+        with (
+            path.open("w") as kept,
+            subprocess.Popen(command, stdout=subprocess.PIPE, text=True, env=env) as proc,
+        ):
+            assert proc.stdout is not None
+            for line in proc.stdout:
+                sys.stdout.write(line)
+                sys.stdout.flush()
+                kept.write(line)
+        if proc.returncode != 0:
+            print(f"bench-median: run {i} of {runs} failed (exit {proc.returncode}); the series stops",
+                  file=sys.stderr)  # fmt: skip
+            return proc.returncode
+        files.append(str(path))
+    print(f"==> every run's output: {outs}", file=sys.stderr)
+    return main(files)
+
+
 def main(argv: list[str]) -> int:
+    if argv[:1] == ["--runs"]:
+        try:
+            runs = int(argv[1])
+            rest = argv[2:]
+            label = "bench"
+            if rest[:1] == ["--label"]:
+                label, rest = rest[1], rest[2:]
+            if rest[:1] != ["--"] or len(rest) < 2 or runs < 1:
+                raise ValueError
+        except (IndexError, ValueError):
+            print("bench-median: usage: --runs N [--label NAME] -- COMMAND...", file=sys.stderr)
+            return 2
+        return run_series(runs, label, rest[1:])
     if not argv:
         print(__doc__.strip().splitlines()[-2], file=sys.stderr)
         return 2

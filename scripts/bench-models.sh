@@ -66,15 +66,8 @@ nice -n 10 .venv/bin/python infer-server/benches/bench_models_prep.py "$dataset"
 
 say "serve each through the inference thread (${BENCH_STEPS:-20000} steps each, 10 kHz)"
 if [ "$runs" -gt 1 ]; then
-  outs=$(mktemp -d "${TMPDIR:-/tmp}/bench-models-runs.XXXXXX")
-  for i in $(seq 1 "$runs"); do
-    say "serving run $i of $runs"
-    cargo bench -q -p infer-server --bench model_families -- "$dir/families" | tee "$outs/run$i.out"
-  done
-  files=()
-  for i in $(seq 1 "$runs"); do files+=("$outs/run$i.out"); done
-  printf '==> every run'"'"'s output: %s\n' "$outs" >&2
-  python3 scripts/bench-median.py "${files[@]}"
+  python3 scripts/bench-median.py --runs "$runs" --label bench-models -- \
+    cargo bench -q -p infer-server --bench model_families -- "$dir/families"
 else
   cargo bench -q -p infer-server --bench model_families -- "$dir/families"
 fi

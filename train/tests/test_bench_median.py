@@ -85,3 +85,14 @@ def test_a_run_without_its_json_is_a_clear_error(tmp_path: Path) -> None:
                          text=True)  # fmt: skip
     assert res.returncode == 1
     assert "cut.out: no JSON object line" in res.stderr
+
+
+def test_runs_runs_the_command_each_time_with_bench_runs_1_and_stops_at_a_failure() -> None:
+    show = "import json, os; print(json.dumps({'bench_runs': int(os.environ['BENCH_RUNS'])}))"
+    ok = subprocess.run([sys.executable, str(SCRIPT), "--runs", "3", "--", sys.executable, "-c",
+                         show], capture_output=True, text=True, check=True)  # fmt: skip
+    last = json.loads(ok.stdout.strip().splitlines()[-1])
+    assert last["runs"] == 3 and last["per_run"]["bench_runs"] == [1, 1, 1]
+    bad = subprocess.run([sys.executable, str(SCRIPT), "--runs", "2", "--", sys.executable, "-c",
+                          "raise SystemExit(3)"], capture_output=True, text=True)  # fmt: skip
+    assert bad.returncode == 3 and "run 1 of 2 failed (exit 3)" in bad.stderr
