@@ -3,9 +3,11 @@
 //! hand-built graph (lawfree_graph.py) in one node.
 //!
 //! Contract (docs/model-contract.md, stateful): inputs `features` [1, n] (x, v the first two),
-//! `h_in`, `c_in` [1, 1, H]; outputs `force` [1, 1], `h_out`, `c_out` [1, 1, H], with H = K + P:
-//! `h` carries [s_1..s_K filters, p_1..p_P plays] (the multi-node graph's layout). The filters'
-//! coefficients arrive as the float32 values `predict` uses, the rest is computed in f64.
+//! `h_in`, `c_in` [1, 1, H]; outputs `force` [1, 1], `h_out`, `c_out` [1, 1, H], with H = K + P
+//! (+ 1): `h` carries [s_1..s_K filters, p_1..p_P plays (, u_max)] (the multi-node graph's
+//! layout; u_max, the deepest compression so far, only with the irreversible memory,
+//! `damage_frac`). The filters' coefficients arrive as the float32 values `predict` uses, the
+//! rest is computed in f64.
 //!
 //! `c`, which the multi-node graph passes through unused, carries the filters' low parts,
 //! s_k - float32(s_k) (then zeros): a slow filter (tau = 100 s at 10 kHz: a = 0.999999) moves by
@@ -39,6 +41,9 @@ pub struct LawFreeParams {
     neg_inv_scales: Vec<f64>,
     /// their weights, input by input: `sat[j * S + s]`
     sat: Vec<f64>,
+    /// the irreversible memory's scales c (`damage_frac`; empty: none): inputs d = u - u_max
+    /// and c (1 - exp(d / c)) after the plays'
+    damage: Vec<f64>,
 }
 
 impl StepModel for LawFreeParams {
@@ -65,15 +70,21 @@ impl StepModel for LawFreeParams {
                 "more values than the kernel's 8",
             ));
         }
+        let damage = r.positive_list("damage_frac")?;
         let w = r.list("readout")?;
-        let n = 2 + a.len() + plays.len();
+        let n_damage = if damage.is_empty() {
+            0
+        } else {
+            1 + damage.len()
+        };
+        let n = 2 + a.len() + plays.len() + n_damage;
         let blocks = 3 + scales.len();
         if w.len() != blocks * n {
             return Err(AttrError::Length {
                 op: OP,
                 name: "readout",
                 got: w.len(),
-                other: "(3 + readout_depth_scales) x (2 + filter_decay + play_widths)",
+                other: "(3 + readout_depth_scales) x (2 + filter_decay + play_widths (+ 1 + damage_frac))",
                 expected: blocks * n,
             });
         }
@@ -86,11 +97,12 @@ impl StepModel for LawFreeParams {
             readout: (0..n).map(|j| [w[j], w[n + j], w[2 * n + j]]).collect(),
             neg_inv_scales: scales.iter().map(|a| -1.0 / a).collect(),
             sat: (0..n * ns).map(|i| w[(3 + i % ns) * n + i / ns]).collect(),
+            damage,
         })
     }
 
     fn state_size(&self) -> usize {
-        self.filters.len() + self.plays.len()
+        self.filters.len() + self.plays.len() + usize::from(!self.damage.is_empty())
     }
 
     /// Reads x, v (features[0..2]), `h_in` and the filters' low parts in `c_in`.
@@ -152,6 +164,17 @@ impl LawFreeParams {
             let p = f64::from(h_in[nk + j]).max(u - r).min(u + r);
             h_out[nk + j] = p as f32;
             f += term(u - p, 2 + nk + j);
+        }
+        if !self.damage.is_empty() {
+            // the irreversible memory: u_max never decreases, so d = u - u_max <= 0
+            let at = nk + self.plays.len();
+            let m = f64::from(h_in[at]).max(u);
+            h_out[at] = m as f32;
+            let d = u - m;
+            f += term(d, 2 + at);
+            for (i, &c) in self.damage.iter().enumerate() {
+                f += term(c * (1.0 - (d / c).exp()), 3 + at + i);
+            }
         }
         if contact {
             f.max(0.0) as f32
@@ -243,12 +266,72 @@ mod tests {
         });
     }
 
+    /// The irreversible memory: `simple()` with `damage_frac` [0.05], so two more inputs d =
+    /// u - u_max and 0.05 (1 - exp(d / 0.05)) with weights 1.5 and -4 (times 1), d also times w
+    /// (2),
+    /// one more state (u_max). The sine's presses grow, then shrink: d is 0 on the first
+    /// loadings and negative after the deepest.
+    #[test]
+    fn the_irreversible_memory_matches_the_model_written_out_by_hand() {
+        let n = 6;
+        let mut w = vec![0.0; 3 * n];
+        w[..n].copy_from_slice(&[2.0, 0.5, 1.0, 3.0, 1.5, -4.0]);
+        w[n] = 1.0;
+        w[n + 4] = 2.0;
+        let attrs = simple().with("damage_frac", vec![0.05]).with("readout", w);
+        let p = LawFreeParams::from_attrs(&attrs).unwrap();
+        assert_eq!(p.state_size(), 3);
+        let (mut h, mut ho) = (vec![0.0f32; 3], vec![0.0f32; 3]);
+        let (mut c, mut co) = (vec![0.0f32; 3], vec![0.0f32; 3]);
+        let (mut s, mut pl, mut top) = (0.0f64, 0.0f64, 0.0f64);
+        let mut backed_off = 0;
+        for k in 0..400 {
+            let envelope = if k < 200 {
+                k as f64 / 200.0
+            } else {
+                2.0 - k as f64 / 200.0
+            };
+            let x = (0.008 * envelope * (k as f64 * 0.05).sin()) as f32;
+            let got = p.step_xv(x, 0.0, &h, &c, &mut ho, &mut co);
+            std::mem::swap(&mut h, &mut ho);
+            std::mem::swap(&mut c, &mut co);
+            let u = f64::from(x).max(0.0) / 0.01;
+            s = 0.9 * s + 0.1 * u;
+            pl = pl.max(u - 0.1).min(u + 0.1);
+            top = top.max(u);
+            let d = u - top;
+            backed_off += usize::from(d < -0.05);
+            let want = if x > 0.0 {
+                (2.0 * u + u.min(1.0) * u + (u - s) + 3.0 * (u - pl) + d * (1.5 + 2.0 * u.min(1.0))
+                    - 4.0 * 0.05 * (1.0 - (d / 0.05).exp()))
+                .max(0.0)
+            } else {
+                0.0
+            };
+            assert!(
+                (f64::from(got) - want).abs() < 1e-4 * (1.0 + want),
+                "step {k}: {got} vs {want}"
+            );
+            assert!(
+                (f64::from(h[2]) - top).abs() < 1e-6,
+                "step {k}: u_max {} vs {top}",
+                h[2]
+            );
+        }
+        assert!(
+            backed_off > 50,
+            "the programme backs off the deepest press: {backed_off}"
+        );
+    }
+
     #[test]
     fn a_bad_attribute_is_a_clear_error_not_a_panic() {
         let cases = [
-            (simple().with("readout", vec![1.0; 11]), "attribute `readout` has 11 values, `(3 + readout_depth_scales) x (2 + filter_decay + play_widths)` has 12: they pair up"),
-            (simple().with("readout_depth_scales", vec![0.5]), "attribute `readout` has 12 values, `(3 + readout_depth_scales) x (2 + filter_decay + play_widths)` has 16: they pair up"),
+            (simple().with("readout", vec![1.0; 11]), "attribute `readout` has 11 values, `(3 + readout_depth_scales) x (2 + filter_decay + play_widths (+ 1 + damage_frac))` has 12: they pair up"),
+            (simple().with("readout_depth_scales", vec![0.5]), "attribute `readout` has 12 values, `(3 + readout_depth_scales) x (2 + filter_decay + play_widths (+ 1 + damage_frac))` has 16: they pair up"),
             (simple().with("readout_depth_scales", vec![-0.5]), "attribute `readout_depth_scales` = -0.5 is not positive"),
+            (simple().with("damage_frac", vec![0.1]), "attribute `readout` has 12 values, `(3 + readout_depth_scales) x (2 + filter_decay + play_widths (+ 1 + damage_frac))` has 18: they pair up"),
+            (simple().with("damage_frac", vec![0.0]), "attribute `damage_frac` = 0 is not positive"),
             (simple().with("filter_decay", vec![1.5]), "attribute `filter_decay` = 1.5 is outside 0..1"),
             (simple().with("depth_scale_m", vec![0.0]), "attribute `depth_scale_m` = 0 is not positive"),
         ];

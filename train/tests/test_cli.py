@@ -198,19 +198,41 @@ def test_lawfree_choice_needs_both_validation_scores():
     assert choose_on_both({"a": nan, "b": 2.0}, {"a": nan, "b": nan}) == "b"
 
 
+def test_irreversible_memory_is_kept_only_when_clearly_closer_on_both_scores():
+    """`keep_damage_memory`: kept at 10 % closer on both scores (0.9x), not at 2 % (within
+    the recordings' noise), not when it is closer on the sliding rows alone; never when its
+    own score is not finite, always when the grid's choice has none."""
+    from haptics_train.pipeline import LAWFREE_DAMAGE_MARGIN, keep_damage_memory
+
+    nan = float("nan")
+
+    def keep(sliding: float, every: float, grid: tuple[float, float] = (1.0, 1.0)) -> bool:
+        return keep_damage_memory({"g": grid[0], "d": sliding}, {"g": grid[1], "d": every},
+                                  "g", "d")  # fmt: skip
+
+    assert LAWFREE_DAMAGE_MARGIN == 0.9
+    assert keep(0.9, 0.9) and keep(0.2, 0.7)
+    assert not keep(0.98, 0.98) and not keep(0.5, 0.95) and not keep(0.95, 0.5)
+    assert not keep(nan, 0.5) and not keep(0.5, nan)
+    assert keep(0.5, 0.5, (nan, 1.0))
+
+
 def test_lawfree_readout_is_chosen_on_validation(tmp_path):
     """`lawfree`'s readout, ridge and memory span (`pipeline.lawfree_candidates`) are chosen on the
-    validation recording's free run over its sliding rows, like the recommendation; what the
-    user sets is not searched."""
+    validation recording's free run over its sliding rows, like the recommendation, then the
+    choice is tried once with the irreversible memory; what the user sets is not searched."""
     from haptics_train.data import load_manifest
     from haptics_train.pipeline import (
         BOTH_SCORES_RULE,
+        DAMAGE_RULE,
+        LAWFREE_DAMAGE_FRAC,
         LAWFREE_READOUTS,
         LAWFREE_RIDGES,
         LAWFREE_SPANS_S,
         SELECTION_METRIC,
         _candidates,
         choose_on_both,
+        keep_damage_memory,
         lawfree_candidates,
     )
 
@@ -225,12 +247,20 @@ def test_lawfree_readout_is_chosen_on_validation(tmp_path):
     assert len(options) == len(LAWFREE_READOUTS) * len(LAWFREE_RIDGES) * len(LAWFREE_SPANS_S)
     assert sel["parameter"] == "readout" and sel["validation"] == ["v"]
     assert sel["metric"] == SELECTION_METRIC
-    assert list(sel["candidates"]) == list(options)
-    assert sel["rule"] == BOTH_SCORES_RULE
-    assert list(sel["candidates_every_row"]) == list(options)
-    assert sel["chosen"] == choose_on_both(sel["candidates"], sel["candidates_every_row"])
-    for key, value in options[sel["chosen"]].items():
+    grid = {k: v for k, v in sel["candidates"].items() if k in options}
+    grid_every = {k: sel["candidates_every_row"][k] for k in grid}
+    assert list(grid) == list(options)
+    assert sel["rule"] == BOTH_SCORES_RULE + DAMAGE_RULE
+    pick = choose_on_both(grid, grid_every)
+    damage = f"{pick}, damage memory"
+    # the grid, then its choice with the irreversible memory, each scored
+    assert list(sel["candidates"]) == [*options, damage]
+    assert list(sel["candidates_every_row"]) == [*options, damage]
+    kept = keep_damage_memory(sel["candidates"], sel["candidates_every_row"], pick, damage)
+    assert sel["chosen"] == (damage if kept else pick)
+    for key, value in options[pick].items():
         assert res["hyperparameters"][key] == value, key
+    assert res["hyperparameters"]["damage_frac"] == (list(LAWFREE_DAMAGE_FRAC) if kept else [])
     # the score is the sliding rows' when the validation recording has them, as evaluate wrote
     sliding = res["validation_pooled"]["sliding"]
     assert sliding["rows"] > 0

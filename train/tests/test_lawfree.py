@@ -101,3 +101,46 @@ def test_lawfree_memory_holds_no_force_at_the_surface_and_exports_its_depth_func
     free = make_model("lawfree", hyper={**SMALL, "memory_at_surface": True})
     free.fit([np.column_stack([x, v])], [y], info=[info(len(x))])
     assert np.any(free.w_.reshape(5, n)[0, 2:] != 0.0)
+
+
+def softening_pad(x: np.ndarray) -> np.ndarray:
+    """An object that softens below the deepest press so far (a Mullins-type effect of filled
+    rubbers and tissues): a stiffening spring times 1 - 0.5 (1 - exp(-(e_max - e) / 1 mm)).
+    No fading memory reproduces it: the softening never recovers."""
+    e = np.maximum(x, 0.0)
+    top = np.maximum.accumulate(e)
+    eta = 1.0 - 0.5 * (1.0 - np.exp(-(top - e) / 0.001))
+    return np.where(e > 0, eta * (300 * e + 1.0e6 * e**3), 0.0)
+
+
+def test_lawfree_irreversible_memory_learns_a_softening_and_steps_in_parity(fused_ops):
+    """With `damage_frac`, `lawfree` carries the deepest compression so far (one more state)
+    and saturating functions of the depth below it: on presses that grow then shrink, which
+    it was not fitted on, it renders a softening object at least twice as close as without,
+    and its fused node and multi-node graph step in parity with `predict`."""
+    x, v = presses([0.006, 0.012, 0.009, 0.018, 0.01, 0.024, 0.015], 2.0)
+    y = softening_pad(x)
+    fits = {}
+    for name, extra in {"without": {}, "with": {"damage_frac": [0.02, 0.05, 0.15]}}.items():
+        m = make_model("lawfree", hyper={**SMALL, **extra})
+        m.fit([np.column_stack([x, v])], [y], info=[info(len(x))])
+        fits[name] = m
+    m = fits["with"]
+    assert m.state_size == len(SMALL["taus_s"]) + len(SMALL["play_frac"]) + 1
+    assert fits["without"].state_size == m.state_size - 1
+    xt, vt = presses([0.01, 0.02, 0.014, 0.022, 0.008, 0.016], 1.3)
+    obj = softening_pad(xt)
+    X = np.column_stack([xt, vt])
+    err = {k: float(np.sqrt(np.mean((f.predict_served(X) - obj) ** 2))) for k, f in fits.items()}
+    assert err["with"] < 0.5 * err["without"], err
+    prov = provenance(m, TrainConfig(progress=False), None, None)
+    om, graph = to_contract_onnx(m, prov), to_contract_onnx(m, prov, fused=False)
+    assert validate_model(om)["haptics.state_size"] == str(m.state_size)
+    attrs = {a.name: list(a.floats) for a in om.graph.node[0].attribute if a.floats}
+    assert attrs["damage_frac"] == pytest.approx([0.02, 0.05, 0.15])
+    assert len(graph.graph.node) <= 40, [n.op_type for n in graph.graph.node]
+    got, got_graph = (np.array([st.step(r) for r in X.astype(np.float32)])
+                      for st in (OnnxStepper(om), OnnxStepper(graph)))  # fmt: skip
+    ref = m.predict_served(X)
+    np.testing.assert_allclose(got, ref, atol=1e-4)
+    np.testing.assert_allclose(got_graph, ref, atol=1e-4)

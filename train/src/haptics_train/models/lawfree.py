@@ -15,21 +15,30 @@ hysteresis of the Preisach/Prandtl-Ishlinskii class by a superposition of play o
     u      = max(x, 0) / D                               compression, scaled by the data's depth
     s_k(t) = d_k s_k(t - dt) + (1 - d_k) u(t)            fading memory, d_k = exp(-dt / tau_k)
     p_r(t) = min(u + r, max(u - r, p_r(t - dt)))         play operators of half-width r (path)
-    q      = [u, v/V, u - s_k, u - p_r]                  inputs: now and the memory terms
+    d(t)   = u - max(u(t'), t' <= t)                     optional: the depth below the deepest
+                                                         compression so far (irreversible)
+    q      = [u, v/V, u - s_k, u - p_r,                  inputs: now and the memory terms
+              (d, c (1 - exp(d / c)))]
     phi    = [1, w, w^2, 1 - exp(-w/a_1), .., 1 - exp(-w/a_S)],  w = min(u, 1)
     object = max(0, sum_j q_j sum_i W_ij phi_i) x (x > 0)     (memory terms: W_1j = 0)
     bench  = sum_l c_l z_l                               the bench's friction (not rendered),
                                                          c_l >= 0: it dissipates
 
-tau_k 0.01..100 s half a decade apart, r 0.005..0.4 of D and a_s 0.1, 0.3 of D are grids of
-the time, path and depth scales, not of any material; D (the largest compression) and V (the
-99th percentile of |v|) are measured on the training data. How far the memory reaches is the
-data's to say: `haptics-train train` fits the filters up to 1, 10 and 100 s and keeps the span
-whose validation free run is near the best both on the sliding rows and over every row
+tau_k 0.01..100 s half a decade apart, r 0.005..0.4 of D, a_s 0.1, 0.3 of D and c 0.02, 0.05,
+0.15 of D are grids of the time, path and depth scales, not of any material; D (the largest
+compression) and V (the 99th percentile of |v|) are measured on the training data. How far
+the memory reaches is the data's to say: `haptics-train train` fits the filters up to 1, 10
+and 100 s and keeps the span whose validation free run is near the best both on the sliding
+rows and over every row
 (`pipeline.LAWFREE_SPANS_S`, `choose_on_both`): a filter much slower than the training
 recordings is fitted as a copy of the compression and extrapolates when a slower motion moves
 it, while a foam's compression set needs the slow ones (docs/laws.md, "`lawfree`'s memory
-span"). Every input's weight is a function
+span"). The irreversible memory (`damage_frac`, off by default) is a third kind: a fading
+memory forgets and a play is wiped out by a larger excursion, but a material that softens
+below the deepest load it has carried (the Mullins effect of filled rubbers, the
+preconditioning of tissues, a foam's damage) remembers that load for good; `haptics-train
+train` tries it once on the grid's choice and keeps it where validation prefers it
+(`pipeline.LAWFREE_DAMAGE_FRAC`). Every input's weight is a function
 of the depth (phi), so a memory may grow with the compression as a relaxing or hysteretic force
 does in soft materials: as a power (w, w^2) or saturating within a tenth or a third of the
 deepest press (1 - exp(-w/a): soft materials stiffen early, and their memory with them), up to
@@ -56,7 +65,8 @@ reports the work the rendered object does over the training recordings (> 0: it 
 
 The state steps once per row at the training period `dt` when fitted, and at the loop's period
 `serve_dt_` when exported (`haptics.step_s`), like `structured`. Exported as a
-stateful model (docs/model-contract.md): `h_in`/`h_out` carry [s_1..s_K, p_1..p_P]; `c_in`/
+stateful model (docs/model-contract.md): `h_in`/`h_out` carry [s_1..s_K, p_1..p_P] (and
+u_max last, with the irreversible memory); `c_in`/
 `c_out` are passed through by the multi-node graph; the fused node (the default export,
 fused-ops/src/lawfree.rs) carries the filters' low parts in `c` (a float32 state cannot hold
 the slow filters' steps). The graph is built by hand (lawfree_graph.py): the state updates
@@ -64,7 +74,8 @@ and the readout as a few vector nodes. The filters' coefficients are rounded to 
 `predict` too, so it agrees with the graph within float32 arithmetic.
 
 Sequences layout (`models.base`): `fit(X, y, info)`. Fitted attributes: `dt_`,
-`depth_scale_m_`, `speed_scale_mps_`, `widths_`, `depth_scales_` (the a_s), `w_` (the
+`depth_scale_m_`, `speed_scale_mps_`, `widths_`, `depth_scales_` (the a_s), `damage_fracs_`
+(the c; empty without the irreversible memory), `w_` (the
 readout's weights, (3 + S) blocks of one weight per input, zeros where `_readout_mask` left
 a term out), `c_`
 (friction), `train_info_`.
@@ -95,7 +106,15 @@ LAWFREE_DEFAULT: dict = {
     "ridge": 1e-4,
     "memory_at_surface": False,
     "readout_depth_scales": [0.1, 0.3],
+    "damage_frac": [],
 }
+
+
+def damage_inputs(d: np.ndarray, fracs: list[float] | tuple[float, ...]) -> list[np.ndarray]:
+    """The irreversible memory's readout inputs from d = u - u_max (<= 0, the depth below the
+    deepest compression so far): d itself and c (1 - exp(d / c)) for each scale c (fractions
+    of D), each 0 on a virgin loading and saturating at c as the probe backs off."""
+    return [d, *(c * (1.0 - np.exp(d / c)) for c in fracs)]
 
 
 def plays(u: np.ndarray, widths: np.ndarray) -> np.ndarray:
@@ -155,11 +174,22 @@ class LawFreeModel(ForceModel):
 
     @property
     def state_size(self) -> int:
-        return len(self.hyper["taus_s"]) + len(self.hyper["play_frac"])
+        return len(self.hyper["taus_s"]) + len(self.hyper["play_frac"]) + int(self.has_damage)
+
+    @property
+    def damage_fracs(self) -> list[float]:
+        """The irreversible memory's scales c (none for a model pickled before it existed)."""
+        return list(getattr(self, "damage_fracs_", ()))
+
+    @property
+    def has_damage(self) -> bool:
+        """Whether the model carries the irreversible memory (u_max, one more state)."""
+        return bool(self.hyper.get("damage_frac"))
 
     def _inputs(self, x: np.ndarray, v: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """(the readout's inputs q [n, 2 + K + P], contact mask) along one sequence stepped at
-        `dt`."""
+        """(the readout's inputs q [n, 2 + K + P (+ 1 + C)], contact mask) along one sequence
+        stepped at `dt`; with the irreversible memory, d = u - u_max and its C saturating
+        functions last."""
         u = np.maximum(x, 0.0) / self.depth_scale_m_
         contact = x > 0.0
         d = np.exp(-dt / np.asarray(self.hyper["taus_s"], dtype=float))
@@ -167,7 +197,10 @@ class LawFreeModel(ForceModel):
         s = np.column_stack([lfilter([bk], [1.0, -ak], u) for ak, bk in zip(a, b, strict=True)])
         p = plays(u, self.widths_)
         vn = np.where(contact, v / self.speed_scale_mps_, 0.0)
-        return np.column_stack([u, vn, u[:, None] - s, u[:, None] - p]), contact
+        cols = [u, vn, u[:, None] - s, u[:, None] - p]
+        if self.has_damage:
+            cols += damage_inputs(u - np.maximum.accumulate(u), self.damage_fracs)
+        return np.column_stack(cols), contact
 
     def fit(
         self, X: list[np.ndarray], y: list[np.ndarray], info: list[SequenceInfo]
@@ -194,8 +227,12 @@ class LawFreeModel(ForceModel):
         self.depth_scales_ = [float(a) for a in h["readout_depth_scales"]]
         if any(not (a > 0) for a in self.depth_scales_):
             raise ValueError(f"lawfree: readout_depth_scales must be > 0, got {self.depth_scales_}")
-        mask = _readout_mask(2 + len(h["taus_s"]) + len(self.widths_), 3 + len(self.depth_scales_),
-                             bool(h["memory_at_surface"]))  # fmt: skip
+        self.damage_fracs_ = [float(c) for c in h.get("damage_frac") or []]
+        if any(not (c > 0) for c in self.damage_fracs_):
+            raise ValueError(f"lawfree: damage_frac must be > 0, got {self.damage_fracs_}")
+        n_damage = 1 + len(self.damage_fracs_) if self.has_damage else 0
+        mask = _readout_mask(2 + len(h["taus_s"]) + len(self.widths_) + n_damage,
+                             3 + len(self.depth_scales_), bool(h["memory_at_surface"]))  # fmt: skip
         for x, v, t, keep, dt in picked:
             z, contact = self._inputs(x, v, dt)
             obj = _readout_columns(z, self.depth_scales_)[:, mask] * contact[:, None]

@@ -3,13 +3,16 @@
 per node).
 
 The same step as `LawFreeModel.predict_served` (see lawfree.py for the model), over the whole
-state [s (K filters), p (P plays)] at once, so no node slices it:
+state [s (K filters), p (P plays), (u_max)] at once, so no node slices it:
 
 - [u, v/V] = [x/D, v/V] contact (u = relu(x)/D: x/D times contact is 0 out of contact), one
   MatMul with a constant diagonal; contact = sign(relu(x/D));
-- the state in one pass: lin = st A + u B (A = [d_k, 1], B = [1 - d_k, 0]: the filters step,
-  the plays keep their value), then clamped to [u - R, u + R] (R = [1e30, r]: the filters are
-  never clamped, each play stays within its half-width r of u);
+- the state in one pass: lin = st A + u B (A = [d_k, 1, 1], B = [1 - d_k, 0, 0]: the filters
+  step, the plays and u_max keep their value), then clamped to [u - L, u + R] (L = [1e30, r, 0],
+  R = [1e30, r, 1e30]: the filters are never clamped, each play stays within its half-width r
+  of u, u_max never below u);
+- with the irreversible memory (`damage_frac` c), its inputs c (1 - exp(d / c)) from d = u -
+  u_max, the last of u - state (one MatMul picks d / c, then Exp, Sub, Mul);
 - the readout sum_j q_j sum_i W_ij phi_i, w = min(u, 1), as [q] W (one MatMul) times
   phi = [1, w, w^2, 1 - exp(-w/a_1), ..] (one Pow of w by [0, 1, 2], with depth scales a
   Mul, Exp, Sub and Concat; one MatMul), q = [u, v/V, u - state];
@@ -41,9 +44,12 @@ def lawfree_graph(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
     """The graph of fitted `m`; `decay` the filters' d_k (float32-rounded, as `predict` uses)."""
     widths = np.asarray(m.widths_, dtype=np.float64)
     k, p = len(decay), len(widths)
+    damage = np.asarray(m.damage_fracs if m.has_damage else [], dtype=np.float64)
+    top = int(m.has_damage)  # u_max: one more state
     scales = np.asarray(m.readout_depth_scales, dtype=np.float64)
     nb = 3 + len(scales)
-    w = np.asarray(m.w_, dtype=np.float64).reshape(nb, 2 + k + p).T  # [2 + K + P, 3 + S]
+    n_in = 2 + k + p + top + len(damage)
+    w = np.asarray(m.w_, dtype=np.float64).reshape(nb, n_in).T  # [inputs, 3 + S]
     g = Graph("lawfree")
     # x/D on its own (for u and contact) and [x/D, v/V]: MatMuls, cheaper than slicing
     xd = g.op(
@@ -54,14 +60,22 @@ def lawfree_graph(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
     scale = np.diag([1.0 / m.depth_scale_m_, 1.0 / m.speed_scale_mps_]).reshape(1, 2, 2)
     uv = g.op("Mul", g.op("MatMul", "features", g.const(scale)), contact, hint="uv")  # [1, 1, 2]
 
-    a = np.concatenate([decay, np.ones(p)])
-    b = np.concatenate([1.0 - decay, np.zeros(p)])
-    r = np.concatenate([np.full(k, _NO_CLAMP), widths])
+    a = np.concatenate([decay, np.ones(p + top)])
+    b = np.concatenate([1.0 - decay, np.zeros(p + top)])
+    below = np.concatenate([np.full(k, _NO_CLAMP), widths, np.zeros(top)])
+    above = np.concatenate([np.full(k, _NO_CLAMP), widths, np.full(top, _NO_CLAMP)])
     lin = g.op("Add", g.op("Mul", "h_in", g.const(row(a))), g.op("Mul", u, g.const(row(b))))
-    state = g.op("Min", g.op("Max", lin, g.op("Sub", u, g.const(row(r)))),
-                 g.op("Add", u, g.const(row(r))), hint="state")  # fmt: skip
+    state = g.op("Min", g.op("Max", lin, g.op("Sub", u, g.const(row(below)))),
+                 g.op("Add", u, g.const(row(above))), hint="state")  # fmt: skip
 
-    q = g.op("Concat", uv, g.op("Sub", u, state), axis=2)  # [1, 1, 2 + K + P]
+    mem = g.op("Sub", u, state)  # [1, 1, K + P (+ 1)]: the last is d = u - u_max
+    parts = [uv, mem]
+    if len(damage):
+        pick = np.zeros((k + p + top, len(damage)))
+        pick[-1] = 1.0 / damage  # d / c for each c
+        e = g.op("Exp", g.op("MatMul", mem, g.const(pick)))
+        parts.append(g.op("Mul", g.op("Sub", g.const(1.0), e), g.const(row(damage))))
+    q = g.op("Concat", *parts, axis=2)  # [1, 1, inputs]
     c = g.op("MatMul", q, g.const(w))  # [1, 1, 3 + S]: q.W_i for each basis function
     # phi = [1, w, w^2, 1 - exp(-w/a)..], w = min(u, 1): the weights stop growing past the
     # deepest training press
@@ -72,7 +86,7 @@ def lawfree_graph(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
         phi = g.op("Concat", phi, g.op("Sub", g.const(1.0), e), axis=1)  # [1, 3 + S, 1]
     f = g.op("MatMul", c, phi)  # [1, 1, 1]
     force = g.op("Mul", g.op("Relu", f), contact)
-    return stateful_model(g, len(m.features), k + p, force, state)
+    return stateful_model(g, len(m.features), k + p + top, force, state)
 
 
 def lawfree_fused(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
@@ -91,5 +105,7 @@ def lawfree_fused(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
     scales = m.readout_depth_scales
     if scales:  # absent: the readout of 1, w, w^2 alone (models exported before the scales)
         attrs.append(floats_attr("readout_depth_scales", scales))
-    state = len(decay) + len(widths)
+    if m.has_damage:  # absent: no irreversible memory (and no u_max in the state)
+        attrs.append(floats_attr("damage_frac", m.damage_fracs))
+    state = len(decay) + len(widths) + int(m.has_damage)
     return fused_stateful_model("LawFreeStep", attrs, len(m.features), state, "lawfree")
