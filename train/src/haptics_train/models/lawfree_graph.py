@@ -44,7 +44,7 @@ def lawfree_graph(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
     """The graph of fitted `m`; `decay` the filters' d_k (float32-rounded, as `predict` uses)."""
     widths = np.asarray(m.widths_, dtype=np.float64)
     k, p = len(decay), len(widths)
-    damage = np.asarray(m.damage_fracs if m.has_damage else [], dtype=np.float64)
+    damage = np.asarray(m.damage_fracs, dtype=np.float64)  # empty without the memory
     top = int(m.has_damage)  # u_max: one more state
     scales = np.asarray(m.readout_depth_scales, dtype=np.float64)
     nb = 3 + len(scales)
@@ -86,7 +86,7 @@ def lawfree_graph(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
         phi = g.op("Concat", phi, g.op("Sub", g.const(1.0), e), axis=1)  # [1, 3 + S, 1]
     f = g.op("MatMul", c, phi)  # [1, 1, 1]
     force = g.op("Mul", g.op("Relu", f), contact)
-    return stateful_model(g, len(m.features), k + p + top, force, state)
+    return stateful_model(g, len(m.features), m.state_size, force, state)
 
 
 def lawfree_fused(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
@@ -107,5 +107,5 @@ def lawfree_fused(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
         attrs.append(floats_attr("readout_depth_scales", scales))
     if m.has_damage:  # absent: no irreversible memory (and no u_max in the state)
         attrs.append(floats_attr("damage_frac", m.damage_fracs))
-    state = len(decay) + len(widths) + int(m.has_damage)
+    state = m.state_size
     return fused_stateful_model("LawFreeStep", attrs, len(m.features), state, "lawfree")
