@@ -125,7 +125,11 @@ def write_readme(
     fast_rows: list[Row] | None = None,
     settings: dict[str, tuple[Run, list[Row]]] | None = None,
     setup: dict | None = None,
+    recommendation: dict | None = None,
 ) -> Path:
+    """The study's README. `recommendation`: the pipeline's recommendation re-ranked with the
+    ranking runs' felt force (`study.run.rerank_by_felt`; None where there was none): the
+    report says which model the product serves and how it felt on these runs."""
     setup = setup or {"material": DEFAULT_MATERIAL, "bench": None, "clock": "lockstep"}
     best = best_row(rows, True)
     sd2 = sd2_row(rows)
@@ -195,6 +199,11 @@ def write_readme(
         f"- At least ten times closer than the 2nd-order spring-damper: "
         f"**{'met' if met_ratio else 'not met'}** ({fmt(k, 2)}x).\n"
     )
+    L.append(
+        "The best learned model here is the one closest on these runs, as the thesis's table "
+        "picked it; the model the product serves is chosen without them (the recommendation, "
+        "below).\n"
+    )
     pb = best_row(rows, True, key="shadow")
     if pb is not None and pb.shadow is not None and sd2 is not None and sd2.shadow is not None:
         L.append(
@@ -212,6 +221,7 @@ def write_readme(
     if notes:
         L.append("Predictions along the real interaction scored against the felt force "
                  "instead of the object's own: " + "; ".join(notes) + ".\n")  # fmt: skip
+    L.extend(recommendation_section(recommendation, rows, setup))
     fast_note = "not run."
     if fast_rows:
         fb, fsd = best_row(fast_rows, True), sd2_row(fast_rows)
@@ -392,6 +402,93 @@ def phase_section(rows: list[Row]) -> list[str]:
                 f"{abs(v['bias_n']):.3f} N {side} than on the object on average (RMSE "
                 f"{fmt(v['rmse'])} N).\n"
             )
+    return L
+
+
+def _times(v: object) -> str:
+    return f"{fmt(v, 2)}x" if isinstance(v, int | float) and math.isfinite(v) else "-"
+
+
+def recommendation_section(rec: dict | None, rows: list[Row], setup: dict) -> list[str]:
+    """Which model the product serves (`rec`: the recommendation re-ranked by the study, the
+    ranking as `fidelity.rank` wrote it), the multiples that chose it, and how it felt on these
+    runs, which chose nothing: against the oracle and sd_poly2 (issue 23's goals) and, where
+    another learned model felt closer here, by how much and why the ranking preferred the
+    recommended one. Every sentence computed from the numbers."""
+    L = ["## The recommendation: the model the product serves\n"]
+    ranking = (rec or {}).get("ranking") or []
+    if rec is None or not ranking:
+        return L + [
+            "No recommendation was ranked (the models' folder names none: a dataset without a "
+            "validation recording), so none is reported here; the tables below rank these runs "
+            "only.\n"
+        ]
+    rh = setup.get("rank_hand") or {}
+    programme = ""
+    if {"press_s", "hold_s", "release_s"} <= rh.keys():
+        programme = f": press {rh['press_s']} s, hold {rh['hold_s']} s, release {rh['release_s']} s"
+    L.append(
+        "Chosen without these runs: each model's free run on the validation recordings (the "
+        "rows where the probe is pressed and slides) and its felt force on the ranking runs "
+        f"(another hand programme and seed{programme}), each as a multiple of the best "
+        "model's; the larger of the two is the score (`fidelity.rank`). The last column is the "
+        "felt force on the runs above, scored once.\n"
+    )
+    L.append(
+        "| model | validation, sliding (N) | x best | ranking runs, felt (N) | x best | score "
+        "| these runs, felt (N) |"
+    )
+    L.append("|---|---|---|---|---|---|---|")
+    for e in ranking:
+        v = e.get("validation_sliding_rmse_n")
+        if v is None:
+            v = e.get("validation_free_run_rmse_n")
+        here = felt_rmse(named_row(rows, e["model"]))
+        L.append(
+            f"| `{e['model']}` | {fmt(v)} | {_times(e.get('validation_multiple'))} | "
+            f"{fmt(e.get('felt_rmse_n'))} | {_times(e.get('felt_multiple'))} | "
+            f"{fmt(e.get('score'), 2)} | {fmt(here if math.isfinite(here) else None)} |"
+        )
+    L.append("")
+    name = rec["recommended"]
+    mine = felt_rmse(named_row(rows, name))
+    if not math.isfinite(mine):
+        return L + [
+            f"- Recommended: `{name}`; it has no felt force on these runs (not run, or its run "
+            "is not rankable: see the flags below).\n"
+        ]
+    o, sd = felt_rmse(named_row(rows, ORACLE)), felt_rmse(sd2_row(rows))
+    parts = [f"- Recommended: `{name}`, felt {fmt(mine)} N on these runs"]
+    if math.isfinite(o) and o > 0:
+        k = mine / o
+        met = "met" if k <= 2 else "not met"
+        parts.append(f"{fmt(k, 2)}x the oracle's {fmt(o)} N (issue 23: at most 2x, {met})")
+    if math.isfinite(sd):
+        k = sd / mine
+        met = "met" if k >= 3 else "not met"
+        parts.append(f"sd_poly2 {fmt(sd)} N, {fmt(k, 2)}x its error (at least 3x, {met})")
+    L.append("; ".join(parts) + ".\n")
+    by = {e["model"]: e for e in ranking}
+    ranked = [r for r in rows if r.name in by and math.isfinite(felt_rmse(r))]
+    closest = min(ranked, key=felt_rmse, default=None)
+    if closest is None or closest.name == name:
+        L.append(f"- `{name}` is also the ranked model that felt closest on these runs.\n")
+        return L
+    c, r = by.get(closest.name), by.get(name)
+    why = ""
+    if c is not None and r is not None:
+        why = (
+            f" The ranking put `{name}` first: score {fmt(r.get('score'), 2)} (validation "
+            f"{_times(r.get('validation_multiple'))}, ranking runs "
+            f"{_times(r.get('felt_multiple'))}) against `{closest.name}`'s "
+            f"{fmt(c.get('score'), 2)} ({_times(c.get('validation_multiple'))}, "
+            f"{_times(c.get('felt_multiple'))})."
+        )
+    L.append(
+        f"- `{closest.name}` felt closer on these runs: {fmt(felt_rmse(closest))} N, "
+        f"{fmt(mine / felt_rmse(closest), 2)}x closer than `{name}`.{why} These runs choose "
+        "nothing: the product serves the recommended model.\n"
+    )
     return L
 
 

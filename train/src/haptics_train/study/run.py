@@ -164,6 +164,17 @@ def run_study(
     )
 
     results = load_results(models_dir)
+    # The re-rank's felt force comes from runs of their own (another hand programme and seed):
+    # the headline runs above are scored once and choose nothing. Done before the report, which
+    # says what was recommended and how it felt on the headline runs.
+    rank_files = [f for f in study_models(models_dir, names) if f.stem in results]
+    felt_doc = None
+    if rank_files and load_recommendation(models_dir) is not None:
+        _, rank_rows = _reproduce_all(
+            tools, rank_files, work, "rank_", rank_hand, seed + RANK_SEED_OFFSET, False, say,
+            common, clock,
+        )  # fmt: skip
+        felt_doc = rerank_by_felt(models_dir, results, rank_rows)
     total = time.perf_counter() - t_start
     write_plots(out_dir, ref, rows, rec, rep_s)
     setup = {
@@ -190,21 +201,13 @@ def run_study(
         fast_rows,
         settings,
         setup,
+        felt_doc,
     )
     doc = results_json(rows, replay, total, fast_rows)
     doc["setup"] = setup
     doc["friction"] = {k: floor_summary(v[1]) for k, v in settings.items()}
+    doc["recommendation"] = felt_doc
     (out_dir / "results.json").write_text(json.dumps(doc, indent=1))
-    # The re-rank's felt force comes from runs of their own (another hand programme and seed):
-    # the headline runs above are scored once and choose nothing.
-    rank_files = [f for f in study_models(models_dir, names) if f.stem in results]
-    felt_doc = None
-    if rank_files and load_recommendation(models_dir) is not None:
-        _, rank_rows = _reproduce_all(
-            tools, rank_files, work, "rank_", rank_hand, seed + RANK_SEED_OFFSET, False, say,
-            common, clock,
-        )  # fmt: skip
-        felt_doc = rerank_by_felt(models_dir, results, rank_rows)
     if felt_doc is not None:
         say(f"recommended (validation free run and felt force): {felt_doc['recommended']}")
         if fidelity is not None:
