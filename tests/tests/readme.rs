@@ -39,7 +39,7 @@ const LONG: &[(&str, &str)] = &[
         ".venv/bin/haptics-train train --models rf:six && .venv/bin/haptics-train export --names rf_six",
         "needs the recorded dataset; about a minute",
     ),
-    ("bash scripts/reproduction-study.sh", "about 75 s plus builds; needs trained models"),
+    ("bash scripts/reproduction-study.sh", "about 2.5 minutes plus builds; needs trained models"),
     ("bash scripts/fidelity-study.sh", "records and trains from nothing: an hour"),
     ("bash scripts/record-ood.sh", "records the suite"),
     ("bash scripts/bench-loaded.sh", "a benchmark of several minutes"),

@@ -378,3 +378,42 @@ def test_recommendation_section_names_what_is_served_and_how_it_felt() -> None:
     # no recommendation: none is named
     text = "\n".join(recommendation_section(None, rows, {}))
     assert "No recommendation was ranked" in text and "Recommended:" not in text
+
+
+def test_felt_by_press_scores_each_cycle_of_the_programme() -> None:
+    """Press k's RMSE is the error of cycle k alone (press, hold, release and rest); the first
+    rest is in no cycle; a cycle the run did not reach is NaN."""
+    from haptics_train.study.protocol import LONG_ENDS, LONG_HAND
+    from haptics_train.study.score import felt_by_press
+
+    t = np.arange(0.0, 9.5, 1e-3)
+    cycle = np.floor((t - STUDY_HAND["rest_s"]) / 3.0)
+    err = np.where(t < STUDY_HAND["rest_s"], 5.0, 0.1 * (cycle + 1))  # the first rest: ignored
+    out = felt_by_press(t, np.zeros_like(t), _phase_run(err, t), STUDY_HAND)
+    assert out == pytest.approx([0.1, 0.2, 0.3], rel=1e-9)
+    short = t < 5.0  # the run stopped in the second cycle: the third is not scored
+    out = felt_by_press(t, np.zeros_like(t), _phase_run(err[short], t[short]), STUDY_HAND)
+    assert out is not None and out[:2] == pytest.approx([0.1, 0.2]) and math.isnan(out[2])
+    assert LONG_HAND["repeats"] >= 2 * LONG_ENDS and LONG_HAND["depth_step_m"] == 0.0
+
+
+def test_long_section_compares_the_first_presses_with_the_last() -> None:
+    from haptics_train.study.protocol import LONG_HAND
+    from haptics_train.study.report import long_section
+
+    rows = [_row(ORACLE, 0.01, False), _row("sd_poly2", 1.0, False), _row("m", 0.2, True),
+            _row("steady", 0.1, True)]  # fmt: skip
+    rows[0].by_press = [0.01] * 12
+    rows[1].by_press = [1.0] * 12
+    rows[2].by_press = [0.1, 0.1, 0.1] + [0.2] * 6 + [0.3, 0.3, 0.3]
+    rows[3].by_press = [0.1] * 11 + [math.nan]  # a press it did not reach: no ratio
+    text = "\n".join(long_section(rows, LONG_HAND))
+    assert "12 presses to one set-point (31 mm" in text and "36.5 s of loop time" in text
+    assert "| `m` | 0.200 | 0.100 | 0.300 | 3.00x | 0 / 0 |" in text, text
+    assert "| `steady` | 0.100 | 0.100 | - | - |" in text, text
+    assert "- Error grown by more than a quarter from the first presses to the last: `m` " \
+           "(0.100 -> 0.300 N, 3.00x)." in text, text  # fmt: skip
+    rows[2].by_press = [0.1] * 12
+    text = "\n".join(long_section(rows, LONG_HAND))
+    assert "the first presses to the last: none." in text
+    assert long_section([], LONG_HAND) == []

@@ -35,6 +35,16 @@ RANK_SEED_OFFSET = 10
 #: The sensitivity run: the same depths, pressed and released 2.5 times faster.
 FAST_HAND = {**STUDY_HAND, "press_s": 0.4, "release_s": 0.4}
 FAST_BEST = 3
+#: The second sensitivity run: a session four times as long, twelve presses to the headline's
+#: middle set-point (36.5 s of loop time), for the models of the fast hand. Why: the headline is
+#: three presses from rest (9.5 s); a memory slower than that (a foam's compression set, which
+#: recovers over tens of seconds; `lawfree`'s 10-100 s filters) is still young there, and a
+#: user presses for longer. The report compares each model's first three presses with its last
+#: three (`score.felt_by_press`).
+LONG_HAND = {**STUDY_HAND, "depth_m": STUDY_HAND["depth_m"] + STUDY_HAND["depth_step_m"],
+             "depth_step_m": 0.0, "repeats": 12}  # fmt: skip
+#: How many presses at each end of the long session the report compares.
+LONG_ENDS = 3
 BUILTIN = "rt-loop builtin spring-damper"
 #: rt-loop's oracle model: the material's own physics driven by the measured motion, rendered
 #: through the same force loop: the rendering floor no learned model can beat.

@@ -16,6 +16,8 @@ from .protocol import (
     FAST_HAND,
     GOAL_RATIO,
     GOAL_RMSE,
+    LONG_ENDS,
+    LONG_HAND,
     ORACLE,
     STUDY_HAND,
 )
@@ -126,6 +128,7 @@ def write_readme(
     settings: dict[str, tuple[Run, list[Row]]] | None = None,
     setup: dict | None = None,
     recommendation: dict | None = None,
+    long_rows: list[Row] | None = None,
 ) -> Path:
     """The study's README. `recommendation`: the pipeline's recommendation re-ranked with the
     ranking runs' felt force (`study.run.rerank_by_felt`; None where there was none): the
@@ -329,6 +332,7 @@ def write_readme(
             )
         else:
             L.append("")
+    L.extend(long_section(long_rows, setup.get("long_hand") or LONG_HAND))
     L.append("## Timings\n")
     L.append(
         f"Whole study: {total_s:.0f} s of wall time on the shared 2-core machine (builds not "
@@ -402,6 +406,58 @@ def phase_section(rows: list[Row]) -> list[str]:
                 f"{abs(v['bias_n']):.3f} N {side} than on the object on average (RMSE "
                 f"{fmt(v['rmse'])} N).\n"
             )
+    return L
+
+
+def _press_mean(by_press: list[float] | None, part: slice) -> float:
+    """The RMSE over the presses `part` of a run's `felt_by_press` (the root of the mean of
+    their mean squares: each press is as long as the others); NaN where any is missing."""
+    vals = (by_press or [])[part]
+    if not vals or not all(math.isfinite(v) for v in vals):
+        return math.nan
+    return math.sqrt(sum(v * v for v in vals) / len(vals))
+
+
+def long_section(rows: list[Row] | None, hand: dict) -> list[str]:
+    """The longer session (`protocol.LONG_HAND`): each model's felt force over the whole
+    session and over its first and last `LONG_ENDS` presses; which models' error grew by more
+    than a quarter from the first presses to the last. Computed from the numbers."""
+    if not rows:
+        return []
+    n = int(hand["repeats"])
+    dur = hand["rest_s"] + n * (hand["press_s"] + hand["hold_s"] + hand["release_s"]
+                                + hand["rest_s"])  # fmt: skip
+    first, last = slice(0, LONG_ENDS), slice(n - LONG_ENDS, n)
+    L = ["## Sensitivity: a longer session (not part of the goal)\n"]
+    L.append(
+        f"{n} presses to one set-point ({1000 * hand['depth_m']:.0f} mm, the headline's middle "
+        f"one), the headline's timing: {dur:.1f} s of loop time against the headline's three "
+        "presses from rest, for the models of the faster hand and the oracle. A memory slower "
+        "than the headline's session shows here: the last presses against the first. Reported "
+        "whatever it shows.\n"
+    )
+    L.append(
+        f"| model | felt RMSE (N) | presses 1-{LONG_ENDS} | presses {n - LONG_ENDS + 1}-{n} "
+        "| last / first | served / fallbacks | flags |"
+    )
+    L.append("|---|---|---|---|---|---|---|")
+    grew = []
+    for r in sorted(rows, key=lambda r: (not rankable(r), repro_rmse(r))):
+        a, b = _press_mean(r.by_press, first), _press_mean(r.by_press, last)
+        k = b / a if math.isfinite(a) and math.isfinite(b) and a > 0 else math.nan
+        if r.name != ORACLE and math.isfinite(k) and k > 1.25:
+            grew.append(f"`{r.name}` ({fmt(a)} -> {fmt(b)} N, {fmt(k, 2)}x)")
+        L.append(
+            f"| `{r.name}` | {fmt(r.repro['rmse'] if r.repro else None)} | "
+            f"{fmt(a if math.isfinite(a) else None)} | {fmt(b if math.isfinite(b) else None)} | "
+            f"{_times(k)} | {r.run.served} / {r.run.fallbacks} | {flags_text(r, rows)} |"
+        )
+    L.append("")
+    L.append(
+        "- Error grown by more than a quarter from the first presses to the last: "
+        + (", ".join(grew) if grew else "none")
+        + ".\n"
+    )
     return L
 
 
@@ -559,12 +615,25 @@ def truth_text(r: Row) -> str:
 
 
 def results_json(
-    rows: list[Row], replay: dict, total_s: float, fast_rows: list[Row] | None = None
+    rows: list[Row],
+    replay: dict,
+    total_s: float,
+    fast_rows: list[Row] | None = None,
+    long_rows: list[Row] | None = None,
 ) -> dict:
     return {
         "total_wall_s": total_s,
         "position_replay": replay,
         "fast_hand": {r.name: r.repro for r in fast_rows or []},
+        "long_session": {
+            r.name: {
+                "reproduction": r.repro,
+                "felt_by_press": (
+                    None if r.by_press is None else [nan_to_none(v) for v in r.by_press]
+                ),
+            }
+            for r in long_rows or []
+        },
         "models": {
             r.name: {
                 "how": r.how,

@@ -21,6 +21,7 @@ from .protocol import (
     DEFAULT_MATERIAL,
     FAST_BEST,
     FAST_HAND,
+    LONG_HAND,
     ORACLE,
     RANK_HAND,
     RANK_SEED_OFFSET,
@@ -33,6 +34,7 @@ from .score import (
     Row,
     compare,
     felt_by_phase,
+    felt_by_press,
     felt_rmse,
     floor_summary,
     prediction_along_real,
@@ -105,8 +107,8 @@ def run_study(
     # every hand pressed no harder than the bench renders (hand.py): the standard set-points,
     # or all of them scaled by one factor searched on the reference alone
     hand_fit = fit_hand(tools, work, STUDY_HAND, seed, common, clock, say)
-    hand, fast_hand, rank_hand = (
-        scaled_hand(h, hand_fit["factor"]) for h in (STUDY_HAND, FAST_HAND, RANK_HAND)
+    hand, fast_hand, rank_hand, long_hand = (
+        scaled_hand(h, hand_fit["factor"]) for h in (STUDY_HAND, FAST_HAND, RANK_HAND, LONG_HAND)
     )
     settings: dict[str, tuple[Run, list[Row]]] = {}
     settings["off"] = _reproduce_all(
@@ -131,6 +133,11 @@ def run_study(
     fast_files = [f for f in files if f.stem in keep]
     fast_ref, fast_rows = _reproduce_all(
         tools, fast_files, work, "fast_", fast_hand, seed, False, say, extra, clock
+    )
+    # A session four times as long for the same models: does a model's error grow as its
+    # slow memories leave the state they start a session in?
+    _, long_rows = _reproduce_all(
+        tools, fast_files, work, "long_", long_hand, seed, False, say, extra, clock
     )
 
     rep = run_loop(
@@ -185,6 +192,7 @@ def run_study(
         "hand": hand,
         "fast_hand": fast_hand,
         "rank_hand": rank_hand,
+        "long_hand": long_hand,
         "hand_fit": hand_fit,
     }
     readme = write_readme(
@@ -202,8 +210,9 @@ def run_study(
         settings,
         setup,
         felt_doc,
+        long_rows,
     )
-    doc = results_json(rows, replay, total, fast_rows)
+    doc = results_json(rows, replay, total, fast_rows, long_rows)
     doc["setup"] = setup
     doc["friction"] = {k: floor_summary(v[1]) for k, v in settings.items()}
     doc["recommendation"] = felt_doc
@@ -276,7 +285,8 @@ def _reproduce_all(
         r = loop(name, "reproduction", "reproduction", f"repro_{file}", flags)
         score = score_run(t_ref, f_ref, r)
         phases = felt_by_phase(t_ref, f_ref, r, hand)
-        rows.append(Row(r.name, how, score, None, r, None, False, by_phase=phases))
+        rows.append(Row(r.name, how, score, None, r, None, False, by_phase=phases,
+                        by_press=felt_by_press(t_ref, f_ref, r, hand)))  # fmt: skip
         return score
 
     ro = rt_loop_row(ORACLE, "oracle", "rt-loop oracle", ("--model", "oracle"))
@@ -295,8 +305,9 @@ def _reproduce_all(
         learned = name not in SPRING_DAMPERS
         phases = felt_by_phase(t_ref, f_ref, r, hand)
         rows.append(
-            Row(name, "served ONNX", repro, sh_m, r, sh, learned, sh_truth, sh_note, phases)
-        )
+            Row(name, "served ONNX", repro, sh_m, r, sh, learned, sh_truth, sh_note, phases,
+                felt_by_press(t_ref, f_ref, r, hand))
+        )  # fmt: skip
         say(
             f"{tag}{name}: felt-force RMSE {fmt(repro['rmse'] if repro else None)} N, "
             f"{r.served} served / {r.fallbacks} fallbacks, stop {r.stop or '-'}, "

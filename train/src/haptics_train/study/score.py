@@ -80,6 +80,19 @@ def hand_phase(t: np.ndarray, hand: dict[str, float]) -> np.ndarray:
     return np.where(outside, rest, np.minimum(phase, rest))
 
 
+def felt_error(
+    t_ref: np.ndarray, f_ref: np.ndarray, r: Run
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """A run's felt force minus the reference's on the reference's time stamps, and the mask
+    of those the run covered (`align`); None for a run with nothing to score."""
+    if not r.series or r.steps == 0:
+        return None
+    y, covered = align(t_ref, r.series["time"], r.series["F_true"])
+    if not covered.any():
+        return None
+    return y - np.asarray(f_ref, dtype=np.float64), covered
+
+
 def felt_by_phase(
     t_ref: np.ndarray, f_ref: np.ndarray, r: Run, hand: dict[str, float]
 ) -> dict[str, dict[str, float | None]] | None:
@@ -89,12 +102,10 @@ def felt_by_phase(
     force than on the real object, i.e. the rendering is softer there). Scored where the run
     covered the reference, like `compare` (shares of an error that is exactly zero are None);
     None for a run with nothing to score."""
-    if not r.series or r.steps == 0:
+    err = felt_error(t_ref, f_ref, r)
+    if err is None:
         return None
-    y, covered = align(t_ref, r.series["time"], r.series["F_true"])
-    if not covered.any():
-        return None
-    e = (y - np.asarray(f_ref, dtype=np.float64))[covered]
+    e, covered = err[0][err[1]], err[1]
     ph = hand_phase(t_ref, hand)[covered]
     total = float(np.sum(e**2))
     out: dict[str, dict[str, float | None]] = {}
@@ -109,6 +120,27 @@ def felt_by_phase(
             "rmse": math.sqrt(sq / int(m.sum())),
             "bias_n": float(e[m].mean()),
         }
+    return out
+
+
+def felt_by_press(
+    t_ref: np.ndarray, f_ref: np.ndarray, r: Run, hand: dict[str, float]
+) -> list[float] | None:
+    """A run's felt-force RMSE over each cycle of the hand programme (press, hold, release and
+    rest; the first rest and anything after the last cycle left out), in order; scored where
+    the run covered the reference, like `compare`; a cycle it did not cover at all is NaN.
+    None for a run with nothing to score."""
+    err = felt_error(t_ref, f_ref, r)
+    if err is None:
+        return None
+    e, covered = err
+    t = np.asarray(t_ref, dtype=np.float64) - float(t_ref[0]) - hand["rest_s"]
+    period = hand["press_s"] + hand["hold_s"] + hand["release_s"] + hand["rest_s"]
+    k = np.floor(t / period)
+    out = []
+    for i in range(int(hand["repeats"])):
+        m = (k == i) & covered
+        out.append(math.sqrt(float(np.mean(e[m] ** 2))) if m.any() else math.nan)
     return out
 
 
@@ -127,6 +159,8 @@ class Row:
     shadow_note: str = ""
     #: `felt_by_phase` of the reproduction: where in the hand programme its error sits
     by_phase: dict[str, dict[str, float | None]] | None = None
+    #: `felt_by_press` of the reproduction: its felt-force RMSE press by press
+    by_press: list[float] | None = None
 
 
 def prediction_along_real(sh: Run) -> tuple[dict[str, float] | None, str, str]:
