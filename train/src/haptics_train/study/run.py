@@ -1,6 +1,7 @@
 """Running the study: the reference, the oracle, every served model and the builtin
-spring-damper with the same hand, seed and material (and again with friction compensation, and
-with a faster hand), the position replay; then the scores, figures and report."""
+spring-damper with the same hand, seed and material (and again with friction compensation,
+with a faster hand and over a longer session), the position replay, the ranking runs that
+re-rank the recommendation; then the scores, figures and report."""
 
 from __future__ import annotations
 
