@@ -17,6 +17,7 @@ from .protocol import (
     GOAL_RATIO,
     GOAL_RMSE,
     LONG_ENDS,
+    LONG_GREW,
     LONG_HAND,
     ORACLE,
     STUDY_HAND,
@@ -30,6 +31,7 @@ from .score import (
     floor_summary,
     named_row,
     nan_to_none,
+    programme_s,
     rankable,
     ratio,
     repro_rmse,
@@ -142,7 +144,7 @@ def write_readme(
     met_rmse = best_rmse <= GOAL_RMSE
     met_ratio = math.isfinite(k) and k >= GOAL_RATIO
     h = setup.get("hand") or STUDY_HAND
-    dur = h["rest_s"] + h["repeats"] * (h["press_s"] + h["hold_s"] + h["release_s"] + h["rest_s"])
+    dur = programme_s(h)
     L: list[str] = []
     L.append("# Reproduction study (thesis 6.4.3 and 6.4.4) on the simulated bench\n")
     L.append(
@@ -421,12 +423,11 @@ def _press_mean(by_press: list[float] | None, part: slice) -> float:
 def long_section(rows: list[Row] | None, hand: dict) -> list[str]:
     """The longer session (`protocol.LONG_HAND`): each model's felt force over the whole
     session and over its first and last `LONG_ENDS` presses; which models' error grew by more
-    than a quarter from the first presses to the last. Computed from the numbers."""
+    than `LONG_GREW` times from the first presses to the last. Computed from the numbers."""
     if not rows:
         return []
     n = int(hand["repeats"])
-    dur = hand["rest_s"] + n * (hand["press_s"] + hand["hold_s"] + hand["release_s"]
-                                + hand["rest_s"])  # fmt: skip
+    dur = programme_s(hand)
     first, last = slice(0, LONG_ENDS), slice(n - LONG_ENDS, n)
     L = ["## Sensitivity: a longer session (not part of the goal)\n"]
     L.append(
@@ -445,7 +446,7 @@ def long_section(rows: list[Row] | None, hand: dict) -> list[str]:
     for r in sorted(rows, key=lambda r: (not rankable(r), repro_rmse(r))):
         a, b = _press_mean(r.by_press, first), _press_mean(r.by_press, last)
         k = b / a if math.isfinite(a) and math.isfinite(b) and a > 0 else math.nan
-        if r.name != ORACLE and math.isfinite(k) and k > 1.25:
+        if r.name != ORACLE and math.isfinite(k) and k > LONG_GREW:
             grew.append(f"`{r.name}` ({fmt(a)} -> {fmt(b)} N, {fmt(k, 2)}x)")
         L.append(
             f"| `{r.name}` | {fmt(r.repro['rmse'] if r.repro else None)} | "
@@ -473,7 +474,7 @@ def recommendation_section(rec: dict | None, rows: list[Row], setup: dict) -> li
     recommended one. Every sentence computed from the numbers."""
     L = ["## The recommendation: the model the product serves\n"]
     ranking = (rec or {}).get("ranking") or []
-    if rec is None or not ranking:
+    if not ranking:
         return L + [
             "No recommendation was ranked (the models' folder names none: a dataset without a "
             "validation recording), so none is reported here; the tables below rank these runs "
@@ -530,20 +531,17 @@ def recommendation_section(rec: dict | None, rows: list[Row], setup: dict) -> li
     if closest is None or closest.name == name:
         L.append(f"- `{name}` is also the ranked model that felt closest on these runs.\n")
         return L
-    c, r = by.get(closest.name), by.get(name)
-    why = ""
-    if c is not None and r is not None:
-        why = (
-            f" The ranking put `{name}` first: score {fmt(r.get('score'), 2)} (validation "
-            f"{_times(r.get('validation_multiple'))}, ranking runs "
-            f"{_times(r.get('felt_multiple'))}) against `{closest.name}`'s "
-            f"{fmt(c.get('score'), 2)} ({_times(c.get('validation_multiple'))}, "
-            f"{_times(c.get('felt_multiple'))})."
-        )
+    # both are in the ranking: `closest` was picked among its models, `name` heads it
+    c, served = by[closest.name], by[name]
     L.append(
         f"- `{closest.name}` felt closer on these runs: {fmt(felt_rmse(closest))} N, "
-        f"{fmt(mine / felt_rmse(closest), 2)}x closer than `{name}`.{why} These runs choose "
-        "nothing: the product serves the recommended model.\n"
+        f"{fmt(mine / felt_rmse(closest), 2)}x closer than `{name}`. The ranking put `{name}` "
+        f"first: score {fmt(served.get('score'), 2)} (validation "
+        f"{_times(served.get('validation_multiple'))}, ranking runs "
+        f"{_times(served.get('felt_multiple'))}) against `{closest.name}`'s "
+        f"{fmt(c.get('score'), 2)} ({_times(c.get('validation_multiple'))}, "
+        f"{_times(c.get('felt_multiple'))}). These runs choose nothing: the product serves "
+        "the recommended model.\n"
     )
     return L
 

@@ -63,6 +63,16 @@ def ratio(sd_rmse: float, best_rmse: float) -> float:
 HAND_PHASES = ("press", "hold", "release", "rest")
 
 
+def cycle_s(hand: dict[str, float]) -> float:
+    """One cycle of the hand programme: press, hold, release and rest."""
+    return hand["press_s"] + hand["hold_s"] + hand["release_s"] + hand["rest_s"]
+
+
+def programme_s(hand: dict[str, float]) -> float:
+    """The whole programme's loop time: the first rest, then every cycle."""
+    return hand["rest_s"] + hand["repeats"] * cycle_s(hand)
+
+
 def hand_phase(t: np.ndarray, hand: dict[str, float]) -> np.ndarray:
     """Which phase of the hand programme each time stamp falls in (an index into
     HAND_PHASES), as rt-loop's hand computes its set-point: a rest of `rest_s` first, then
@@ -135,8 +145,7 @@ def felt_by_press(
         return None
     e, covered = err
     t = np.asarray(t_ref, dtype=np.float64) - float(t_ref[0]) - hand["rest_s"]
-    period = hand["press_s"] + hand["hold_s"] + hand["release_s"] + hand["rest_s"]
-    k = np.floor(t / period)
+    k = np.floor(t / cycle_s(hand))
     out = []
     for i in range(int(hand["repeats"])):
         m = (k == i) & covered
