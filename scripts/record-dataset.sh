@@ -25,7 +25,9 @@
 #        5 kHz rows, ~290 MB; the loop and its online features always run at 10 kHz),
 #        SEED (default 1; the test recording uses SEED + 1), PRESSES (default 0; 1 adds the
 #        two press-and-hold recordings above, ~145 MB at DECIMATE=1).
-# Existing files are kept (delete one to record it again).
+# Existing files are kept (delete one to record it again). A run that stops before its end
+# (rt-loop's stop line says why) leaves its rows in OUTDIR/.NAME.partial.parquet, not used,
+# and ends the script with exit 1; the next run records NAME again.
 set -euo pipefail
 who=record-dataset
 # shellcheck source=scripts/record-lib.sh

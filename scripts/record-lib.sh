@@ -6,7 +6,9 @@
 #   material, bench_args    the simulated object and the bench file (--material, --bench)
 #   out                     the output folder (the first remaining argument, else DEFAULT_OUT)
 #   record_run NAME SEED ARGS...   records $out/NAME.parquet with `rt-loop run ARGS` on the
-#                                  lockstep clock at 10 kHz, unless the file exists
+#                                  lockstep clock at 10 kHz, unless the file exists; a run
+#                                  that stops early leaves $out/.NAME.partial.parquet instead
+#                                  and ends the script (exit 1)
 # and the environment: DECIMATE (default 1: every step), HAPTICS_RT_LOOP (an rt-loop binary
 # to use instead of building one).
 
@@ -63,8 +65,20 @@ record_run() { # name seed rt-loop-run-args...
     echo "$who: $file exists, skipped"
     return
   fi
-  local t0=$SECONDS
+  local t0=$SECONDS rc=0
   "$bin" run --clock lockstep --rate-hz 10000 --seed "$seed" --material "$material" \
-    "${bench_args[@]}" --decimate "$decimate" --record "$file" --no-progress "$@"
+    "${bench_args[@]}" --decimate "$decimate" --record "$file" --no-progress "$@" || rc=$?
+  if [ "$rc" != 0 ]; then
+    # A run that stopped early (rt-loop's `stop:` line above says why) must not pass for a
+    # recording: the next run would skip it as done. Its rows are kept, out of the dataset's
+    # way (the loaders read train_*/validation_*/test_*, not hidden files).
+    if [ -f "$file" ]; then
+      mv -f "$file" "$out/.$name.partial.parquet"
+      echo "$who: $name did not finish (rt-loop exit $rc, stop line above); its rows so far are in $out/.$name.partial.parquet, not used; $file not written" >&2
+    else
+      echo "$who: $name did not finish (rt-loop exit $rc, above); nothing recorded" >&2
+    fi
+    exit 1
+  fi
   echo "$who: $file: $(du -h "$file" | cut -f1), $((SECONDS - t0)) s"
 }

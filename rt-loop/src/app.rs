@@ -138,6 +138,14 @@ pub fn print_summary(s: &crate::run::RunSummary) {
         "rt-loop: {} ({} clock): {} steps, {:.3} s loop time in {:.2} s wall ({:.0} steps/s), stop: {}",
         s.experiment, s.clock, s.steps, s.loop_time_s, s.wall_s, s.steps_per_s, s.stop
     );
+    if let Some(t) = s.ramp_turns.filter(|t| t.cycles_turned > 0) {
+        eprintln!(
+            "rt-loop: ramps: {} cycle(s) turned round at the depth bound {:.1} mm before their F_max (the object is too soft for it within the travel); later cycles capped at {:.2} N",
+            t.cycles_turned,
+            t.turn_depth_m * 1e3,
+            t.f_cap_n
+        );
+    }
     if let Some(r) = &s.recorder {
         eprintln!(
             "rt-loop: recorder: {} rows pushed, {} received, {} written, {} dropped, {} bytes -> {}",

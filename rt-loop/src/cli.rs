@@ -406,6 +406,10 @@ pub struct RunArgs {
     /// Fraction of F_max a partial unload takes off (0..1).
     #[arg(long)]
     pub minor_depth: Option<f64>,
+    /// A ramp turns round when the probe reaches this fraction of the position limit
+    /// (default 0.8): an object too soft for F_max is pressed as deep as the travel allows.
+    #[arg(long)]
+    pub turn_depth_frac: Option<f64>,
     /// F_max never exceeds this, N (default 14; at most 15, the motor's continuous force).
     #[arg(long)]
     pub f_max_limit: Option<f64>,
@@ -480,6 +484,7 @@ impl RunArgs {
         set!(c.ramp.f_max_list, self.f_max_list);
         set!(c.ramp.minor_loops, self.minor_loops);
         set!(c.ramp.minor_depth, self.minor_depth);
+        set!(c.ramp.turn_depth_frac, self.turn_depth_frac);
         set!(c.decimate, self.decimate);
         if self.overwrite {
             c.overwrite = true;

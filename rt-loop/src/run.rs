@@ -67,6 +67,9 @@ pub struct RunSummary {
     pub board: crate::board::BoardHealth,
     /// Reproduction/shadow: the passivity layer's figures (crate::passivity).
     pub passivity: Option<crate::passivity::PassivityReport>,
+    /// Abstraction: the ramps that turned round at the depth bound
+    /// (crate::experiment::RampSchedule). `None` for other experiments.
+    pub ramp_turns: Option<crate::experiment::RampTurns>,
     pub warnings: Vec<String>,
 }
 
@@ -105,7 +108,9 @@ pub fn metadata_json(cfg: &RunConfig, material_text: &str, model_name: &str) -> 
 /// Builds the experiment (loads trajectories; allocation happens here, before the loop).
 pub fn build_experiment(cfg: &RunConfig, model: Option<Box<dyn ForceModel>>) -> Result<Experiment> {
     Ok(match cfg.experiment {
-        ExperimentKind::Abstraction => Experiment::Abstraction(RampSchedule::new(&cfg.ramp)),
+        ExperimentKind::Abstraction => {
+            Experiment::Abstraction(RampSchedule::new(&cfg.ramp, cfg.params.position_limit))
+        }
         ExperimentKind::PositionReplay if cfg.friction_sweep => {
             let plan = crate::control::friction_id::SweepPlan::default();
             plan.validate(cfg.params.position_limit)
@@ -490,6 +495,7 @@ fn drive(
         max_step_ms: rig.max_dt() * 1e3,
         board: rig.board_health(),
         passivity: ladder.map(|_| rig.passivity.report()),
+        ramp_turns: rig.experiment.ramp_turns(),
         warnings,
     })
 }

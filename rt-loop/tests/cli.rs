@@ -338,3 +338,80 @@ fn default_material_is_found_from_any_working_directory() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// An object too soft to carry F_max within the travel (a Bouc-Wen pad at an eighth of the
+/// repository's stiffness, no cubic term: about 5 N at 50 mm): the ramps turn round at
+/// 0.8 of the position limit instead of running the probe into it, the run finishes, the
+/// summary counts the turns, and the probe never reaches the limit.
+#[test]
+fn ramps_turn_round_on_an_object_too_soft_for_f_max() {
+    let dir = common::tmpdir("cli-soft");
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../materials/bouc-wen.toml"
+    ))
+    .unwrap()
+    .replace("stiffness_n_per_m = 800.0", "stiffness_n_per_m = 100.0")
+    .replace("cubic_n_per_m3 = 1.0e6", "cubic_n_per_m3 = 0.0");
+    let material = dir.join("soft.toml");
+    std::fs::write(&material, text).unwrap();
+    let out = dir.join("r.csv");
+    let run = |extra: &[&str]| {
+        bin()
+            .args([
+                "run",
+                "--clock",
+                "lockstep",
+                "--rate-hz",
+                "10000",
+                "--seed",
+                "1",
+            ])
+            .args(["--ramp-rate", "8", "--cycles", "3", "--f-max-start", "3"])
+            .args([
+                "--f-max-step",
+                "3",
+                "--hold-zero",
+                "0.3",
+                "--hold-max",
+                "0.3",
+            ])
+            .args(["--format", "csv", "--no-progress", "--overwrite"])
+            .args(extra)
+            .arg("--material")
+            .arg(&material)
+            .arg("--record")
+            .arg(&out)
+            .output()
+            .unwrap()
+    };
+    let o = run(&[]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("stop: finished"), "{err}");
+    // 3 N stays shallow; 6 and 9 N would pass 40 mm: both turn, the third capped at the
+    // force the second reached
+    assert!(
+        err.contains("rt-loop: ramps: 2 cycle(s) turned round at the depth bound 40.0 mm"),
+        "{err}"
+    );
+    let c = read_columns(&out, &["position_x", "F_ref"]).unwrap();
+    let deepest = c[0].iter().cloned().fold(f64::MIN, f64::max);
+    // it went on past 40 mm (80 mm/s at the turn) but stopped short of the 50 mm limit
+    assert!(deepest > 0.040 && deepest < 0.049, "deepest {deepest} m");
+    let peak = c[1].iter().cloned().fold(0.0, f64::max);
+    assert!(
+        peak > 3.0 && peak < 6.0,
+        "turned before 6 N: peak F_ref {peak}"
+    );
+    // the bound at the limit itself leaves the probe no room to stop: the run ends there
+    let o = run(&["--turn-depth-frac", "1.0"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("stop: position-limit"),
+        "{err}"
+    );
+    let o = run(&["--turn-depth-frac", "1.5"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("turn_depth_frac must be in (0, 1]"));
+}

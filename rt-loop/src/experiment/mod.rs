@@ -37,6 +37,11 @@ pub struct RampConfig {
     /// (1 - minor_depth) F_max and back up, this many times, before the full unload.
     pub minor_loops: u32,
     pub minor_depth: f64,
+    /// A ramp turns round when the probe reaches this fraction of the position limit
+    /// ([`RampSchedule`]): an object too soft to carry F_max within the travel is pressed as
+    /// deep as the travel allows, and the run goes on instead of stopping at the limit. In
+    /// (0, 1].
+    pub turn_depth_frac: f64,
 }
 
 impl Default for RampConfig {
@@ -53,6 +58,7 @@ impl Default for RampConfig {
             f_max_list: Vec::new(),
             minor_loops: 0,
             minor_depth: 0.5,
+            turn_depth_frac: 0.8,
         }
     }
 }
@@ -91,6 +97,16 @@ impl RampConfig {
         }
         if !(self.minor_depth.is_finite() && self.minor_depth > 0.0 && self.minor_depth < 1.0) {
             return Err(format!("minor_depth must be in (0, 1) (got {})", self.minor_depth).into());
+        }
+        if !(self.turn_depth_frac.is_finite()
+            && self.turn_depth_frac > 0.0
+            && self.turn_depth_frac <= 1.0)
+        {
+            return Err(format!(
+                "turn_depth_frac must be in (0, 1] of the position limit (got {})",
+                self.turn_depth_frac
+            )
+            .into());
         }
         require_non_negative(&[
             ("f_max_start", self.f_max_start),
@@ -131,48 +147,130 @@ struct Segment {
     f0: f64,
     f1: f64,
     phase: Phase,
+    /// The cycle this segment belongs to (`u32::MAX`: the final hold).
+    cycle: u32,
 }
 
 /// The piecewise-linear force command of the abstraction phase.
+///
+/// A force ramp presses an object as deep as its F_max takes it. An object too soft to carry
+/// F_max within the bench's travel would run the probe into the position limit, and the run
+/// would stop there with the rest of the programme unrecorded. So the schedule **turns
+/// round at a depth** (`turn_depth_m`, by default 0.8 of the position limit: see
+/// [`RampConfig::turn_depth_frac`]): when the probe reaches it while the force is rising or
+/// held, that cycle unloads from the force reached, and every later cycle's F_max is capped at
+/// that force (the lowest such force, if it happens again). A rig operator does the same by
+/// hand. The objects of this repository never reach it (their ramps stay within 30 mm).
 #[derive(Clone, Debug)]
 pub struct RampSchedule {
     segs: Vec<Segment>,
     cursor: usize,
+    shape: RampShape,
+    /// Each cycle's F_max as planned, N.
+    f_max: Vec<f64>,
+    turn_depth_m: f64,
+    turns: RampTurns,
+}
+
+/// How far ahead a ramp looks for the turn depth, s: the probe goes on after the force
+/// command turns (its mass, the force loop's lag), about 10 mm at 80 mm/s on a 100 N/m pad
+/// ramped at 8 N/s, the whole margin to the position limit. Looking further ahead turns
+/// ramps on objects that would have stopped the probe by themselves: the default sponge
+/// ramped at 50 N/s reaches 30 mm at up to 70 mm/s.
+pub const TURN_LOOKAHEAD_S: f64 = 0.05;
+
+/// The timing of a cycle (from [`RampConfig`]), kept to rebuild the cycles after a turn.
+#[derive(Clone, Copy, Debug)]
+struct RampShape {
+    ramp_rate: f64,
+    hold_zero_s: f64,
+    hold_max_s: f64,
+    final_hold_s: f64,
+    minor_loops: u32,
+    minor_depth: f64,
+}
+
+/// How often and where the ramps turned round at the depth bound ([`RampSchedule`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct RampTurns {
+    /// The depth at which a ramp turns round, m.
+    pub turn_depth_m: f64,
+    /// Cycles that turned round before their planned F_max.
+    pub cycles_turned: u32,
+    /// The force every later cycle is capped at (the lowest force reached at a turn), N; 0 when
+    /// no cycle turned.
+    pub f_cap_n: f64,
 }
 
 impl RampSchedule {
-    pub fn new(c: &RampConfig) -> Self {
-        let mut segs = Vec::new();
-        let mut t = 0.0;
-        let mut push = |segs: &mut Vec<Segment>, len: f64, f0: f64, f1: f64, phase| {
+    /// The schedule of `c`, turning round at `c.turn_depth_frac` of `position_limit_m`.
+    pub fn new(c: &RampConfig, position_limit_m: f64) -> Self {
+        let shape = RampShape {
+            ramp_rate: c.ramp_rate,
+            hold_zero_s: c.hold_zero_s,
+            hold_max_s: c.hold_max_s,
+            final_hold_s: c.final_hold_s,
+            minor_loops: c.minor_loops,
+            minor_depth: c.minor_depth,
+        };
+        let f_max: Vec<f64> = (0..c.n_cycles()).map(|k| c.f_max(k)).collect();
+        let turn_depth_m = c.turn_depth_frac * position_limit_m;
+        let mut s = RampSchedule {
+            segs: Vec::new(),
+            cursor: 0,
+            shape,
+            f_max,
+            turn_depth_m,
+            turns: RampTurns {
+                turn_depth_m,
+                ..RampTurns::default()
+            },
+        };
+        s.build_from(0, 0.0, f64::INFINITY);
+        s
+    }
+
+    /// Appends the cycles from `first` on, starting at `t`, each F_max capped at `cap`, and
+    /// the final hold. Allocates only when the segments outgrow their capacity: never after a
+    /// turn, which replaces the rest of a cycle by one segment and leaves the later cycles
+    /// their number of segments.
+    fn build_from(&mut self, first: usize, mut t: f64, cap: f64) {
+        let c = self.shape;
+        let segs = &mut self.segs;
+        let mut push = |len: f64, f0: f64, f1: f64, phase, cycle: u32| {
             segs.push(Segment {
                 t0: t,
                 t1: t + len,
                 f0,
                 f1,
                 phase,
+                cycle,
             });
             t += len;
         };
-        for k in 0..c.n_cycles() {
-            let fm = c.f_max(k);
-            push(&mut segs, c.hold_zero_s, 0.0, 0.0, Phase::HoldZero);
-            push(&mut segs, fm / c.ramp_rate, 0.0, fm, Phase::RampUp);
-            push(&mut segs, c.hold_max_s, fm, fm, Phase::HoldMax);
+        for (k, &planned) in self.f_max.iter().enumerate().skip(first) {
+            let (fm, k) = (planned.min(cap), k as u32);
+            push(c.hold_zero_s, 0.0, 0.0, Phase::HoldZero, k);
+            push(fm / c.ramp_rate, 0.0, fm, Phase::RampUp, k);
+            push(c.hold_max_s, fm, fm, Phase::HoldMax, k);
             let fl = fm * (1.0 - c.minor_depth);
             for _ in 0..c.minor_loops {
-                push(&mut segs, (fm - fl) / c.ramp_rate, fm, fl, Phase::RampDown);
-                push(&mut segs, (fm - fl) / c.ramp_rate, fl, fm, Phase::RampUp);
-                push(&mut segs, c.hold_max_s, fm, fm, Phase::HoldMax);
+                push((fm - fl) / c.ramp_rate, fm, fl, Phase::RampDown, k);
+                push((fm - fl) / c.ramp_rate, fl, fm, Phase::RampUp, k);
+                push(c.hold_max_s, fm, fm, Phase::HoldMax, k);
             }
-            push(&mut segs, fm / c.ramp_rate, fm, 0.0, Phase::RampDown);
+            push(fm / c.ramp_rate, fm, 0.0, Phase::RampDown, k);
         }
-        push(&mut segs, c.final_hold_s, 0.0, 0.0, Phase::HoldZero);
-        RampSchedule { segs, cursor: 0 }
+        push(c.final_hold_s, 0.0, 0.0, Phase::HoldZero, u32::MAX);
     }
 
     pub fn duration(&self) -> f64 {
         self.segs.last().map_or(0.0, |s| s.t1)
+    }
+
+    /// The turns so far.
+    pub fn turns(&self) -> RampTurns {
+        self.turns
     }
 
     /// Command at time `t` (s since the run started); times only move forward, so the lookup
@@ -193,6 +291,50 @@ impl RampSchedule {
                 (s.phase, s.f0 + (s.f1 - s.f0) * u.clamp(0.0, 1.0))
             }
         }
+    }
+
+    /// Command at time `t` with the probe at depth `x` (m) moving at `v` (m/s): as
+    /// [`Self::at`], turning the cycle round first when the probe will reach the turn depth
+    /// within [`TURN_LOOKAHEAD_S`] while the force is rising or held. Runs on the loop thread:
+    /// no allocation (the rebuilt segments fit the capacity the schedule was built with), no
+    /// lock.
+    #[inline]
+    pub fn at_depth(&mut self, t: f64, x: f64, v: f64) -> (Phase, f64) {
+        let (phase, f) = self.at(t);
+        let ahead = x + TURN_LOOKAHEAD_S * v.max(0.0);
+        if ahead >= self.turn_depth_m && f > 0.0 && matches!(phase, Phase::RampUp | Phase::HoldMax)
+        {
+            self.turn(t, f);
+            return self.at(t);
+        }
+        (phase, f)
+    }
+
+    /// Unloads the current cycle from `f` (N) at `t`, and caps every later cycle at `f`.
+    fn turn(&mut self, t: f64, f: f64) {
+        let Some(cycle) = self.segs.get(self.cursor).map(|s| s.cycle) else {
+            return;
+        };
+        let cap = if self.turns.cycles_turned == 0 {
+            f
+        } else {
+            self.turns.f_cap_n.min(f)
+        };
+        self.turns.f_cap_n = cap;
+        self.turns.cycles_turned += 1;
+        let capacity = self.segs.capacity();
+        self.segs.truncate(self.cursor);
+        let len = f / self.shape.ramp_rate;
+        self.segs.push(Segment {
+            t0: t,
+            t1: t + len,
+            f0: f,
+            f1: 0.0,
+            phase: Phase::RampDown,
+            cycle,
+        });
+        self.build_from(cycle as usize + 1, t + len, cap);
+        debug_assert_eq!(self.segs.capacity(), capacity, "a turn must not allocate");
     }
 }
 
@@ -404,6 +546,14 @@ impl Experiment {
         }
     }
 
+    /// The abstraction ramps' turns at the depth bound (`None` for other experiments).
+    pub fn ramp_turns(&self) -> Option<RampTurns> {
+        match self {
+            Experiment::Abstraction(s) => Some(s.turns()),
+            _ => None,
+        }
+    }
+
     pub fn model_stats(&self) -> Option<ModelStats> {
         match self {
             Experiment::Reproduction { stats, .. } => Some(*stats),
@@ -424,7 +574,7 @@ impl Experiment {
     pub fn decide(&mut self, step: u64, time: f64, est: &Estimate, feats: &Features) -> Decision {
         match self {
             Experiment::Abstraction(s) => {
-                let (phase, f) = s.at(time);
+                let (phase, f) = s.at_depth(time, est.x, est.v);
                 Decision {
                     phase,
                     command: if phase == Phase::Done {
@@ -515,7 +665,7 @@ mod tests {
             final_hold_s: 1.0,
             ..RampConfig::default()
         };
-        let mut s = RampSchedule::new(&c);
+        let mut s = RampSchedule::new(&c, 0.05);
         // 3 cycles: holds 3*1 + 3*0.5 + ramps 2*(1+2+3)/2 = 6 + final 1
         assert!((s.duration() - (3.0 + 1.5 + 6.0 + 1.0)).abs() < 1e-12);
         assert_eq!(s.at(0.5), (Phase::HoldZero, 0.0));
@@ -551,7 +701,7 @@ mod tests {
         c.validate().unwrap();
         assert_eq!(c.n_cycles(), 2);
         assert_eq!((c.f_max(0), c.f_max(1)), (4.0, 2.0));
-        let mut s = RampSchedule::new(&c);
+        let mut s = RampSchedule::new(&c, 0.05);
         // cycle 1: hold 1, up 4, hold 1, down 2 (to 2 N), up 2, hold 1, down 4 = 15 s;
         // cycle 2: 1 + 2 + 1 + 1 + 1 + 1 + 2 = 9 s; final 1 s
         assert!((s.duration() - 25.0).abs() < 1e-12);
@@ -572,6 +722,73 @@ mod tests {
             ..RampConfig::default()
         };
         assert!(bad.validate().is_err());
+    }
+
+    /// An object too soft for F_max: the probe reaches the turn depth on the way up, that cycle
+    /// unloads from the force reached, every later cycle is capped at it, and nothing is
+    /// allocated by the turn.
+    #[test]
+    fn a_ramp_turns_round_at_the_depth_bound() {
+        let c = RampConfig {
+            ramp_rate: 1.0,
+            f_max_list: vec![2.0, 6.0, 8.0],
+            minor_loops: 1,
+            hold_zero_s: 1.0,
+            hold_max_s: 1.0,
+            final_hold_s: 1.0,
+            ..RampConfig::default()
+        };
+        c.validate().unwrap();
+        let mut s = RampSchedule::new(&c, 0.05);
+        let capacity = s.segs.capacity();
+        let planned = s.duration();
+        // cycle 1 (2 N) stays shallow: no turn
+        assert_eq!(s.at_depth(2.5, 0.010, 0.0), (Phase::RampUp, 1.5));
+        assert_eq!(s.at_depth(3.5, 0.010, 0.0), (Phase::HoldMax, 2.0));
+        assert_eq!(s.turns().cycles_turned, 0);
+        // cycle 2 starts at t = 1 + 2 + 1 + (1 + 1 + 1) + 2 = 9 s, ramps from 10 s; at 14 s
+        // (4 N) the probe passes 40 mm (0.8 of 50 mm): it turns round from 4 N
+        assert_eq!(s.at_depth(12.0, 0.030, 0.0), (Phase::RampUp, 2.0));
+        let (p, f) = s.at_depth(14.0, 0.041, 0.0);
+        assert_eq!((p, f), (Phase::RampDown, 4.0));
+        let t = s.turns();
+        assert_eq!((t.cycles_turned, t.f_cap_n), (1, 4.0));
+        assert!((t.turn_depth_m - 0.040).abs() < 1e-12);
+        // the unload takes 4 s; cycle 3 (planned 8 N) is capped at 4 N: hold 18-19, up 19-23
+        let (p, f) = s.at_depth(16.0, 0.030, 0.0);
+        assert_eq!(p, Phase::RampDown);
+        assert!((f - 2.0).abs() < 1e-12);
+        assert_eq!(s.at_depth(18.5, 0.0, 0.0), (Phase::HoldZero, 0.0));
+        let (p, f) = s.at_depth(22.0, 0.030, 0.0);
+        assert_eq!(p, Phase::RampUp);
+        assert!((f - 3.0).abs() < 1e-12);
+        assert_eq!(s.at_depth(23.5, 0.035, 0.0), (Phase::HoldMax, 4.0));
+        // a hold that creeps past the bound turns round too, and the cap only goes down
+        let (p, f) = s.at_depth(23.8, 0.045, 0.0);
+        assert_eq!((p, f), (Phase::RampDown, 4.0));
+        assert_eq!(s.turns().cycles_turned, 2);
+        assert_eq!(s.turns().f_cap_n, 4.0);
+        // 23.8 + 4 s of unload + the final hold
+        assert!((s.duration() - 28.8).abs() < 1e-9, "{}", s.duration());
+        assert!(s.duration() < planned);
+        assert_eq!(s.at_depth(30.0, 0.0, 0.0).0, Phase::Done);
+        assert_eq!(s.segs.capacity(), capacity, "a turn allocates nothing");
+        // unloading or at rest, depth alone turns nothing
+        let mut s = RampSchedule::new(&c, 0.05);
+        // a fast press turns ahead of the depth: 37 mm at 80 mm/s reaches 40 mm within 0.05 s
+        assert_eq!(s.at_depth(12.0, 0.037, 0.08), (Phase::RampDown, 2.0));
+        let mut s = RampSchedule::new(&c, 0.05);
+        assert_eq!(s.at_depth(0.5, 0.045, 0.0), (Phase::HoldZero, 0.0));
+        assert_eq!(s.turns().cycles_turned, 0);
+        let bad = RampConfig {
+            turn_depth_frac: 1.5,
+            ..RampConfig::default()
+        };
+        assert!(bad
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("turn_depth_frac"));
     }
 
     #[test]
