@@ -20,6 +20,7 @@ from haptics_train.importer import (
     POSITION_UNITS,
     TIME_UNITS,
     RtLoopMissing,
+    describe_import,
     find_rt_loop,
     import_series,
 )
@@ -189,6 +190,28 @@ def test_header_units_and_metadata(tmp_path, rt_loop):
     assert (on, off) == (run["features"]["contact_on_n"], run["features"]["contact_off_n"])
     assert 3 * run["contact"]["force_noise_floor_n"] <= off < 0.1  # not the bench's 0.25 N
     assert run["contact"]["cycles"] == 1
+
+
+def test_compression_recorded_negative_imports_as_compression(tmp_path, rt_loop, capsys):
+    """A machine that records compression as negative displacement and force: imported as it
+    is, the series is tension and no cycle is segmented, and the summary names the option;
+    with `compression_negative` it is the same recording as the positive one, every feature
+    and the segmented cycle included, and the metadata says the signs were negated."""
+    c = cycle()
+    pos = {"t [s]": c["time"], "x [mm]": c["displacement"], "f [N]": c["force"]}
+    neg = {"t [s]": c["time"], "x [mm]": -c["displacement"], "f [N]": -c["force"]}
+    want = _import(tmp_path, rt_loop, pos)
+    as_is = _import(tmp_path, rt_loop, neg)
+    assert as_is.meta["haptics.run"]["contact"]["cycles"] == 0
+    assert "needs --compression-negative" in describe_import(as_is)
+    got = _import(tmp_path, rt_loop, neg, compression_negative=True)
+    run = got.meta["haptics.run"]
+    assert run["contact"]["loading"] == "compression" and run["contact"]["cycles"] == 1
+    assert run["preprocessing"]["compression_negative"] is True
+    assert "signs negated (--compression-negative)" in describe_import(got)
+    for col in ("position_x", "rtob_force", *NINE):
+        np.testing.assert_allclose(got.column(col), want.column(col), rtol=0, atol=1e-12,
+                                   err_msg=col)  # fmt: skip
 
 
 def test_given_gains_and_thresholds_are_used(tmp_path, rt_loop):

@@ -253,6 +253,7 @@ def cmd_import(a: argparse.Namespace) -> None:
         resample_hz=a.resample_hz,
         repair=a.repair,
         max_gap_factor=a.max_gap_factor,
+        compression_negative=a.compression_negative,
         overwrite=a.overwrite,
     )
     for note in unit_notes(rec):
@@ -419,6 +420,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--max-gap-factor", type=float, default=DEFAULT_MAX_GAP_FACTOR,
                    help="a period above this multiple of the median is a gap "
                    "(default %(default)s)")
+    s.add_argument("--compression-negative", action="store_true",
+                   help="the machine records compression as negative displacement and force: "
+                   "both are negated (the product's convention: into the object and pushing "
+                   "back are positive)")  # fmt: skip
     s.add_argument("--manifest", help="add the recording to this TOML manifest")
     s.add_argument("--role", choices=("train", "validation", "test"),
                    help="its role in the manifest (default train)")

@@ -367,12 +367,16 @@ def import_series(
     resample_hz: float | None = None,
     repair: bool = False,
     max_gap_factor: float = DEFAULT_MAX_GAP_FACTOR,
+    compression_negative: bool = False,
     overwrite: bool = False,
     timeout_s: float = 600.0,
 ) -> Recording:
     """Every option is keyword-only: a positional call cannot shift a unit into another slot.
     A unit left None is taken from the column header, else SI (s, m, N). An existing `out` is
-    refused unless `overwrite` (as `rt-loop run --overwrite`)."""
+    refused unless `overwrite` (as `rt-loop run --overwrite`). `compression_negative`: the
+    machine's compression is negative displacement and force (a common sign convention of
+    testing machines); both are negated, so compression is positive as in the product's
+    recordings (into the object, pushing back), and the metadata says so."""
     src = Path(input_path)
     dst = Path(out)
     if not src.is_file():
@@ -406,6 +410,8 @@ def import_series(
         t = _as_float(table, cols["time"]) * TIME_UNITS[units["time"][0]]
         x = _as_float(table, cols["position"]) * POSITION_UNITS[units["position"][0]]
         f = _as_float(table, cols["force"]) * FORCE_UNITS[units["force"][0]]
+        if compression_negative:
+            x, f = -x, -f
         check_plausible_si({"position": x, "force": f}, units, cols)
         rows_in = len(t)
         t, x, f, rep = check_or_repair(t, x, f, repair, max_gap_factor)
@@ -427,6 +433,7 @@ def import_series(
         "repair": repair,
         "repairs": {k: v for k, v in asdict(rep).items() if k != "rows"},
         "max_gap_factor": max_gap_factor,
+        "compression_negative": compression_negative,
         "tool": "haptics-train import",
     }
     dst.parent.mkdir(parents=True, exist_ok=True)
@@ -477,7 +484,9 @@ def describe_import(rec: Recording) -> str:
         f"{on:.4g}/{off:.4g} N ({contact.get('from')}, noise floor "
         f"{contact.get('force_noise_floor_n', 0):.2g} N), "
         f"{contact.get('cycles')} cycle(s) ({contact.get('loading')}"
-        + ("; contact counts compression only" if contact.get("loading") == "tension" else "")
+        + ("; contact counts compression only: a machine that records compression as "
+           "negative needs --compression-negative" if contact.get("loading") == "tension" else "")
         + ")"
+        + ("; signs negated (--compression-negative)" if pre.get("compression_negative") else "")
         + (f"; repaired {fixes}" if fixes else "")
     )
