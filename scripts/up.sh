@@ -24,6 +24,11 @@
 #                       address printed below carries it)
 #   HAPTICS_PROFILE     infer-server's wait profile (default auto: chosen from the machine and
 #                       printed at start; or dedicated, period, shared)
+#   HAPTICS_MATERIAL    the simulated bench's object (default materials/sponge.toml; any
+#                       material file, an ONNX object's too: docs/laws/onnx.md). Another object
+#                       gets its own dataset and models, data/objects/NAME/dataset and
+#                       models/objects/NAME (NAME: the file's name without .toml), recorded and
+#                       trained on it when missing; the default keeps data/dataset and models/
 #   HAPTICS_BOARD       sim (default), or s826[:N], a Sensoray 826 (docs/lab.md)
 #   HAPTICS_S826_LIB    the 826 library (unset and none installed: the C-ABI double
 #                       target/release/libs826_double.so, which simulates the rig)
@@ -46,6 +51,16 @@ grpc=${HAPTICS_GRPC:-127.0.0.1:50051}
 instance=${HAPTICS_INSTANCE:-default}
 profile=${HAPTICS_PROFILE:-auto}
 board=${HAPTICS_BOARD:-sim}
+material=${HAPTICS_MATERIAL:-materials/sponge.toml}
+[ -f "$material" ] || { echo "up: HAPTICS_MATERIAL=$material: no such material file" >&2; exit 2; }
+# the default object keeps the paths every document names; another gets folders of its own, so
+# its recordings and models never mix with the sponge's (or another object's)
+if [ "$(realpath "$material")" = "$(realpath materials/sponge.toml)" ]; then
+  dataset=data/dataset models=models
+else
+  name=$(basename "$material" .toml)
+  dataset=data/objects/$name/dataset models=models/objects/$name
+fi
 
 say() { printf '\n==> %s\n' "$*"; }
 
@@ -57,37 +72,38 @@ source scripts/env.sh
 say "build (release): rt-loop, infer-server, hapticctl"
 haptics_build
 
-if [ ! -f data/dataset/test_2.1.parquet ]; then
-  say "record the default dataset (ramp rates 0.8, 1.8, 3.9, 6.2 N/s, the 2.1 N/s test run, the bench in free air)"
-  bash scripts/record-dataset.sh data/dataset
+if [ ! -f "$dataset/test_2.1.parquet" ]; then
+  say "record the dataset of $material in $dataset (ramp rates 0.8, 1.8, 3.9, 6.2 N/s, the 2.1 N/s test run, the bench in free air)"
+  bash scripts/record-dataset.sh --material "$material" "$dataset"
 fi
 
 recommended() { # the recommended model's name, or nothing
-  .venv/bin/python - <<'PY' 2>/dev/null || true
-import json
-doc = json.load(open("models/recommendation.json"))
+  .venv/bin/python - "$models/recommendation.json" <<'PY' 2>/dev/null || true
+import json, sys
+doc = json.load(open(sys.argv[1]))
 print(doc["recommended"])
 PY
 }
+on=(--dataset "$dataset" --models-dir "$models")
 if [ -z "$model" ]; then
   model=$(recommended)
-  if [ -z "$model" ] || [ ! -f "models/$model.onnx" ]; then
+  if [ -z "$model" ] || [ ! -f "$models/$model.onnx" ]; then
     say "train, evaluate and export the candidates ($candidates); recommend one on the validation run"
-    .venv/bin/haptics-train train --models "$candidates" --no-progress
-    .venv/bin/haptics-train evaluate --no-progress
-    .venv/bin/haptics-train export
+    .venv/bin/haptics-train train "${on[@]}" --models "$candidates" --no-progress
+    .venv/bin/haptics-train evaluate "${on[@]}" --no-progress
+    .venv/bin/haptics-train export "${on[@]}"
     model=$(recommended)
-    [ -n "$model" ] || { echo "up: no model recommended (see models/results.json)" >&2; exit 1; }
+    [ -n "$model" ] || { echo "up: no model recommended (see $models/results.json)" >&2; exit 1; }
   fi
-  say "serving the recommended model $model (models/recommendation.json; HAPTICS_MODEL overrides)"
-elif [ ! -f "models/$model.onnx" ]; then
+  say "serving the recommended model $model ($models/recommendation.json; HAPTICS_MODEL overrides)"
+elif [ ! -f "$models/$model.onnx" ]; then
   case "$model" in
     sd_*|prony|structured) spec=$model ;;
     *) spec="${model%_*}:${model##*_}" ;; # rf_six -> rf:six, dnn_fb_six -> dnn_fb:six
   esac
   say "train the default model $model (haptics-train train --models $spec, then export)"
-  .venv/bin/haptics-train train --models "$spec"
-  .venv/bin/haptics-train export --names "$model"
+  .venv/bin/haptics-train train "${on[@]}" --models "$spec"
+  .venv/bin/haptics-train export "${on[@]}" --names "$model"
 fi
 
 pids=()
@@ -112,8 +128,8 @@ interrupted() {
 trap interrupted INT TERM
 trap stop EXIT
 
-loop_args=(serve --clock realtime --instance "$instance" --board "$board")
-bench="the simulated bench"
+loop_args=(serve --clock realtime --instance "$instance" --board "$board" --material "$material")
+bench="the simulated bench ($material)"
 case "$board" in
   s826*)
     s826_lib=${HAPTICS_S826_LIB:-}
@@ -121,6 +137,8 @@ case "$board" in
         && [ ! -f /usr/local/lib/lib826_64.so ]; then
       s826_lib=target/release/libs826_double.so
       watchdog=${HAPTICS_S826_WATCHDOG_US:-100000}
+      # the double simulates the rig's object: the same one
+      export S826_DOUBLE_MATERIAL=${S826_DOUBLE_MATERIAL:-$material}
       bench="the 826's C-ABI double (no lib826_64.so on this machine; the double simulates the rig)"
     else
       watchdog=${HAPTICS_S826_WATCHDOG_US:-}
@@ -137,7 +155,7 @@ say "start rt-loop ($bench, realtime 10 kHz) and infer-server"
 [ "$autostart" != none ] && loop_args+=(--autostart "$autostart")
 target/release/rt-loop "${loop_args[@]}" &
 pids+=($!)
-target/release/infer-server serve --profile "$profile" --instance "$instance" --models models \
+target/release/infer-server serve --profile "$profile" --instance "$instance" --models "$models" \
   --model "$model.onnx" --grpc "$grpc" --http "$http" &
 pids+=($!)
 
@@ -176,7 +194,7 @@ cat <<EOF
   The system is up on $bench.
     page:      $page
     gRPC:      $grpc   ($ctl status --watch)
-    model:     $model (models/), experiment: $autostart
+    model:     $model ($models/), experiment: $autostart
   Ctrl-C stops both.
 EOF
 wait -n "${pids[@]}" || true

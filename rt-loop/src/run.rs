@@ -11,7 +11,7 @@ use crate::clock::{JitterStats, RealtimeClock};
 use crate::config::{BoardKind, ClockKind, ExperimentKind, RunConfig};
 use crate::control::rig::{Rig, Stop};
 use crate::experiment::{Experiment, ModelStats, PositionPid, RampSchedule, Trajectory};
-use crate::object::material::Material;
+use crate::object::material::{LawParams, Material};
 use crate::percentiles::Percentiles;
 use crate::record::row::Row;
 use crate::record::{RecorderHandle, RecorderReport, Target};
@@ -301,11 +301,43 @@ fn set_up_and_run(
     };
     rig.set_period(1.0 / cfg.rate_hz);
     rig.passivity = crate::passivity::PassivityController::for_run(cfg);
-    let result = drive(cfg, &mut rig, &material_text, shutdown, progress, sink);
+    let mut result = drive(cfg, &mut rig, &material_text, shutdown, progress, sink);
     // 0 A, watchdog off, board closed, whatever happened.
     rig.finish();
     give_back(rig.experiment, model);
+    if let (Ok(s), LawParams::Onnx(p)) = (&mut result, &material.law) {
+        let overruns = s.jitter.as_ref().map(|j| j.overruns);
+        if let Some(w) = overruns.and_then(|o| onnx_overrun_hint(s.steps, o, p.file.onnx.rate_hz)) {
+            eprintln!("rt-loop: warning: {w}");
+            s.warnings.push(w);
+        }
+    }
     result
+}
+
+/// The share of overrun periods above which a realtime run on an ONNX object says why.
+const ONNX_OVERRUN_HINT: f64 = 0.01;
+
+/// A realtime run whose loop overran more than [`ONNX_OVERRUN_HINT`] of its periods while the
+/// bench stepped an ONNX object: the graph runs on the loop's own thread (ONNX Runtime's
+/// dispatch per node, several microseconds a run hot and a few times that on a core that
+/// slept between periods; docs/laws/onnx.md, "What it costs the realtime loop"), and a
+/// lower `onnx.rate_hz` is the user's lever. Measured: the example at 10 kHz in the 10 kHz
+/// loop with the oracle ran 6.4-9.0 kHz on the 2-core development machine, at 2.5 kHz
+/// 9.6-9.8 kHz.
+fn onnx_overrun_hint(steps: u64, overruns: u64, rate_hz: f64) -> Option<String> {
+    let periods = steps + overruns;
+    let share = overruns as f64 / periods.max(1) as f64;
+    (share > ONNX_OVERRUN_HINT).then(|| {
+        format!(
+            "{:.1} % of the loop's periods overran ({overruns} of {periods}); the bench steps \
+             its ONNX object on the loop's thread at {rate_hz:.0} Hz: a lower onnx.rate_hz in \
+             the material file (e.g. {:.0}) runs the graph less often (docs/laws/onnx.md, \
+             \"What it costs the realtime loop\")",
+            100.0 * share,
+            (rate_hz / 4.0).max(1.0)
+        )
+    })
 }
 
 /// A recording is never overwritten unless asked (`--overwrite`).
@@ -514,5 +546,26 @@ fn figures<'a>(
         board: rig.board_health(),
         board_fault: rig.fault(),
         passivity: rig.experiment.model_stats().map(|_| rig.passivity.report()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::onnx_overrun_hint;
+
+    /// Past 1 % of the periods overrun, a realtime run on an ONNX object names the lever.
+    #[test]
+    fn an_onnx_object_that_overruns_the_loop_is_named_with_its_lever() {
+        assert_eq!(onnx_overrun_hint(22_672, 0, 10_000.0), None);
+        assert_eq!(onnx_overrun_hint(9_900, 100, 10_000.0), None);
+        let w = onnx_overrun_hint(22_672, 7_234, 10_000.0).unwrap();
+        assert!(
+            w.starts_with("24.2 % of the loop's periods overran (7234 of 29906)"),
+            "{w}"
+        );
+        assert!(
+            w.contains("at 10000 Hz") && w.contains("(e.g. 2500)"),
+            "{w}"
+        );
     }
 }
