@@ -72,6 +72,23 @@ source scripts/env.sh
 say "build (release): rt-loop, infer-server, hapticctl"
 haptics_build
 
+# A dataset recorded on another object (two material files of the same name, or an edited
+# one) must not be trained on, nor its models served, as if it were this object's: each
+# recording carries the material file's text in its metadata (`haptics.run`). An ONNX object's
+# graph is not in it: a graph replaced under the same material file goes unnoticed.
+if [ -f "$dataset/test_2.1.parquet" ]; then
+  .venv/bin/python - "$dataset/test_2.1.parquet" "$material" "$models" <<'PY' || exit 2
+import json, sys
+import pyarrow.parquet as pq
+rec, mat, models = sys.argv[1:]
+meta = pq.ParquetFile(rec).metadata.metadata or {}
+run = json.loads(meta.get(b"haptics.run", b"{}"))
+if "material" in run and run["material"] != open(mat).read():
+    sys.exit(f"up: {rec} was recorded on another object than {mat} ({run.get('material_file')}, "
+             f"or the file has changed since): move {rec.rsplit('/', 1)[0]} and {models} aside "
+             f"to record and train on {mat}")
+PY
+fi
 if [ ! -f "$dataset/test_2.1.parquet" ]; then
   say "record the dataset of $material in $dataset (ramp rates 0.8, 1.8, 3.9, 6.2 N/s, the 2.1 N/s test run, the bench in free air)"
   bash scripts/record-dataset.sh --material "$material" "$dataset"
