@@ -17,6 +17,35 @@ pub struct RealtimeConfig {
     pub cpu: i32,
     /// mlockall(MCL_CURRENT | MCL_FUTURE) so no page fault stalls the loop.
     pub lock_memory: bool,
+    /// Keep the loop's CPU awake between periods with a `SCHED_IDLE` spinner
+    /// (`shm_ring::os::keep_awake`): `auto` does where the bench steps an ONNX object, whose
+    /// graph runs on the loop's thread and costs a few times more on a core that slept
+    /// (docs/laws/onnx.md, "What it costs the realtime loop"); never under a CPU quota.
+    pub keep_awake: KeepAwake,
+}
+
+/// When the loop's CPU is kept awake ([`RealtimeConfig::keep_awake`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum KeepAwake {
+    /// With an ONNX object, pinned, and no CPU quota.
+    #[default]
+    Auto,
+    /// Whenever the loop thread is pinned (a quota too).
+    On,
+    Off,
+}
+
+impl KeepAwake {
+    /// Whether a run keeps its CPU awake: `onnx_object` says what the bench steps, `quota` is
+    /// the process's CPU quota where there is one.
+    pub fn wanted(self, onnx_object: bool, quota: Option<&str>) -> bool {
+        match self {
+            KeepAwake::Auto => onnx_object && quota.is_none(),
+            KeepAwake::On => true,
+            KeepAwake::Off => false,
+        }
+    }
 }
 
 impl Default for RealtimeConfig {
@@ -25,6 +54,7 @@ impl Default for RealtimeConfig {
             priority: 80,
             cpu: -2,
             lock_memory: true,
+            keep_awake: KeepAwake::Auto,
         }
     }
 }
@@ -127,5 +157,22 @@ impl RealtimeClock {
             wake_latency: PercentilesUs::of(&self.latency),
             overruns: self.overruns,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::KeepAwake;
+
+    /// `auto` keeps the CPU awake for an ONNX object only, and never under a CPU quota (the
+    /// spinner would spend it and the throttled cgroup would stop the loop with it).
+    #[test]
+    fn keep_awake_auto_is_for_onnx_objects_without_a_quota() {
+        let q = Some("50000 100000 (/sys/fs/cgroup/cpu.max)");
+        assert!(KeepAwake::Auto.wanted(true, None));
+        assert!(!KeepAwake::Auto.wanted(false, None));
+        assert!(!KeepAwake::Auto.wanted(true, q));
+        assert!(KeepAwake::On.wanted(false, q));
+        assert!(!KeepAwake::Off.wanted(true, None));
     }
 }

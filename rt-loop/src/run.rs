@@ -20,6 +20,9 @@ use crate::serving::sink::{RunFigures, StepAction, StepSink};
 use crate::stop::{Shutdown, StopReason};
 use anyhow::{anyhow, Result};
 use serde::Serialize;
+use shm_ring::os::keep_awake::{process_cpu_quota, KeepAwake, StepCounter};
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
 use std::time::Instant;
 
 #[derive(Clone, Debug, Serialize)]
@@ -301,7 +304,16 @@ fn set_up_and_run(
     };
     rig.set_period(1.0 / cfg.rate_hz);
     rig.passivity = crate::passivity::PassivityController::for_run(cfg);
-    let mut result = drive(cfg, &mut rig, &material_text, shutdown, progress, sink);
+    let onnx_object = matches!(material.law, LawParams::Onnx(_));
+    let mut result = drive(
+        cfg,
+        &mut rig,
+        &material_text,
+        onnx_object,
+        shutdown,
+        progress,
+        sink,
+    );
     // 0 A, watchdog off, board closed, whatever happened.
     rig.finish();
     give_back(rig.experiment, model);
@@ -359,6 +371,7 @@ fn drive(
     cfg: &RunConfig,
     rig: &mut Rig<Box<dyn Board>>,
     material_text: &str,
+    onnx_object: bool,
     shutdown: &Shutdown,
     mut progress: Option<&mut dyn Progress>,
     mut sink: Option<&mut dyn StepSink>,
@@ -391,12 +404,32 @@ fn drive(
     let mut scheduling = "SCHED_OTHER (lockstep clock: no real-time set-up)".to_string();
     // Restores the thread's scheduling, affinity and memory locking when the run ends.
     let mut _rt_guard = None;
+    // The loop's CPU kept awake (clock::KeepAwake): the loop thread moves `awake.steps` once
+    // a step (one relaxed store, no syscall); the spinner stops when `_keeper` drops.
+    let awake = Arc::new(StepCounter::default());
+    let mut _keeper = None;
     if cfg.clock == ClockKind::Realtime {
         let g = cfg.realtime.request().apply();
         scheduling = g.describe();
         warnings = g.obtained().warnings();
         for w in &warnings {
             eprintln!("rt-loop: warning: {w} (continuing without it)");
+        }
+        let quota = process_cpu_quota();
+        if let (true, Some(cpu)) = (
+            cfg.realtime
+                .keep_awake
+                .wanted(onnx_object, quota.as_deref()),
+            g.obtained().pinned_cpu,
+        ) {
+            match KeepAwake::spawn("rt-loop", cpu, Arc::clone(&awake)) {
+                Ok(k) => {
+                    _keeper = Some(k);
+                    // short: the loop-status block holds 64 bytes of it (hapticctl status)
+                    scheduling.push_str(", kept awake");
+                }
+                Err(e) => eprintln!("rt-loop: warning: keep-awake not started ({e})"),
+            }
         }
         _rt_guard = Some(g);
         let mut c = RealtimeClock::new(cfg.rate_hz);
@@ -421,6 +454,7 @@ fn drive(
         }
         match rig.step() {
             Ok(row) => {
+                awake.steps.store(row.step, Ordering::Relaxed);
                 last_time = row.time;
                 last_row = Some(row);
                 // The step was rendered: it is recorded even when a stop command ends the run here.

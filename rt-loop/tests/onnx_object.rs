@@ -448,3 +448,65 @@ fn a_fused_export_is_an_object_and_pushes_as_its_graph_does() {
     );
     assert!(worst < 1e-3, "fused and graph differ by {worst} N");
 }
+
+/// The realtime loop keeps its CPU awake while it steps an ONNX object (`[realtime] keep_awake =
+/// "auto"`): a `keep-awake` thread at `SCHED_IDLE` pinned to the loop's CPU, which a run on
+/// the sponge does not start.
+#[test]
+fn the_realtime_loop_keeps_its_cpu_awake_for_an_onnx_object_only() {
+    let repo = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+    let spinner = |material: &str| -> Option<(i32, String)> {
+        let child = std::process::Command::new(env!("CARGO_BIN_EXE_rt-loop"))
+            .args(["run", "--clock", "realtime", "--experiment", "shadow"])
+            .args(["--model", "builtin", "--duration", "1.5", "--no-progress"])
+            .arg("--material")
+            .arg(format!("{repo}/{material}"))
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut found = None;
+        let t0 = std::time::Instant::now();
+        while found.is_none() && t0.elapsed() < std::time::Duration::from_millis(1200) {
+            let tasks = std::fs::read_dir(format!("/proc/{}/task", child.id()));
+            for task in tasks.into_iter().flatten().flatten() {
+                let p = task.path();
+                let comm = std::fs::read_to_string(p.join("comm")).unwrap_or_default();
+                let stat = std::fs::read_to_string(p.join("stat")).unwrap_or_default();
+                let status = std::fs::read_to_string(p.join("status")).unwrap_or_default();
+                if comm.trim() == "keep-awake" && !stat.is_empty() {
+                    // field 41 of proc(5): the policy (5: SCHED_IDLE)
+                    let rest: Vec<&str> = stat[stat.rfind(')').unwrap() + 2..].split(' ').collect();
+                    let cpus = status
+                        .lines()
+                        .find_map(|l| l.strip_prefix("Cpus_allowed_list:"))
+                        .unwrap_or("")
+                        .trim()
+                        .to_string();
+                    found = Some((rest[38].parse().unwrap(), cpus));
+                }
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        let out = child.wait_with_output().unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        found
+    };
+    let (policy, cpus) = spinner("materials/hunt-crossley.toml")
+        .expect("no keep-awake thread while the loop stepped the ONNX object");
+    assert_eq!(policy, libc::SCHED_IDLE, "the spinner must be SCHED_IDLE");
+    let last = std::thread::available_parallelism().unwrap().get() - 1;
+    assert_eq!(
+        cpus,
+        last.to_string(),
+        "pinned to the loop's CPU (the last) alone"
+    );
+    assert_eq!(
+        spinner("materials/sponge.toml"),
+        None,
+        "the sponge's loop is left alone"
+    );
+}

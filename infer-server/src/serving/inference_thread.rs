@@ -251,9 +251,10 @@ impl InferenceThread {
             ..Default::default()
         });
         let keep_awake = match (cfg.keep_awake, cfg.cpu) {
-            (true, Some(cpu)) => {
-                Some(KeepAwake::spawn(cpu, Arc::clone(&stats)).map_err(InferenceError::Spawn)?)
-            }
+            (true, Some(cpu)) => Some(
+                KeepAwake::spawn("infer-server", cpu, Arc::clone(&stats))
+                    .map_err(InferenceError::Spawn)?,
+            ),
             _ => None,
         };
         let (recorder, latency) = latency::histogram();

@@ -239,47 +239,8 @@ impl Settings {
     }
 }
 
-/// The CPU quota that applies to this process, from `/proc/self/cgroup`'s text and a reader of
-/// cgroup files: cgroup v2's `cpu.max` ("QUOTA PERIOD", "max" for none) or v1's
-/// `cpu.cfs_quota_us` (-1 for none), in the process's cgroup or any ancestor (a quota set on a
-/// parent, e.g. a container's, limits every cgroup below it). `None`: no quota found.
-pub fn cpu_quota(cgroup: &str, read: impl Fn(&str) -> Option<String>) -> Option<String> {
-    for line in cgroup.lines() {
-        let mut parts = line.splitn(3, ':');
-        let (Some(_), Some(controllers), Some(path)) = (parts.next(), parts.next(), parts.next())
-        else {
-            continue;
-        };
-        // v2 (the unified hierarchy, "0::/path") and v1's cpu controller ("N:cpu,cpuacct:/path").
-        let files: Vec<(String, &str)> = if controllers.is_empty() {
-            vec![("/sys/fs/cgroup".into(), "cpu.max")]
-        } else if controllers.split(',').any(|c| c == "cpu") {
-            vec![
-                (format!("/sys/fs/cgroup/{controllers}"), "cpu.cfs_quota_us"),
-                ("/sys/fs/cgroup/cpu".into(), "cpu.cfs_quota_us"),
-            ]
-        } else {
-            continue;
-        };
-        let mut dir = path.trim_end_matches('/').to_string();
-        loop {
-            for (root, file) in &files {
-                let Some(text) = read(&format!("{root}{dir}/{file}")) else {
-                    continue;
-                };
-                let quota = text.split_whitespace().next().unwrap_or("max");
-                if quota != "max" && quota != "-1" {
-                    return Some(format!("{} ({root}{dir}/{file})", text.trim()));
-                }
-            }
-            match dir.rfind('/') {
-                Some(i) => dir.truncate(i),
-                None => break,
-            }
-        }
-    }
-    None
-}
+// The quota's reader lives beside the spinner it guards (shm_ring::os::keep_awake).
+pub use shm_ring::os::keep_awake::cpu_quota;
 
 pub(crate) fn allowed_cpus() -> Vec<usize> {
     // SAFETY: cpu_set_t is plain data; CPU_ISSET reads within it.
