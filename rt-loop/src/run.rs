@@ -334,9 +334,10 @@ const ONNX_OVERRUN_HINT: f64 = 0.01;
 /// bench stepped an ONNX object: the graph runs on the loop's own thread (ONNX Runtime's
 /// dispatch per node, several microseconds a run hot and a few times that on a core that
 /// slept between periods; docs/laws/onnx.md, "What it costs the realtime loop"), and a
-/// lower `onnx.rate_hz` is the user's lever. Measured: the example at 10 kHz in the 10 kHz
-/// loop with the oracle ran 6.4-9.0 kHz on the 2-core development machine, at 2.5 kHz
-/// 9.6-9.8 kHz.
+/// lower `onnx.rate_hz` is the user's lever. Measured on the 2-core development machine, the
+/// loop's CPU not kept awake: the example at 10 kHz in the 10 kHz loop with the oracle ran
+/// 6.4-9.0 kHz, at 2.5 kHz 9.6-9.8 kHz; kept awake (`[realtime] keep_awake`, by default
+/// with an ONNX object) 9.95-9.98 kHz at 10 kHz.
 fn onnx_overrun_hint(steps: u64, overruns: u64, rate_hz: f64) -> Option<String> {
     let periods = steps + overruns;
     let share = overruns as f64 / periods.max(1) as f64;
