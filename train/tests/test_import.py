@@ -378,3 +378,84 @@ def test_cli_errors_are_one_line_and_debug_shows_the_traceback(tmp_path, capsys)
     assert err.startswith("haptics-train validate: error: ") and "not an ONNX model" in err
     with pytest.raises(Exception, match="not an ONNX model"):
         main(["--debug", "validate", str(garbage)])
+
+
+# --- testing machines' text exports (haptics_train.csv_layout) ---
+
+
+def _cycle_cells():
+    """One cycle as text cells with fixed digits, so every layout below holds the same numbers."""
+    c = cycle()
+    return [(f"{t:.3f}", f"{x:.5f}", f"{f:.5f}")
+            for t, x, f in zip(c["time"], c["displacement"], c["force"], strict=True)]  # fmt: skip
+
+
+def _write_plain(path, cells):
+    path.write_text("t [s],x [mm],f [N]\n" + "".join(f"{a},{b},{c}\n" for a, b, c in cells))
+    return path
+
+
+EXPORTS = {
+    # a German-language export: preamble, ';', decimal commas, CRLF, Windows-1252
+    "semicolon_decimal_comma.csv": lambda cells: (
+        "Prüfprotokoll;Probe A\r\nDatum;20.11.2026\r\n\r\nt [s];x [mm];f [N]\r\n"
+        + "".join(f"{a};{b};{c}\r\n".replace(".", ",") for a, b, c in cells)
+    ).encode("cp1252"),
+    # quoted cells and a units row under the header, a byte-order mark
+    "units_row.csv": lambda cells: (
+        '\ufeff"t","x","f"\n"(s)","(mm)","(N)"\n'
+        + "".join(f'"{a}","{b}","{c}"\n' for a, b, c in cells)
+    ).encode("utf-8"),
+    # tabs, units in brackets in a row of their own, a trailing tab on every line
+    "tabs.txt": lambda cells: (
+        "t\tx\tf\t\n[s]\t[mm]\t[N]\t\n" + "".join(f"{a}\t{b}\t{c}\t\n" for a, b, c in cells)
+    ).encode("utf-8"),
+}
+
+
+@pytest.mark.parametrize("name", list(EXPORTS))
+def test_a_text_export_imports_as_the_plain_file(name, tmp_path, rt_loop):
+    """The same numbers laid out as a testing machine's software writes them give the same
+    recording as the plain comma-separated file, every feature included, and the metadata says
+    how the file was read."""
+    cells = _cycle_cells()
+    want = import_series(_write_plain(tmp_path / "plain.csv", cells), tmp_path / "a.parquet",
+                         "t", "x", "f", rt_loop=str(rt_loop))  # fmt: skip
+    src = tmp_path / name
+    src.write_bytes(EXPORTS[name](cells))
+    got = import_series(src, tmp_path / "b.parquet", "t", "x", "f", rt_loop=str(rt_loop))
+    assert len(got) == len(want) == len(cells)
+    for col in ("time", "position_x", "rtob_force", *NINE):
+        np.testing.assert_array_equal(got.column(col), want.column(col), err_msg=col)
+    layout = got.meta["haptics.run"]["preprocessing"]["text_layout"]
+    assert want.meta["haptics.run"]["preprocessing"]["text_layout"] == {
+        "separator": ",", "decimal_comma": False, "header_line": 1, "units_row": False,
+        "encoding": "utf-8"}  # fmt: skip
+    expected = {
+        "semicolon_decimal_comma.csv": {"separator": ";", "decimal_comma": True,
+                                        "header_line": 4, "units_row": False,
+                                        "encoding": "cp1252"},
+        "units_row.csv": {"separator": ",", "decimal_comma": False, "header_line": 1,
+                          "units_row": True, "encoding": "utf-8"},
+        "tabs.txt": {"separator": "\t", "decimal_comma": False, "header_line": 1,
+                     "units_row": True, "encoding": "utf-8"},
+    }[name]  # fmt: skip
+    assert layout == expected
+    units = got.meta["haptics.run"]["units"]
+    assert {k: (v["unit"], v["from"]) for k, v in units.items()} == {
+        "time": ("s", "header"), "position": ("mm", "header"), "force": ("N", "header")}
+    assert "read as" in describe_import(got) and "read as" not in describe_import(want)
+
+
+def test_a_file_naming_no_asked_column_shows_its_header(tmp_path, rt_loop):
+    src = tmp_path / "export.txt"
+    src.write_text("Protocol\tA\n\nTime\tExtension\tLoad\n(s)\t(mm)\t(N)\n0.0\t0.0\t0.0\n")
+    with pytest.raises(DataError, match=r"line 3 \(tab-separated\): \['Time', 'Extension'"):
+        import_series(src, tmp_path / "o.parquet", "Zeit", "Weg", "Kraft", rt_loop=str(rt_loop))
+
+
+def test_a_repeated_column_name_is_refused(tmp_path, rt_loop):
+    src = tmp_path / "twice.csv"
+    src.write_text("t [s],x [mm],f,f\n0,0,0,0\n0.02,0.1,0.1,0.2\n0.04,0.2,0.2,0.4\n")
+    with pytest.raises(DataError, match="'f' is ambiguous"):
+        import_series(src, tmp_path / "o.parquet", "t", "x", "f", rt_loop=str(rt_loop))

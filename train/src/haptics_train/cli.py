@@ -389,7 +389,9 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser(
         "import", help="a series measured elsewhere -> a recording (rt-loop features)"
     )
-    s.add_argument("--input", required=True, help="CSV or Parquet file")
+    s.add_argument("--input", required=True,
+                   help="delimited text (.csv, .tsv, .txt: the separator, decimal mark, header "
+                   "line, units row and encoding are found from the file) or Parquet")
     s.add_argument("--out", required=True,
                    help="recording to write (.parquet; an existing one needs --overwrite)")
     s.add_argument("--overwrite", action="store_true", help="replace an existing --out")

@@ -116,6 +116,52 @@ def _text_cell(p: Path) -> Path:
     return _write_text(p, ["time [s]", "displacement [mm]", "force [N]"], rows)
 
 
+def _decimal(v: float, digits: int) -> str:
+    return f"{v:.{digits}f}".replace(".", ",")
+
+
+def _zwick(p: Path) -> Path:
+    """As a German-language testing machine exports a test: a protocol preamble, `;` between
+    cells, decimal commas, units in brackets, Windows-1252 text (`Prüfkraft`)."""
+    c = cycle()
+    lines = ["Prüfprotokoll;Probe A", "Prüfer;M. Müller", "Datum;20.11.2026", "",
+             "Zeit [s];Standardweg [mm];Prüfkraft [N]"]  # fmt: skip
+    for t, x, f in zip(c["time"], c["displacement"], c["force"], strict=True):
+        lines.append(f"{_decimal(t, 3)};{_decimal(x, 5)};{_decimal(f, 5)}")
+    p.write_bytes(("\r\n".join(lines) + "\r\n").encode("cp1252"))
+    return p
+
+
+def _units_row(p: Path) -> Path:
+    """Quoted cells and the units in a row of their own under the header, as some testing
+    software writes its raw data."""
+    c = cycle()
+    lines = ['"Time","Extension","Load"', '"(s)","(mm)","(N)"']
+    for t, x, f in zip(c["time"], c["displacement"], c["force"], strict=True):
+        lines.append(f'"{t:.5f}","{x:.5f}","{f:.5f}"')
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+def _tabs(p: Path) -> Path:
+    c = cycle()
+    lines = ["time [s]\tdisplacement [mm]\tforce [N]"]
+    lines += [f"{t:.3f}\t{x:.5f}\t{f:.5f}" for t, x, f in zip(c["time"], c["displacement"],
+                                                            c["force"], strict=True)]  # fmt: skip
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+def _mixed_marks(p: Path) -> Path:
+    c = cycle()
+    lines = ["time [s];displacement [mm];force [N]"]
+    for i, (t, x, f) in enumerate(zip(c["time"], c["displacement"], c["force"], strict=True)):
+        cell = f"{f:.5f}" if i == 300 else _decimal(f, 5)  # one cell from another locale
+        lines.append(f"{_decimal(t, 3)};{_decimal(x, 5)};{cell}")
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
 #: the one REAL input (tests/data/SOURCE.md: an AFM approach-retract curve, MIT licence)
 AFM_SAMPLE = Path(__file__).resolve().parents[2] / "tests" / "data" / "afm-cellhesion-fd.csv"
 
@@ -169,6 +215,15 @@ CASES: list[Case] = [
     Case("text_cell.csv", "a text cell (`overload`) in the displacement column",
          _text_cell, STD,
          refused="row 43"),
+    Case("zwick_export.csv", "a German-language export: four preamble lines, `;`, decimal "
+         "commas, `Zeit [s]`, `Standardweg [mm]`, `Prüfkraft [N]`, Windows-1252",
+         _zwick, {"time_col": "Zeit", "position_col": "Standardweg", "force_col": "Prüfkraft"}),
+    Case("units_row.csv", "quoted `Time`, `Extension`, `Load` with a row `(s)`, `(mm)`, `(N)` "
+         "under them", _units_row,
+         {"time_col": "Time", "position_col": "Extension", "force_col": "Load"}),
+    Case("tabs.txt", "tab-separated text", _tabs, STD),
+    Case("mixed_marks.csv", "`;` and decimal commas, but row 301's force with a decimal point",
+         _mixed_marks, STD, refused="one file, one decimal mark"),
     Case("afm-cellhesion-fd.csv (REAL)", "AFM approach-retract curve, 1 kHz, N and m (SI "
          "headers), a -0.7 nN baseline (tests/data/SOURCE.md)",
          _afm, {"time_col": "time", "position_col": "height measured", "force_col": "force"}),

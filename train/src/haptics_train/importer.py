@@ -1,9 +1,11 @@
 """Import of a time/displacement/force series measured elsewhere (another device, a
 materials-testing machine, an indenter) into the recording format.
 
-Such files come at any rate and in any unit, with holes and glitches. Nothing is assumed
-silently here:
+Such files come at any rate and in any unit, laid out as their software writes text, with
+holes and glitches. Nothing is assumed silently here:
 
+- a text file's separator, decimal mark, header line, units row and encoding are found from
+  the file (csv_layout.py) and said in the output and the metadata;
 - units come from the options, else from the column headers (`force [mN]`,
   `displacement (mm)`), else SI, which the output then says (`unit_notes`); a series left in
   SI that way whose magnitudes no bench gives in SI (over 1 kN, over 1 m) is refused, naming the
@@ -23,7 +25,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shutil
 import subprocess
 import tempfile
@@ -32,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
+from .csv_layout import CsvLayout, header_unit, read_table
 from .data import DataError, Recording, load_recording, sha256_file
 
 #: unit -> factor to SI (s, m, N); the same set as `rt-loop features` (rt-loop/src/import.rs).
@@ -52,20 +53,8 @@ DEFAULT_MAX_GAP_FACTOR = 1.5
 #: off), so it is refused, naming the option that says the unit.
 PLAUSIBLE_SI: dict[str, tuple[float, str]] = {"force": (1000.0, "N"), "position": (1.0, "m")}
 
-_HEADER_UNIT = re.compile(r"^(?P<base>.*?)\s*(?:\[(?P<u1>[^\]]+)\]|\((?P<u2>[^)]+)\))\s*$")
-
-
 class RtLoopMissing(RuntimeError):
     pass
-
-
-def header_unit(header: str) -> tuple[str, str] | None:
-    """`"force [mN]"` -> `("force", "mN")`; None when the header names no unit."""
-    m = _HEADER_UNIT.match(header)
-    if not m:
-        return None
-    unit = (m.group("u1") or m.group("u2") or "").strip()
-    return (m.group("base"), unit) if unit else None
 
 
 def resolve_unit(
@@ -129,6 +118,8 @@ def unit_notes(rec: Recording) -> list[str]:
 
 def find_column(headers: list[str], name: str) -> str:
     """The exact header, else the one header `name [unit]`."""
+    if headers.count(name) > 1:
+        raise DataError(f"column name {name!r} is ambiguous: the file has {headers.count(name)}")
     if name in headers:
         return name
     hits = [h for h in headers if (hu := header_unit(h)) is not None and hu[0] == name]
@@ -176,24 +167,22 @@ def find_rt_loop(explicit: str | None = None) -> Path:
     )
 
 
-def _read_table(path: Path) -> pa.Table:
+#: inputs read as delimited text (csv_layout.py finds the separator, decimal mark, header line,
+#: units row and encoding); anything else must be Parquet
+TEXT_SUFFIXES = (".csv", ".tsv", ".txt")
+
+
+def _read_table(path: Path, wanted: list[str]) -> tuple[pa.Table, CsvLayout | None]:
+    """The input as a table (text columns as text: a cell that is not a number is then
+    reported with its row instead of turning the whole column into strings), and the text
+    file's layout (None for Parquet)."""
+    if path.suffix.lower() in TEXT_SUFFIXES:
+        layout, table = read_table(path, wanted)
+        return table, layout
     try:
-        if path.suffix.lower() == ".csv":
-            # every column as text first: a cell that is not a number is then reported with its
-            # row instead of turning the whole column into strings
-            names = pacsv.open_csv(path).schema.names
-            conv = pacsv.ConvertOptions(column_types=dict.fromkeys(names, pa.string()))
-            return pacsv.read_csv(path, convert_options=conv)
-        return pq.read_table(path)
+        return pq.read_table(path), None
     except (OSError, pa.ArrowException) as e:
         raise DataError(f"cannot read {path}: {e}") from e
-
-
-def input_columns(path: Path) -> list[str]:
-    if path.suffix.lower() == ".csv":
-        with pacsv.open_csv(path) as reader:
-            return list(reader.schema.names)
-    return list(pq.read_schema(path).names)
 
 
 _MISSING = {"", "nan", "NaN", "NAN", "na", "NA", "n/a", "N/A", "null", "NULL", "-"}
@@ -381,8 +370,11 @@ def import_series(
     dst = Path(out)
     if not src.is_file():
         raise DataError(f"no such input file: {src}")
-    if src.suffix.lower() not in (".csv", ".parquet"):
-        raise DataError(f"{src}: only .csv and .parquet inputs are supported")
+    if src.suffix.lower() not in (*TEXT_SUFFIXES, ".parquet"):
+        raise DataError(
+            f"{src}: only delimited text ({', '.join(TEXT_SUFFIXES)}) and .parquet inputs are "
+            "supported"
+        )
     if dst.suffix.lower() != ".parquet":
         raise DataError(f"output {dst} must end in .parquet")
     if dst.exists() and dst.resolve() == src.resolve():
@@ -393,7 +385,11 @@ def import_series(
         raise DataError(f"--resample-hz must be a positive rate, not {resample_hz}")
     if not max_gap_factor > 1:
         raise DataError(f"--max-gap-factor must be above 1, not {max_gap_factor}")
-    headers = input_columns(src)
+    try:
+        table, layout = _read_table(src, [time_col, position_col, force_col])
+    except DataError as e:
+        raise DataError(f"{src}: {e}") from None
+    headers = list(table.column_names)
     cols = {k: find_column(headers, n) for k, n in
             (("time", time_col), ("position", position_col), ("force", force_col))}  # fmt: skip
     units = {
@@ -405,7 +401,6 @@ def import_series(
         )
     }
     binary = find_rt_loop(rt_loop)
-    table = _read_table(src)
     try:
         t = _as_float(table, cols["time"]) * TIME_UNITS[units["time"][0]]
         x = _as_float(table, cols["position"]) * POSITION_UNITS[units["position"][0]]
@@ -434,6 +429,8 @@ def import_series(
         "repairs": {k: v for k, v in asdict(rep).items() if k != "rows"},
         "max_gap_factor": max_gap_factor,
         "compression_negative": compression_negative,
+        # how a text file was read (None: Parquet)
+        "text_layout": layout.as_meta() if layout is not None else None,
         "tool": "haptics-train import",
     }
     dst.parent.mkdir(parents=True, exist_ok=True)
@@ -488,5 +485,7 @@ def describe_import(rec: Recording) -> str:
            "negative needs --compression-negative" if contact.get("loading") == "tension" else "")
         + ")"
         + ("; signs negated (--compression-negative)" if pre.get("compression_negative") else "")
+        + (f"; read as {how}" if (how := CsvLayout.describe_meta(pre.get("text_layout") or {}))
+           else "")
         + (f"; repaired {fixes}" if fixes else "")
     )
