@@ -22,6 +22,7 @@ import joblib
 import numpy as np
 import onnx
 
+from .blocked_validation import BLOCKED_VALIDATION, blocked_scores
 from .contract import ContractError
 from .cost import COST_KEY, measure_cost
 from .dagger import fit_dagger
@@ -73,16 +74,22 @@ DEFAULT_SPECS: tuple[str, ...] = (
 )
 
 
-def _fit_one(
-    spec: str, preset: str, hyper: dict[str, dict] | None, extra: dict, dataset: Dataset,
-    cfg: TrainConfig,
-) -> ForceModel:
+def _configured(spec: str, preset: str, hyper: dict[str, dict] | None, extra: dict) -> ForceModel:
+    """The unfitted model of `spec`, the user's hyper-parameters and `extra` on top."""
     m = parse_spec(spec, preset)
     algo = spec.partition(":")[0].strip()
     for key in (algo.removesuffix("_fb"), algo) if algo.endswith("_fb") else (algo,):
         if hyper and key in hyper:
             m.hyper.update(hyper[key])
     m.hyper.update(extra)
+    return m
+
+
+def _fit_one(
+    spec: str, preset: str, hyper: dict[str, dict] | None, extra: dict, dataset: Dataset,
+    cfg: TrainConfig,
+) -> ForceModel:
+    m = _configured(spec, preset, hyper, extra)
     t0 = time.perf_counter()
     fit_recordings(m, dataset.train, cfg)
     m.train_info_.setdefault("fit_seconds", round(time.perf_counter() - t0, 2))
@@ -271,6 +278,11 @@ def _candidates(
     """What `train_models` chooses on validation for `algo` (the parameter's name and the
     candidates), or None: no validation recording, no candidates, or the user set it."""
     if not dataset.validation:
+        # lawfree alone can be validated on blocks of its training recordings
+        # (blocked_validation.py): its free run is its one-step prediction
+        if algo == "lawfree" and dataset.train:
+            options = lawfree_candidates((hyper or {}).get(algo, {}))
+            return ("readout", options) if options else None
         return None
     if algo.endswith("_fb") and feedback_noise:
         return "feedback_noise_frac", [
@@ -283,25 +295,45 @@ def _candidates(
 
 
 class _Tried:
-    """The candidates `train_models` has fitted for one spec, with their validation scores."""
+    """The candidates `train_models` has scored for one spec: on the validation recordings,
+    or, where the dataset has none, on held-out blocks of its training recordings
+    (`blocked_validation.py`; the candidate itself is then fitted only once chosen)."""
 
     def __init__(self, spec: str, preset: str, hyper: dict[str, dict] | None, dataset: Dataset,
                  cfg: TrainConfig, parameter: str) -> None:  # fmt: skip
         self.spec, self.preset, self.hyper = spec, preset, hyper
         self.dataset, self.cfg, self.parameter = dataset, cfg, parameter
+        self.blocked = not dataset.validation
         self.sliding: dict[str, float] = {}
         self.every: dict[str, float] = {}
-        self.fitted: dict[str, tuple[object, ForceModel]] = {}
+        self.extras: dict[str, dict] = {}
+        self.fitted: dict[str, ForceModel] = {}
 
     def score(self, label: str, extra: dict) -> None:
-        """Fits the spec with `extra` on top and scores its validation free run."""
-        cand = _fit_one(self.spec, self.preset, self.hyper, extra, self.dataset, self.cfg)
-        s, e = validation_free_run_scores(cand, self.cfg, self.dataset)
+        """Scores the spec with `extra` on top: its validation free run (the candidate fitted
+        on every training row), or its blocks' (`blocked_scores`)."""
+        self.extras[label] = extra
+        if self.blocked:
+            s, e = blocked_scores(lambda: _configured(self.spec, self.preset, self.hyper, extra),
+                                  self.dataset, self.cfg)  # fmt: skip
+            where = "held-out blocks"
+        else:
+            cand = _fit_one(self.spec, self.preset, self.hyper, extra, self.dataset, self.cfg)
+            self.fitted[label] = cand
+            s, e = validation_free_run_scores(cand, self.cfg, self.dataset)
+            where = "validation"
         self.sliding[label], self.every[label] = s, e
-        print(f"[train] {cand.name} {self.parameter} {label}: validation free-run RMSE "
+        print(f"[train] {self.spec} {self.parameter} {label}: {where} free-run RMSE "
               f"{_fmt(s)} N (every row {_fmt(e)} N)", flush=True)  # fmt: skip
-        # the value itself where the parameter is a hyper-parameter, else its label
-        self.fitted[label] = (extra.get(self.parameter, label), cand)
+
+    def chosen(self, label: str) -> tuple[object, ForceModel]:
+        """(the value itself where the parameter is a hyper-parameter, else its label; the
+        candidate fitted on every training row)."""
+        extra = self.extras[label]
+        if label not in self.fitted:
+            self.fitted[label] = _fit_one(self.spec, self.preset, self.hyper, extra,
+                                          self.dataset, self.cfg)  # fmt: skip
+        return extra.get(self.parameter, label), self.fitted[label]
 
 
 def train_models(
@@ -340,11 +372,12 @@ def train_models(
                 user = (hyper or {}).get(algo, {})
                 if both and "damage_frac" not in user:
                     rule += DAMAGE_RULE
-                print(f"[train] {algo}: {parameter} chosen by {rule}", flush=True)
+                where = "" if dataset.validation else f" ({BLOCKED_VALIDATION})"
+                print(f"[train] {algo}: {parameter} chosen by {rule}{where}", flush=True)
                 tried = _Tried(spec, preset, hyper, dataset, cfg, parameter)
                 for label, extra in options:
                     tried.score(label, extra)
-                scored, every, fitted = tried.sliding, tried.every, tried.fitted
+                scored, every = tried.sliding, tried.every
                 pick = choose_on_both(scored, every) if both else min(
                     scored, key=lambda k: scored[k] if np.isfinite(scored[k]) else np.inf)
                 damage = lawfree_damage_candidate(pick, dict(options)[pick], user) if both else None
@@ -352,12 +385,12 @@ def train_models(
                     tried.score(*damage)
                     if keep_damage_memory(scored, every, pick, damage[0]):
                         pick = damage[0]
-                chosen, m = fitted[pick]
+                chosen, m = tried.chosen(pick)
                 m.train_info_["selection"] = {
                     "parameter": parameter,
                     "metric": SELECTION_METRIC,
                     "rule": rule,
-                    "validation": [r.name for r in dataset.validation],
+                    "validation": [r.name for r in dataset.validation] or BLOCKED_VALIDATION,
                     "candidates": scored,
                     "candidates_every_row": every,
                     "chosen": chosen,

@@ -203,9 +203,15 @@ class LawFreeModel(ForceModel):
         return np.column_stack(cols), contact
 
     def fit(
-        self, X: list[np.ndarray], y: list[np.ndarray], info: list[SequenceInfo]
-    ) -> LawFreeModel:
+        self, X: list[np.ndarray], y: list[np.ndarray], info: list[SequenceInfo],
+        holdout: list[np.ndarray] | None = None,
+    ) -> LawFreeModel:  # fmt: skip
+        """`holdout`: per sequence, the rows left out of the fit (a boolean mask as long as the
+        sequence; `blocked_validation.py` scores the model on them). The memory still runs
+        along every row: a held-out block keeps the history that leads into it."""
         seqs, targets = check_sequences(X, y, len(self.features), len(info))
+        if holdout is not None and [len(m) for m in holdout] != [len(x) for x in seqs]:
+            raise ValueError("lawfree: holdout needs one mask per sequence, as long as it")
         h = self.hyper
         t0 = time.perf_counter()
         self.dt_ = step_dt("lawfree", info)
@@ -215,6 +221,9 @@ class LawFreeModel(ForceModel):
         # alone: that is what tells the friction from a hysteresis of the object, which inside
         # the object looks the same (a force step with the direction of motion); contact_rows.py
         friction, thinned = sliding_rows(seqs, targets, info, float(h["fit_min_speed_mps"]))
+        if holdout is not None:
+            thinned = [(x, v, t, keep & ~np.asarray(out, dtype=bool)[::k], k)  # fmt: skip
+                       for (x, v, t, keep, k), out in zip(thinned, holdout, strict=True)]
         picked = [(x, v, t, keep, self.dt_ * k) for x, v, t, keep, k in thinned]
         xs = np.concatenate([x[kp & (x > 0)] for x, _, _, kp, _ in picked])
         if len(xs) == 0:
