@@ -304,12 +304,17 @@ fn set_up_and_run(
     };
     rig.set_period(1.0 / cfg.rate_hz);
     rig.passivity = crate::passivity::PassivityController::for_run(cfg);
-    let onnx_object = matches!(material.law, LawParams::Onnx(_));
+    // The ONNX object's own rate, once: `drive` keeps the loop's CPU awake for such an
+    // object, and the summary's hint below names that rate.
+    let onnx_rate_hz = match &material.law {
+        LawParams::Onnx(p) => Some(p.file.onnx.rate_hz),
+        _ => None,
+    };
     let mut result = drive(
         cfg,
         &mut rig,
         &material_text,
-        onnx_object,
+        onnx_rate_hz.is_some(),
         shutdown,
         progress,
         sink,
@@ -317,9 +322,9 @@ fn set_up_and_run(
     // 0 A, watchdog off, board closed, whatever happened.
     rig.finish();
     give_back(rig.experiment, model);
-    if let (Ok(s), LawParams::Onnx(p)) = (&mut result, &material.law) {
+    if let (Ok(s), Some(rate_hz)) = (&mut result, onnx_rate_hz) {
         let overruns = s.jitter.as_ref().map(|j| j.overruns);
-        if let Some(w) = overruns.and_then(|o| onnx_overrun_hint(s.steps, o, p.file.onnx.rate_hz)) {
+        if let Some(w) = overruns.and_then(|o| onnx_overrun_hint(s.steps, o, rate_hz)) {
             eprintln!("rt-loop: warning: {w}");
             s.warnings.push(w);
         }
