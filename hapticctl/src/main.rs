@@ -17,7 +17,7 @@ use client::{connect, explain, CliError, Client, EXIT_USAGE};
     name = "hapticctl",
     version,
     about = "Control infer-server: models, hot swap, experiments, status and telemetry",
-    after_help = "Examples:\n  hapticctl models\n  hapticctl swap rf_memory            (a model in the server's directory; scripts/up.sh trains it)\n  hapticctl swap ./new/lstm.onnx      (uploads a local file, then swaps)\n  hapticctl status --watch\n  hapticctl experiment start abstraction --ramp-rate 2.1 --cycles 10\n  hapticctl telemetry --decimation 1000"
+    after_help = "Examples:\n  hapticctl models\n  hapticctl swap rf_memory            (a model in the server's directory; scripts/up.sh trains it)\n  hapticctl swap ./new/lstm.onnx      (uploads a local file, then swaps)\n  hapticctl swap models/mine/lawfree.onnx --as mine.onnx   (under its own name)\n  hapticctl status --watch\n  hapticctl experiment start abstraction --ramp-rate 2.1 --cycles 10\n  hapticctl telemetry --decimation 1000"
 )]
 struct Cli {
     /// gRPC address of infer-server. Default: $HAPTICS_ADDR, else the address in the
@@ -65,6 +65,12 @@ enum Command {
     Swap {
         /// A name in the server's model directory, or a path to a local .onnx file to upload.
         model: String,
+        /// Upload the local file under this name (default: the file's name). For a model
+        /// trained elsewhere whose file name the server's directory already has (each
+        /// `haptics-train` models folder holds a `lawfree.onnx`): the server refuses a
+        /// different file under a name its directory has.
+        #[arg(long)]
+        r#as: Option<String>,
     },
     /// Drop a loaded model from the server's memory (not the active one).
     Unload { name: String },
@@ -172,8 +178,8 @@ async fn run(cli: Cli) -> Result<(), CliError> {
                 println!("loaded {}", output::model_line(&model));
             }
         }
-        Command::Swap { model } => {
-            let (model, step) = swap(&mut c, &model).await?;
+        Command::Swap { model, r#as } => {
+            let (model, step) = swap(&mut c, &model, r#as).await?;
             if cli.json {
                 print_json(
                     &serde_json::json!({ "model": output::model_json(&model), "effective_step": step }),
@@ -418,13 +424,38 @@ async fn upload(
     load(c, name, Some(bytes)).await
 }
 
+/// A refused upload whose name the server's directory has for another file: says how to
+/// upload it under another name.
+fn same_name_hint(e: CliError, path: &str) -> CliError {
+    if !e.message.contains("upload under another name") {
+        return e;
+    }
+    CliError::new(
+        format!("{}: swap {path} --as NEW_NAME.onnx", e.message),
+        e.code,
+    )
+}
+
 /// `swap NAME` activates a model of the server's directory (loading it if needed); `swap PATH`
 /// (a path with a `/`, or a bare name the server does not have but that exists here) uploads the
 /// local file first.
-async fn swap(c: &mut Client, model: &str) -> Result<(pb::ModelInfo, u64), CliError> {
+async fn swap(
+    c: &mut Client,
+    model: &str,
+    upload_as: Option<String>,
+) -> Result<(pb::ModelInfo, u64), CliError> {
     let local = Path::new(model);
-    let name = if model.contains('/') {
-        upload(c, local, None).await?.name
+    if upload_as.is_some() && !local.is_file() {
+        return Err(CliError::new(
+            format!("--as names an upload, but {model} is not a local file"),
+            EXIT_USAGE,
+        ));
+    }
+    let name = if model.contains('/') || upload_as.is_some() {
+        upload(c, local, upload_as)
+            .await
+            .map_err(|e| same_name_hint(e, model))?
+            .name
     } else {
         model.to_string()
     };
@@ -434,7 +465,10 @@ async fn swap(c: &mut Client, model: &str) -> Result<(pb::ModelInfo, u64), CliEr
     };
     let r = match c.models.activate_model(activate(name.clone())).await {
         Err(s) if s.code() == tonic::Code::NotFound && local.is_file() && !model.contains('/') => {
-            let name = upload(c, local, None).await?.name;
+            let name = upload(c, local, None)
+                .await
+                .map_err(|e| same_name_hint(e, model))?
+                .name;
             c.models.activate_model(activate(name)).await
         }
         r => r,

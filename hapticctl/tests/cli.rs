@@ -129,6 +129,13 @@ async fn models_swap_unload_and_active() {
     assert!(o.stderr.contains("active model"), "{}", o.stderr);
 }
 
+/// A swap that succeeded and made `name` the active model.
+fn swapped_to(o: &Out, name: &str) {
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    let said = format!("{name} is active from feature message");
+    assert!(o.stdout.starts_with(&said), "{}", o.stdout);
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn uploads_from_local_files_and_clear_refusals() {
     let s = server(None).await;
@@ -156,13 +163,9 @@ async fn uploads_from_local_files_and_clear_refusals() {
     );
 
     // A path swaps by uploading first.
-    let o = ctl(&s, &["swap", good.to_str().unwrap()]).await;
-    assert_eq!(o.code, 0, "{}", o.stderr);
-    assert!(
-        o.stdout
-            .starts_with("mine.onnx is active from feature message"),
-        "{}",
-        o.stdout
+    swapped_to(
+        &ctl(&s, &["swap", good.to_str().unwrap()]).await,
+        "mine.onnx",
     );
 
     for (file, why) in [
@@ -179,6 +182,13 @@ async fn uploads_from_local_files_and_clear_refusals() {
             o.stdout
         );
     }
+    // ... under a name of its own with --as; --as names an upload, so a bare name is refused.
+    let args = ["swap", good.to_str().unwrap(), "--as", "mine_v2.onnx"];
+    swapped_to(&ctl(&s, &args).await, "mine_v2.onnx");
+    let o = ctl(&s, &["swap", "a.onnx", "--as", "x.onnx"]).await;
+    assert_eq!(o.code, 2, "{}", o.stdout);
+    assert!(o.stderr.contains("is not a local file"), "{}", o.stderr);
+
     let o = ctl(&s, &["load", "--file", big.to_str().unwrap()]).await;
     assert_eq!(o.code, 1);
     assert!(

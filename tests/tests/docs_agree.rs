@@ -186,6 +186,25 @@ fn model_names_in_examples_are_models_the_commands_make() {
     for w in readme.split("--names ").skip(1) {
         made.insert(w.split_whitespace().next().unwrap().to_string());
     }
+    // A pipeline's models, as DIR/NAME: its `--models SPECS` into its `--models-dir DIR`.
+    for w in readme.split("haptics-train pipeline ").skip(1) {
+        let cmd = w
+            .split("\n\n")
+            .next()
+            .unwrap_or_default()
+            .replace("\\\n", " ");
+        let value = |flag: &str| {
+            cmd.split(flag)
+                .nth(1)
+                .and_then(|v| v.split_whitespace().next())
+                .map(str::to_string)
+        };
+        if let (Some(specs), Some(dir)) = (value("--models "), value("--models-dir ")) {
+            for spec in specs.split(',') {
+                made.insert(format!("{dir}/{}", spec.replace(':', "_")));
+            }
+        }
+    }
     let mut named = Vec::new();
     for w in readme.split("hapticctl swap ").skip(1) {
         named.push((

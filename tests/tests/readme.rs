@@ -36,6 +36,10 @@ const LONG: &[(&str, &str)] = &[
     ),
     (".venv/bin/haptics-train pipeline", "about 25 minutes"),
     (
+        "target/release/hapticctl swap models/mine/rf_memory.onnx --as mine_rf_memory.onnx",
+        "needs the models of the pipeline above, which is not run here",
+    ),
+    (
         ".venv/bin/haptics-train train --models rf:six && .venv/bin/haptics-train export --names rf_six",
         "needs the recorded dataset; about a minute",
     ),

@@ -9,7 +9,9 @@
 //! - a full filesystem under `rt-loop serve --record-dir`: every run says so (its line, status
 //!   over gRPC and HTTP, `/metrics`) and what was written stays readable;
 //! - a model that allocates 1 GiB at run time, and one with 10 MB of metadata: refused at load
-//!   within the load timeout, the active model still answering.
+//!   within the load timeout, the active model still answering;
+//! - a model trained elsewhere uploaded under a name the server's directory has for another
+//!   file: refused with the way round (`hapticctl swap PATH --as NAME`), which then works.
 //!
 //! Switching users, `mknod` and mounting a tmpfs need root (CI runs as root): without it those
 //! parts are counted skips (failures under CI=true).
@@ -598,4 +600,30 @@ fn a_gibibyte_at_run_time_or_ten_megabytes_of_metadata_is_refused_at_load() {
         "GET /api/models: {} bytes",
         models.len()
     );
+}
+
+/// A model trained elsewhere (every `haptics-train` models folder has its `rf_memory.onnx`)
+/// uploaded under a name the server's directory has for another file: refused, nothing
+/// changed, and the message says how to give it a name of its own, which then works.
+#[test]
+fn a_model_named_as_a_directory_model_is_refused_and_swapped_under_a_name_of_its_own() {
+    let dir = temp_dir("trust-same-name");
+    fixtures(&dir);
+    let elsewhere = temp_dir("trust-same-name-mine");
+    let mine = elsewhere.path().join("linear.onnx");
+    std::fs::copy(dir.join("tree.onnx"), &mine).unwrap();
+    let sys = System::start("samename", &dir, "linear.onnx", &[]);
+    let o = sys.owner_ctl(&["swap", mine.to_str().unwrap()]);
+    let t = text(&o);
+    assert_eq!(o.status.code(), Some(1), "{t}");
+    assert!(
+        t.contains("already has a different file named \"linear.onnx\"")
+            && t.contains("--as NEW_NAME.onnx"),
+        "{t}"
+    );
+    let o = sys.owner_ctl(&["swap", mine.to_str().unwrap(), "--as", "mine_linear.onnx"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let o = sys.owner_ctl(&["--json", "active"]);
+    let active: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(active["name"], "mine_linear.onnx", "{active}");
 }
