@@ -459,3 +459,31 @@ def test_a_repeated_column_name_is_refused(tmp_path, rt_loop):
     src.write_text("t [s],x [mm],f,f\n0,0,0,0\n0.02,0.1,0.1,0.2\n0.04,0.2,0.2,0.4\n")
     with pytest.raises(DataError, match="'f' is ambiguous"):
         import_series(src, tmp_path / "o.parquet", "t", "x", "f", rt_loop=str(rt_loop))
+
+
+def test_a_file_without_a_time_column_imports_at_its_sampling_rate(tmp_path, rt_loop):
+    """A DAQ's samples with no time column, given their rate, make the recording the same
+    samples with a time column make; neither or both of the two is refused."""
+    cells = _cycle_cells()  # 50 Hz: time 0.000, 0.020, ...
+    want = import_series(_write_plain(tmp_path / "plain.csv", cells), tmp_path / "a.parquet",
+                         "t", "x", "f", rt_loop=str(rt_loop))  # fmt: skip
+    src = tmp_path / "daq.csv"
+    src.write_text("f [N];x [mm]\n" + "".join(f"{c};{b}\n".replace(".", ",")
+                                             for _, b, c in cells))  # fmt: skip
+    got = import_series(src, tmp_path / "b.parquet", None, "x", "f", sample_rate_hz=50.0,
+                        rt_loop=str(rt_loop))  # fmt: skip
+    for col in ("time", "position_x", "rtob_force", *NINE):
+        np.testing.assert_allclose(got.column(col), want.column(col), rtol=0, atol=1e-9,
+                                   err_msg=col)  # fmt: skip
+    pre = got.meta["haptics.run"]["preprocessing"]
+    assert pre["sample_rate_given_hz"] == 50.0
+    assert pre["units"]["time"] == {"unit": "s", "from": "sample rate", "column": None}
+    assert "a lost sample cannot be seen" in describe_import(got)
+    for kw in ({}, {"sample_rate_hz": 50.0, "time_col": "f"}):
+        time_col = kw.pop("time_col", None)
+        with pytest.raises(DataError, match="one of the two"):
+            import_series(src, tmp_path / "c.parquet", time_col, "x", "f", rt_loop=str(rt_loop),
+                          **kw)  # fmt: skip
+    with pytest.raises(DataError, match="--time-unit is the unit of a time column"):
+        import_series(src, tmp_path / "c.parquet", None, "x", "f", sample_rate_hz=50.0,
+                      time_unit="ms", rt_loop=str(rt_loop))  # fmt: skip

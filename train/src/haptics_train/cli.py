@@ -242,6 +242,7 @@ def cmd_import(a: argparse.Namespace) -> None:
         a.time_col,
         a.position_col,
         a.force_col,
+        sample_rate_hz=a.sample_rate_hz,
         time_unit=a.time_unit,
         position_unit=a.position_unit,
         force_unit=a.force_unit,
@@ -395,7 +396,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True,
                    help="recording to write (.parquet; an existing one needs --overwrite)")
     s.add_argument("--overwrite", action="store_true", help="replace an existing --out")
-    s.add_argument("--time-col", required=True, help="name, or name of a 'name [unit]' header")
+    s.add_argument("--time-col", help="name, or name of a 'name [unit]' header (or, for a file "
+                   "without a time column, --sample-rate-hz)")
+    s.add_argument("--sample-rate-hz", type=float,
+                   help="a file without a time column: its rows' sampling rate (the time is the "
+                   "row's index over it; a lost sample cannot be seen)")
     s.add_argument("--position-col", required=True,
                    help="displacement column (into the object), as --time-col")
     s.add_argument("--force-col", required=True, help="force column, as --time-col")

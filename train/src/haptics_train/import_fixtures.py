@@ -152,6 +152,16 @@ def _tabs(p: Path) -> Path:
     return p
 
 
+def _no_time(p: Path) -> Path:
+    """A DAQ's samples: force and displacement, no time column."""
+    c = cycle()
+    lines = ["force [N];displacement [mm]"]
+    lines += [f"{_decimal(f, 5)};{_decimal(x, 5)}" for x, f in zip(c["displacement"], c["force"],
+                                                                   strict=True)]  # fmt: skip
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
 def _mixed_marks(p: Path) -> Path:
     c = cycle()
     lines = ["time [s];displacement [mm];force [N]"]
@@ -222,6 +232,9 @@ CASES: list[Case] = [
          "under them", _units_row,
          {"time_col": "Time", "position_col": "Extension", "force_col": "Load"}),
     Case("tabs.txt", "tab-separated text", _tabs, STD),
+    Case("no_time.csv --sample-rate-hz 50", "force and displacement only, no time column",
+         _no_time, {"time_col": None, "position_col": "displacement", "force_col": "force",
+                    "sample_rate_hz": 50.0}),
     Case("mixed_marks.csv", "`;` and decimal commas, but row 301's force with a decimal point",
          _mixed_marks, STD, refused="one file, one decimal mark"),
     Case("afm-cellhesion-fd.csv (REAL)", "AFM approach-retract curve, 1 kHz, N and m (SI "

@@ -341,10 +341,11 @@ def resample(t: np.ndarray, v: np.ndarray, rate_hz: float) -> tuple[np.ndarray, 
 def import_series(
     input_path: str | Path,
     out: str | Path,
-    time_col: str,
+    time_col: str | None,
     position_col: str,
     force_col: str,
     *,
+    sample_rate_hz: float | None = None,
     time_unit: str | None = None,
     position_unit: str | None = None,
     force_unit: str | None = None,
@@ -365,7 +366,9 @@ def import_series(
     refused unless `overwrite` (as `rt-loop run --overwrite`). `compression_negative`: the
     machine's compression is negative displacement and force (a common sign convention of
     testing machines); both are negated, so compression is positive as in the product's
-    recordings (into the object, pushing back), and the metadata says so."""
+    recordings (into the object, pushing back), and the metadata says so. `sample_rate_hz`
+    instead of `time_col`: a file without a time column (a DAQ's samples at a known rate);
+    the time is then the row's index over the rate, so a lost sample cannot be seen."""
     src = Path(input_path)
     dst = Path(out)
     if not src.is_file():
@@ -385,13 +388,23 @@ def import_series(
         raise DataError(f"--resample-hz must be a positive rate, not {resample_hz}")
     if not max_gap_factor > 1:
         raise DataError(f"--max-gap-factor must be above 1, not {max_gap_factor}")
+    if (time_col is None) == (sample_rate_hz is None):
+        raise DataError(
+            "give the time column (--time-col) or, for a file without one, its sampling rate "
+            "(--sample-rate-hz): one of the two"
+        )
+    if sample_rate_hz is not None:
+        if not (np.isfinite(sample_rate_hz) and sample_rate_hz > 0):
+            raise DataError(f"--sample-rate-hz must be a positive rate, not {sample_rate_hz}")
+        if time_unit is not None:
+            raise DataError("--time-unit is the unit of a time column; --sample-rate-hz has none")
+    named = [("time", time_col), ("position", position_col), ("force", force_col)]
     try:
-        table, layout = _read_table(src, [time_col, position_col, force_col])
+        table, layout = _read_table(src, [n for _, n in named if n is not None])
     except DataError as e:
         raise DataError(f"{src}: {e}") from None
     headers = list(table.column_names)
-    cols = {k: find_column(headers, n) for k, n in
-            (("time", time_col), ("position", position_col), ("force", force_col))}  # fmt: skip
+    cols = {k: find_column(headers, n) for k, n in named if n is not None}
     units = {
         k: resolve_unit(k, cols[k], opt, table)
         for k, opt, table in (
@@ -399,12 +412,16 @@ def import_series(
             ("position", position_unit, POSITION_UNITS),
             ("force", force_unit, FORCE_UNITS),
         )
+        if k in cols
     }
+    if sample_rate_hz is not None:
+        units = {"time": ("s", "sample rate"), **units}
     binary = find_rt_loop(rt_loop)
     try:
-        t = _as_float(table, cols["time"]) * TIME_UNITS[units["time"][0]]
         x = _as_float(table, cols["position"]) * POSITION_UNITS[units["position"][0]]
         f = _as_float(table, cols["force"]) * FORCE_UNITS[units["force"][0]]
+        t = (np.arange(len(x)) / sample_rate_hz if sample_rate_hz is not None
+             else _as_float(table, cols["time"]) * TIME_UNITS[units["time"][0]])  # fmt: skip
         if compression_negative:
             x, f = -x, -f
         check_plausible_si({"position": x, "force": f}, units, cols)
@@ -420,7 +437,10 @@ def import_series(
     pre = {
         "source": str(src.resolve()),
         "source_sha256": sha256_file(src),
-        "units": {k: {"unit": u, "from": how, "column": cols[k]} for k, (u, how) in units.items()},
+        "units": {k: {"unit": u, "from": how, "column": cols.get(k)}
+                  for k, (u, how) in units.items()},  # fmt: skip
+        # the rate the time was made from (None: from the time column)
+        "sample_rate_given_hz": sample_rate_hz,
         "rows_in": rows_in,
         "rows_out": len(t),
         "sample_rate_in_hz": rate_in,
@@ -485,6 +505,9 @@ def describe_import(rec: Recording) -> str:
            "negative needs --compression-negative" if contact.get("loading") == "tension" else "")
         + ")"
         + ("; signs negated (--compression-negative)" if pre.get("compression_negative") else "")
+        + (f"; time from the rows at {pre['sample_rate_given_hz']:g} Hz (--sample-rate-hz: "
+           "no time column, a lost sample cannot be seen)" if pre.get("sample_rate_given_hz")
+           else "")
         + (f"; read as {how}" if (how := CsvLayout.describe_meta(pre.get("text_layout") or {}))
            else "")
         + (f"; repaired {fixes}" if fixes else "")
