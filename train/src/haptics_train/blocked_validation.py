@@ -29,7 +29,7 @@ import numpy as np
 
 from .data import Dataset, training_arrays
 from .evaluate import sliding_rows
-from .models import ForceModel, TrainConfig
+from .models import ForceModel, TrainConfig, predict_at
 
 #: Blocks each training recording is cut into. Five: each fit keeps four fifths of every
 #: recording, and each held-out block is long enough to hold a loading or an unloading.
@@ -80,8 +80,8 @@ def blocked_scores(
             model.fit(X, y, **params, holdout=holdout)
         except (ValueError, FloatingPointError):
             return float("nan"), float("nan")
-        for x, yy, out, slide in zip(X, y, holdout, sliding, strict=True):
-            err = model.predict(x) - yy
+        for x, yy, out, slide, rec in zip(X, y, holdout, sliding, dataset.train, strict=True):
+            err = predict_at(model, x, 1.0 / rec.sample_rate_hz) - yy
             sq_every.append(err[out] ** 2)
             sq_slide.append(err[out & slide] ** 2)
 

@@ -56,6 +56,17 @@ class Recording:
         return float(1.0 / np.median(d)) if len(d) else float("nan")
 
     @property
+    def feature_gains(self) -> tuple[float, float] | None:
+        """(g_v, g_a), rad/s: the velocity and acceleration filters its features were computed
+        with (an import's `filters`, a bench recording's loop `params`); None where unknown."""
+        run = self.meta.get("haptics.run") or {}
+        src = run.get("filters") or ((run.get("config") or {}).get("params")) or {}
+        g_v, g_a = src.get("g_v"), src.get("g_a")
+        if isinstance(g_v, int | float) and isinstance(g_a, int | float):
+            return float(g_v), float(g_a)
+        return None
+
+    @property
     def row_step(self) -> int:
         """Control steps per row (rt-loop's recorder decimation)."""
         return row_step(self.columns)

@@ -15,7 +15,7 @@ from .closed_loop import OnnxStepper, contact_thresholds, simulate
 from .data import Dataset, Recording, to_rows
 from .features import F_PREVIOUS, FEEDBACK_FEATURES, TARGET_DEFAULT
 from .metrics import force_metrics, pooled, regression_metrics
-from .models.base import ForceModel, TrainConfig, fit_recordings
+from .models.base import ForceModel, TrainConfig, fit_recordings, predict_at
 from .truth import is_hand_run, object_truth
 
 
@@ -56,7 +56,8 @@ def evaluate(
     x = rec.column("position_x")
     contact = contact_thresholds(rec)[1]
     t0 = time.perf_counter()
-    one = model.predict(rec.matrix(model.features))
+    # at the recording's own rows' period (a test logged at another rate than training)
+    one = predict_at(model, rec.matrix(model.features), 1.0 / rec.sample_rate_hz)
     res: dict = {
         "recording": rec.name,
         "rows": int(len(y)),
@@ -90,7 +91,7 @@ def evaluate(
             # or should follow.
             served = getattr(model, "predict_served", None)
             if served is not None:
-                preds["rendered"] = served(rec.matrix(model.features))
+                preds["rendered"] = served(rec.matrix(model.features), 1.0 / rec.sample_rate_hz)
             rendered = preds.get("rendered", preds["closed_loop"])
             res["rendered_vs_true"] = force_metrics(rec.column(true), rendered, x, contact)
             res["true_column"] = true

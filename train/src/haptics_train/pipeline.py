@@ -336,6 +336,25 @@ class _Tried:
         return extra.get(self.parameter, label), self.fitted[label]
 
 
+def feature_gains_note(dataset: Dataset) -> str | None:
+    """A warning when the dataset's recordings had their velocity and acceleration computed
+    with different filters (more than 1 % apart), else None. An import derives its gains from
+    its file's rate (g dt = 0.2), so tests logged at different rates get different filters, and
+    a feature then means something else in each: a model fitted on one is scored and chosen on
+    another as if they agreed. The remedy is to import them with the same `--g-v/--g-a`."""
+    recs = [*dataset.train, *dataset.validation, *dataset.test]
+    gains = {r.name: g for r in recs if (g := r.feature_gains) is not None}
+    if len(gains) < 2:
+        return None
+    ref = next(iter(gains.values()))
+    if all(abs(g[k] / ref[k] - 1) <= 0.01 for g in gains.values() for k in (0, 1)):
+        return None
+    listed = ", ".join(f"{n} {g[0]:.4g} / {g[1]:.4g}" for n, g in gains.items())
+    return (f"the recordings' velocity / acceleration filters differ (g_v / g_a rad/s: {listed}): "
+            "a feature means something else in each; import them with the same --g-v and "
+            "--g-a (at most the slowest file's rate allows)")  # fmt: skip
+
+
 def train_models(
     dataset: Dataset,
     specs: list[str],
@@ -356,6 +375,8 @@ def train_models(
     memory, kept where it is clearly closer (`keep_damage_memory`)."""
     for spec in specs:
         parse_spec(spec, preset)  # an unknown algorithm or feature set stops before any training
+    if (note := feature_gains_note(dataset)) is not None:
+        print(f"[train] warning: {note}", flush=True)
     out.mkdir(parents=True, exist_ok=True)
     models = []
     for spec in specs:

@@ -4,7 +4,7 @@ estimator shape and the arrays each model takes: `base`)."""
 from __future__ import annotations
 
 from ..features import feature_set
-from .base import ForceModel, NotFittedError, TrainConfig, fit_recordings
+from .base import ForceModel, NotFittedError, TrainConfig, fit_recordings, predict_at
 from .lawfree import LawFreeModel
 from .networks import DNN_THESIS, LSTM_THESIS, DenseModel, LSTMModel
 from .prony import PronyModel
@@ -30,6 +30,7 @@ __all__ = [
     "fit_recordings",
     "make_model",
     "parse_spec",
+    "predict_at",
 ]
 
 

@@ -183,12 +183,14 @@ def check_sequences(
     return xs, ys
 
 
-def step_dt(algo: str, info: Sequence[SequenceInfo]) -> float:
+def step_dt(algo: str, info: Sequence[SequenceInfo], one_rate: bool = True) -> float:
     """The step of a stateful model fitted on these sequences: their median row interval, s;
-    a warning where their rates differ by more than 1 % (the model steps at one rate)."""
+    with `one_rate` (a model that steps every sequence at that one step), a warning where
+    their rates differ by more than 1 %. A model that steps each sequence at its own period
+    (`predict_at`) passes False."""
     dts = np.array([1.0 / i.sample_rate_hz for i in info])
     dt = float(np.median(dts))
-    if np.any(np.abs(dts / dt - 1) > 0.01):
+    if one_rate and np.any(np.abs(dts / dt - 1) > 0.01):
         warnings.warn(f"{algo}: training recordings at different rates ({1 / dts} Hz); "
                       f"the model steps at {1 / dt:g} Hz", stacklevel=3)  # fmt: skip
     return dt
@@ -232,3 +234,13 @@ def fit_recordings(model: ForceModel, recs: Sequence[Recording], cfg: TrainConfi
     )  # fmt: skip
     model.set_params(seed=cfg.seed, progress=cfg.progress)
     return model.fit(X, y, **params)
+
+
+def predict_at(model: ForceModel, X: np.ndarray, period_s: float) -> np.ndarray:
+    """`model.predict` along rows `period_s` apart: a model whose state steps in time
+    (`steps_in_time`: `lawfree`, `structured`, `prony`) is stepped at that period, so a
+    recording logged at another rate than the training ones relaxes at the right speed;
+    any other model predicts row by row as it was fitted."""
+    if getattr(model, "steps_in_time", False):
+        return model.predict(X, dt=period_s)  # type: ignore[call-arg]
+    return model.predict(X)

@@ -162,6 +162,9 @@ def _readout_columns(
 class LawFreeModel(ForceModel):
     algo = "lawfree"
     kind = "stateful"
+    #: its state steps in time (decays exp(-dt / tau)): `predict_at` steps it at a
+    #: recording's own period
+    steps_in_time = True
     layout = "sequences"
     defaults = LAWFREE_DEFAULT
 
@@ -214,7 +217,7 @@ class LawFreeModel(ForceModel):
             raise ValueError("lawfree: holdout needs one mask per sequence, as long as it")
         h = self.hyper
         t0 = time.perf_counter()
-        self.dt_ = step_dt("lawfree", info)
+        self.dt_ = step_dt("lawfree", info, one_rate=False)
         self.serve_dt_ = serve_dt("lawfree", info)
         # sliding rows: in contact where the object's force is above the contact threshold, and
         # out of contact too, where the object is 0 and the target is the bench's friction
@@ -224,7 +227,10 @@ class LawFreeModel(ForceModel):
         if holdout is not None:
             thinned = [(x, v, t, keep & ~np.asarray(out, dtype=bool)[::k], k)  # fmt: skip
                        for (x, v, t, keep, k), out in zip(thinned, holdout, strict=True)]
-        picked = [(x, v, t, keep, self.dt_ * k) for x, v, t, keep, k in thinned]
+        # each recording stepped at its own rows' period (tests logged at other rates: a
+        # testing machine that records every 0.01 mm logs a faster test at a higher rate)
+        picked = [(x, v, t, keep, k / i.sample_rate_hz)
+                  for (x, v, t, keep, k), i in zip(thinned, info, strict=True)]  # fmt: skip
         xs = np.concatenate([x[kp & (x > 0)] for x, _, _, kp, _ in picked])
         if len(xs) == 0:
             raise ValueError("lawfree: no training row in contact with the probe sliding")
@@ -310,10 +316,10 @@ class LawFreeModel(ForceModel):
         z, contact = self._inputs(xv[:, 0], xv[:, 1], self.dt_ if dt is None else dt)
         return self._object(z, contact)
 
-    def predict(self, X: np.ndarray) -> np.ndarray:
+    def predict(self, X: np.ndarray, dt: float | None = None) -> np.ndarray:
         """The force the RFOB reads: the object's plus the bench's friction (one sequence,
-        from zero state)."""
-        served = self.predict_served(X)
+        from zero state, stepped at `dt`: default the training rows' period)."""
+        served = self.predict_served(X, dt)
         xv = self._check_X(X)
         h = self.hyper
         bench = sum(c * dahl(xv[:, 0], L) for c, L in zip(self.c_, h["friction_lengths_m"],

@@ -77,6 +77,9 @@ def prony_fused(k: np.ndarray, w: np.ndarray, taus: np.ndarray, dt: float) -> on
 class PronyModel(ForceModel):
     algo = "prony"
     kind = "stateful"
+    #: its state steps in time (decays exp(-dt / tau)): `predict_at` steps it at a
+    #: recording's own period
+    steps_in_time = True
     layout = "sequences"
     defaults = PRONY_DEFAULT
     _legacy_fitted = ("k", "w", "taus", "dt")
@@ -95,7 +98,7 @@ class PronyModel(ForceModel):
     ) -> PronyModel:
         seqs, targets = check_sequences(X, y, len(self.features), len(info))
         h = self.hyper
-        dt = step_dt("prony", info)
+        dt = step_dt("prony", info, one_rate=False)
         span = max(i.duration_s for i in info)
         lo = max(float(h["tau_min_steps"]) * dt, float(h["tau_min_s"]))
         hi = max(min(float(h["tau_max_s"]), span), 2 * lo)
@@ -103,7 +106,7 @@ class PronyModel(ForceModel):
         rows_a, rows_y = [], []
         for xv, y, i in zip(seqs, targets, info, strict=True):
             x, v = xv[:, 0], xv[:, 1]
-            s = branch_states(v, dt, taus)
+            s = branch_states(v, 1.0 / i.sample_rate_hz, taus)  # at its own rows' period
             keep = np.zeros(len(y), dtype=bool)
             keep[:: i.stride] = True
             keep &= y > i.contact_off_n  # contact rows: the clamp is not fitted
@@ -134,9 +137,10 @@ class PronyModel(ForceModel):
         }
         return self
 
-    def predict(self, X: np.ndarray) -> np.ndarray:
-        """One sequence (x, v rows in time order) stepped from zero branch states."""
-        return self.predict_served(X)
+    def predict(self, X: np.ndarray, dt: float | None = None) -> np.ndarray:
+        """One sequence (x, v rows in time order) stepped from zero branch states at `dt`
+        (default: the training rows' period)."""
+        return self.predict_served(X, dt)
 
     def predict_served(self, X: np.ndarray, dt: float | None = None) -> np.ndarray:
         """`predict` stepped at `dt` (default: the training rows' period; the graph steps at

@@ -299,6 +299,9 @@ def _set_shape(law: dict, depth: float) -> dict:
 class StructuredModel(ForceModel):
     algo = "structured"
     kind = "stateful"
+    #: its state steps in time (decays exp(-dt / tau)): `predict_at` steps it at a
+    #: recording's own period
+    steps_in_time = True
     layout = "sequences"
     defaults = STRUCTURED_DEFAULT
 
@@ -327,7 +330,7 @@ class StructuredModel(ForceModel):
     ) -> StructuredModel:
         seqs, targets = check_sequences(X, y, len(self.features), len(info))
         h = self.hyper
-        self.dt_ = step_dt("structured", info)
+        self.dt_ = step_dt("structured", info, one_rate=False)
         self.serve_dt_ = serve_dt("structured", info)
         # Fitted on every stride-th row, the states stepped at that rate (the Dahl states are
         # rate-independent, the branches exact for the increments they are driven by).
@@ -335,8 +338,9 @@ class StructuredModel(ForceModel):
         friction, thinned = sliding_rows(seqs, targets, info, float(h["fit_min_speed_mps"]))
         rows = []
         depth = 0.0
-        for x, v, t, keep, k in thinned:
-            rows.append((x, v, t, keep, self.dt_ * k, _bench_columns(x, v, h)))
+        # each recording stepped at its own rows' period (as lawfree)
+        for (x, v, t, keep, k), i in zip(thinned, info, strict=True):
+            rows.append((x, v, t, keep, k / i.sample_rate_hz, _bench_columns(x, v, h)))
             if keep.any():
                 depth = max(depth, float(x[keep].max()))
         if depth <= 0.0:
@@ -451,10 +455,10 @@ class StructuredModel(ForceModel):
         bench = _bench_columns(x, v, self.basis_)[:, :-2] @ self.c_ + self.b_ * v
         return served, bench
 
-    def predict(self, X: np.ndarray) -> np.ndarray:
+    def predict(self, X: np.ndarray, dt: float | None = None) -> np.ndarray:
         """The force the RFOB reads: the object's plus the bench's friction (one sequence,
-        from zero state)."""
-        served, bench = self._parts(X)
+        from zero state, stepped at `dt`: default the training rows' period)."""
+        served, bench = self._parts(X, dt)
         return served + bench
 
     def predict_served(self, X: np.ndarray, dt: float | None = None) -> np.ndarray:
