@@ -212,6 +212,19 @@ fn features_at(seq: u64) -> [f64; 4] {
 }
 
 /// A fixture model's force as a function of the features (SCHEMA order).
+/// Waits (at most 20 s) until the server has an active model.
+async fn wait_active(c: &mut ModelServiceClient<Authed>, server: &ServerProcess) {
+    let end = Instant::now() + Duration::from_secs(20);
+    while c
+        .get_active_model(pb::GetActiveModelRequest {})
+        .await
+        .is_err()
+    {
+        assert!(Instant::now() < end, "no active model: {}", server.stderr());
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
 type Formula = fn(&[f64; 4]) -> f64;
 
 /// tests/fixtures/make_models.py: linear = 2 velocity - 3 position_x + 0.5.
@@ -930,15 +943,7 @@ async fn sigterm_ends_open_streams_and_websockets_quickly() {
     // linear is active once the start model's wait for the loop's status block is over (this
     // loop publishes none: up to half a second)
     let mut authed = server.models_with(Some("s3cret".into())).await;
-    let end = Instant::now() + Duration::from_secs(20);
-    while authed
-        .get_active_model(pb::GetActiveModelRequest {})
-        .await
-        .is_err()
-    {
-        assert!(Instant::now() < end, "no active model: {}", server.stderr());
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    wait_active(&mut authed, &server).await;
 
     // Every call needs the token: mutating calls and reads alike.
     let mut c = server.models().await;
@@ -1305,6 +1310,50 @@ async fn a_model_stepped_for_another_loop_rate_is_refused() {
 
     let ok = activate(&mut c, "stepped_10khz.onnx", true).await.unwrap();
     assert_ne!(ok.model.unwrap().model_id, linear_id);
+}
+
+/// A model whose training features were computed with other filters than the loop's
+/// (`haptics.feature_gains` against the gains in the loop's status block) is served, and the
+/// server says so on stderr, naming both.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_model_of_other_feature_filters_is_served_and_named() {
+    use haptics_proto::{LoopStatus, LoopStatusLink};
+    let Some(fixtures) = common::fixtures() else {
+        return;
+    };
+    let dir = models_dir("gains", fixtures, &["linear", "linear_other_filters"]);
+    let segment = segment_name("gains");
+    let lp = Segment::create(&segment, &loop_config())
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    lp.link.publish_loop_status(&LoopStatus {
+        rate_hz: 10_000.0,
+        velocity_gain_rad_s: 30.0,
+        acceleration_gain_rad_s: 100.0,
+        ..LoopStatus::default()
+    });
+    let server = ServerProcess::start("gains", &dir, &segment, &["--model", "linear.onnx"]);
+    let stepper = StepLoop::start(lp);
+    let mut c = server.models().await;
+    wait_active(&mut c, &server).await;
+    stepper.wait_for(stepper.last_seq() + 20);
+    assert!(
+        !server.stderr().contains("other filters"),
+        "{}",
+        server.stderr()
+    );
+    activate(&mut c, "linear_other_filters.onnx", true)
+        .await
+        .expect("served, not refused");
+    let said = server.stderr();
+    assert!(
+        said.contains("warning: model linear_other_filters.onnx")
+            && said.contains("velocity at g_v 10")
+            && said.contains("the loop's 30"),
+        "{said}"
+    );
+    drop(stepper.stop());
 }
 
 /// The start model (`--model`) is checked the same way: the server waits for the loop's status

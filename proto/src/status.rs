@@ -231,13 +231,17 @@ pub struct LoopStatus {
     pub passivity_damping_ns_per_m: f64,
     /// and the steps on which it changed the rendered force.
     pub passivity_active_steps: u64,
+    /// The filters the loop computes its velocity and acceleration features with (its
+    /// `g_v`, `g_a`), rad/s: infer-server compares a model's `haptics.feature_gains` with them.
+    pub velocity_gain_rad_s: f64,
+    pub acceleration_gain_rad_s: f64,
 }
 
 const fn words(bytes: usize) -> usize {
     bytes / 8
 }
 
-/// Where each field sits in the block's words (the order of layout version 4; changing it
+/// Where each field sits in the block's words (the order of layout version 5; changing it
 /// changes the segment layout: bump `shm_ring::LAYOUT_VERSION`).
 mod at {
     use super::*;
@@ -275,7 +279,10 @@ mod at {
     pub const PASSIVITY_RETURNED_J: usize = PASSIVITY_ON + 3;
     pub const PASSIVITY_DAMPING: usize = PASSIVITY_ON + 4;
     pub const PASSIVITY_ACTIVE_STEPS: usize = PASSIVITY_ON + 5;
-    pub const END: usize = PASSIVITY_ON + 6;
+    // layout version 5: the features' filter gains
+    pub const VELOCITY_GAIN: usize = PASSIVITY_ON + 6;
+    pub const ACCELERATION_GAIN: usize = VELOCITY_GAIN + 1;
+    pub const END: usize = VELOCITY_GAIN + 2;
 }
 
 const _: () = assert!(
@@ -333,6 +340,8 @@ impl LoopStatus {
         w[at::PASSIVITY_RETURNED_J] = self.passivity_returned_j.to_bits();
         w[at::PASSIVITY_DAMPING] = self.passivity_damping_ns_per_m.to_bits();
         w[at::PASSIVITY_ACTIVE_STEPS] = self.passivity_active_steps;
+        w[at::VELOCITY_GAIN] = self.velocity_gain_rad_s.to_bits();
+        w[at::ACCELERATION_GAIN] = self.acceleration_gain_rad_s.to_bits();
         w
     }
 
@@ -372,6 +381,8 @@ impl LoopStatus {
             passivity_returned_j: f64::from_bits(w[at::PASSIVITY_RETURNED_J]),
             passivity_damping_ns_per_m: f64::from_bits(w[at::PASSIVITY_DAMPING]),
             passivity_active_steps: w[at::PASSIVITY_ACTIVE_STEPS],
+            velocity_gain_rad_s: f64::from_bits(w[at::VELOCITY_GAIN]),
+            acceleration_gain_rad_s: f64::from_bits(w[at::ACCELERATION_GAIN]),
         }
     }
 }
@@ -465,6 +476,8 @@ mod tests {
             passivity_returned_j: 1.25,
             passivity_damping_ns_per_m: 80.0,
             passivity_active_steps: 21,
+            velocity_gain_rad_s: 30.0,
+            acceleration_gain_rad_s: 100.0,
         };
         assert_eq!(block.publish(&s.to_words()), 1);
         let (generation, words) = block.read().expect("published");

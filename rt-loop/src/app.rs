@@ -98,11 +98,11 @@ pub fn run_experiment(a: &RunArgs, shutdown: &Shutdown) -> Result<ExitCode> {
                 ShmModel::new(client, answer_wait, server_wait).require_server(&a.shm.instance),
             ));
         }
-        // Who we are (clock, board, rate) before the server attaches: it checks a model's
+        // Who we are (clock, board, rate, feature filters) before the server attaches: it checks a model's
         // `haptics.step_s` against this rate when it activates the start model, which it does
         // as soon as it attaches, before the run begins (and publishes the rest).
         let mut io = seg.io;
-        io.set_identity(cfg.clock, &cfg.board.to_string(), cfg.rate_hz);
+        io.set_identity(&cfg);
         io.publish_status();
         segment = Some(io);
     }

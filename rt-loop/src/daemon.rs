@@ -98,11 +98,7 @@ pub fn run(cfg: &DaemonConfig, shutdown: &Shutdown) -> Result<u64> {
     let seg = create_segment(&cfg.instance, cfg.answer_wait)?;
     let name = seg.name.clone();
     let mut io = seg.io;
-    io.set_identity(
-        cfg.base.clock,
-        &cfg.base.board.to_string(),
-        cfg.base.rate_hz,
-    );
+    io.set_identity(&cfg.base);
     io.publish_status();
     // The served model, given to each reproduction/shadow run and given back by it.
     let mut client = seg.client;

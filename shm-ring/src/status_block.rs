@@ -17,7 +17,7 @@
 use std::sync::atomic::{fence, AtomicU64, Ordering};
 
 /// Words of a status publication (fixed: part of the header's layout).
-pub const STATUS_WORDS: usize = 75;
+pub const STATUS_WORDS: usize = 77;
 
 /// How many times a reader retries while the writer is mid-publication (one or two retries
 /// are the most ever needed unless the writer died mid-write).

@@ -521,6 +521,8 @@ fn loop_status_block_round_trips_through_the_segment() {
         passivity_returned_j: 1.5,
         passivity_damping_ns_per_m: 120.0,
         passivity_active_steps: 9,
+        velocity_gain_rad_s: 30.0,
+        acceleration_gain_rad_s: 100.0,
     };
     assert_eq!(
         s.recorder.as_str().len(),

@@ -5,6 +5,7 @@ steps in time stepped at each recording's own period), and recordings whose feat
 filters (named before training)."""
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ from test_structured import RATE, info, presses
 
 from haptics_train.blocked_validation import BLOCKED_VALIDATION, HOLDOUT_BLOCKS, blocks
 from haptics_train.data import load_manifest, write_manifest_entry
+from haptics_train.export import provenance, to_contract_onnx
 from haptics_train.import_fixtures import write_examples
 from haptics_train.importer import import_series
 from haptics_train.models import TrainConfig, make_model, predict_at
@@ -72,6 +74,11 @@ def test_lawfree_is_chosen_on_held_out_blocks_without_a_validation_recording(tmp
     if extra is not None:  # a grid candidate (not the irreversible memory's)
         assert all(m.hyper[k] == v for k, v in extra.items())
     assert m.train_info_["rows"] > 0
+    # the export names the filters its features were computed with (the 50 Hz import's)
+    meta = {p.key: p.value for p in to_contract_onnx(m, provenance(m, TrainConfig(), ds, None))
+            .metadata_props}  # fmt: skip
+    gains = json.loads(meta["haptics.feature_gains"])
+    assert gains == pytest.approx({"g_v": 10.0, "g_a": 10.0})
 
 
 def test_a_model_stepping_in_time_is_stepped_at_each_recordings_own_period():

@@ -30,7 +30,7 @@ use control_plane::{
 };
 
 use crate::control::inference_control::InferenceControl;
-use crate::model::contract::{step_mismatch, FeatureSchema};
+use crate::model::contract::{gains_mismatch, step_mismatch, FeatureSchema};
 use crate::model::engine::{load_bounded, StepEngine};
 use crate::model::ModelError;
 
@@ -482,6 +482,16 @@ impl Registry {
             return Err(ControlError::FailedPrecondition(format!(
                 "{name} cannot be served by this loop: {why}; nothing changed"
             )));
+        }
+        // Features of other filters than the loop's: said (on stderr, where up.sh shows it),
+        // not refused: nothing else can serve the model, and at a testing machine's slow
+        // rates the two filters agree.
+        let loop_gains = self.server.loop_status().map_or((0.0, 0.0), |s| {
+            (s.velocity_gain_rad_s, s.acceleration_gain_rad_s)
+        });
+        let info = engine.info();
+        if let Some(why) = gains_mismatch(info.feature_gains, &info.features, loop_gains) {
+            eprintln!("infer-server: warning: model {name}: {why}");
         }
         let mut engine = engine;
         engine.rewarm(REWARM_RUNS);

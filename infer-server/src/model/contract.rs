@@ -22,6 +22,54 @@ pub const META_PREVIOUS_FORCE: &str = "haptics.previous_force";
 /// speed, so infer-server refuses to activate it beside such a loop.
 pub const META_STEP_S: &str = "haptics.step_s";
 
+/// Metadata key (optional): the filters its training recordings' velocity and acceleration
+/// features were computed with, JSON `{"g_v": rad/s, "g_a": rad/s}` (`haptics-train export`
+/// writes it when the recordings agree). A model fitted on other filters than the loop's sees
+/// a velocity or an acceleration that means something else: infer-server names it when it
+/// activates the model (a warning, not a refusal: nothing else can serve it).
+pub const META_FEATURE_GAINS: &str = "haptics.feature_gains";
+
+/// How far a model's feature gains may be from the loop's (a fraction of them).
+pub const GAIN_TOLERANCE: f64 = 0.01;
+
+/// Why a model whose features were computed with `model_gains` (g_v, g_a) sees other features
+/// in a loop whose filters are `loop_gains`, or `None` when they agree where its `features` use
+/// them (or either is unknown).
+pub fn gains_mismatch(
+    model_gains: Option<(f64, f64)>,
+    features: &[String],
+    loop_gains: (f64, f64),
+) -> Option<String> {
+    let (mv, ma) = model_gains?;
+    let (lv, la) = loop_gains;
+    let uses = |what: &str, suffix: &str| {
+        features
+            .iter()
+            .any(|f| f.contains(what) || f.ends_with(suffix))
+    };
+    let off = |m: f64, l: f64| l.is_finite() && l > 0.0 && ((m / l) - 1.0).abs() > GAIN_TOLERANCE;
+    let mut parts = Vec::new();
+    if uses("velocity", "_v") && off(mv, lv) {
+        parts.push(format!(
+            "velocity at g_v {mv:.1} rad/s (the loop's {lv:.1})"
+        ));
+    }
+    if uses("acceleration", "_a") && off(ma, la) {
+        parts.push(format!(
+            "acceleration at g_a {ma:.1} rad/s (the loop's {la:.1})"
+        ));
+    }
+    (!parts.is_empty()).then(|| {
+        format!(
+            "its training features were computed with other filters ({META_FEATURE_GAINS}): {}; \
+             served here it sees a feature that means something else than the one it \
+             learned (import its recordings with the loop's --g-v/--g-a, or run the loop \
+             with its gains)",
+            parts.join(", ")
+        )
+    })
+}
+
 /// How far a model's `haptics.step_s` may be from the loop's period (a fraction of it).
 pub const STEP_TOLERANCE: f64 = 0.01;
 
@@ -203,6 +251,33 @@ impl FeatureSchema {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn names(v: &[&str]) -> Vec<String> {
+        v.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn other_feature_gains_are_named_only_where_the_model_uses_them() {
+        let loop_gains = (30.0, 100.0);
+        let xv = names(&["position_x", "velocity"]);
+        let why = gains_mismatch(Some((10.0, 10.0)), &xv, loop_gains).expect("velocity differs");
+        assert!(
+            why.contains("velocity at g_v 10") && !why.contains("acceleration"),
+            "{why}"
+        );
+        // a model of x and v only: its acceleration filter does not matter
+        assert_eq!(gains_mismatch(Some((30.0, 10.0)), &xv, loop_gains), None);
+        let six = names(&["position_x", "velocity", "acceleration", "f_previous_a"]);
+        assert!(gains_mismatch(Some((30.0, 10.0)), &six, loop_gains).is_some());
+        // within 1 %, unknown on either side, or a model that uses neither: nothing to say
+        assert_eq!(gains_mismatch(Some((30.2, 100.5)), &six, loop_gains), None);
+        assert_eq!(gains_mismatch(None, &six, loop_gains), None);
+        assert_eq!(gains_mismatch(Some((10.0, 10.0)), &six, (0.0, 0.0)), None);
+        assert_eq!(
+            gains_mismatch(Some((10.0, 10.0)), &names(&["position_x"]), loop_gains),
+            None
+        );
+    }
 
     #[test]
     fn a_step_is_checked_against_the_loop_rate_only_when_both_are_known() {

@@ -10,8 +10,8 @@ use std::path::PathBuf;
 
 use super::contract::{
     checked_elements, FeatureSchema, ModelKind, FEATURE_NAMES, INPUT_C, INPUT_FEATURES, INPUT_H,
-    META_FEATURES, META_KIND, META_PREVIOUS_FORCE, META_PROVENANCE, META_STATE_SIZE, META_STEP_S,
-    META_UNITS, OUTPUT_C, OUTPUT_FORCE, OUTPUT_H,
+    META_FEATURES, META_FEATURE_GAINS, META_KIND, META_PREVIOUS_FORCE, META_PROVENANCE,
+    META_STATE_SIZE, META_STEP_S, META_UNITS, OUTPUT_C, OUTPUT_FORCE, OUTPUT_H,
 };
 
 fn unknown_hint(name: &str) -> String {
@@ -107,6 +107,9 @@ pub struct Metadata {
     /// `haptics.step_s`: the period the state steps at, s (checked against the loop's rate
     /// when the model is activated).
     pub step_s: Option<f64>,
+    /// `haptics.feature_gains`: (g_v, g_a) of its training features, rad/s (compared with the
+    /// loop's when the model is activated).
+    pub feature_gains: Option<(f64, f64)>,
 }
 
 /// Checks the `haptics.*` metadata entries; `custom(key)` is the model's entry for `key`.
@@ -200,6 +203,28 @@ pub fn parse_metadata(custom: impl Fn(&str) -> Option<String>) -> Result<Metadat
                 })?,
         ),
     };
+    let feature_gains =
+        match custom(META_FEATURE_GAINS) {
+            None => None,
+            Some(raw) => {
+                let v: Option<serde_json::Value> = serde_json::from_str(&raw).ok();
+                let gain = |k: &str| {
+                    v.as_ref()
+                        .and_then(|v| v.get(k))
+                        .and_then(serde_json::Value::as_f64)
+                        .filter(|g| g.is_finite() && *g > 0.0)
+                };
+                match (gain("g_v"), gain("g_a")) {
+                    (Some(g_v), Some(g_a)) => Some((g_v, g_a)),
+                    _ => return Err(bad(
+                        META_FEATURE_GAINS,
+                        &raw,
+                        "must be a JSON object {\"g_v\": rad/s, \"g_a\": rad/s} of positive gains"
+                            .into(),
+                    )),
+                }
+            }
+        };
     Ok(Metadata {
         features,
         kind,
@@ -208,6 +233,7 @@ pub fn parse_metadata(custom: impl Fn(&str) -> Option<String>) -> Result<Metadat
         state_size,
         previous_force: custom(META_PREVIOUS_FORCE),
         step_s,
+        feature_gains,
     })
 }
 
@@ -383,7 +409,12 @@ mod tests {
     use super::*;
 
     fn meta_with(step: Option<&str>) -> Result<Metadata, ModelError> {
+        meta_with_gains(step, None)
+    }
+
+    fn meta_with_gains(step: Option<&str>, gains: Option<&str>) -> Result<Metadata, ModelError> {
         parse_metadata(|k| match k {
+            META_FEATURE_GAINS => gains.map(str::to_string),
             META_FEATURES => Some("position_x,velocity".into()),
             META_KIND => Some("stateful".into()),
             META_UNITS => Some("N".into()),
@@ -403,6 +434,26 @@ mod tests {
             let e = meta_with(Some(bad)).unwrap_err();
             assert!(
                 matches!(&e, ModelError::BadMetadata { key, .. } if key == META_STEP_S),
+                "{bad:?}: {e}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_feature_gains_are_optional_and_must_be_two_positive_gains() {
+        assert_eq!(meta_with(None).unwrap().feature_gains, None);
+        let m = meta_with_gains(None, Some(r#"{"g_v": 10.0, "g_a": 10}"#)).unwrap();
+        assert_eq!(m.feature_gains, Some((10.0, 10.0)));
+        for bad in [
+            "",
+            "10",
+            r#"{"g_v": 10}"#,
+            r#"{"g_v": -1, "g_a": 1}"#,
+            r#"{"g_v": "x", "g_a": 1}"#,
+        ] {
+            let e = meta_with_gains(None, Some(bad)).unwrap_err();
+            assert!(
+                matches!(&e, ModelError::BadMetadata { key, .. } if key == META_FEATURE_GAINS),
                 "{bad:?}: {e}"
             );
         }

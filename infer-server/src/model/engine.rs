@@ -235,6 +235,7 @@ impl StepEngine {
             kind: meta.kind,
             previous_force: meta.previous_force,
             step_s: meta.step_s,
+            feature_gains: meta.feature_gains,
             features: meta.features,
             units: meta.units,
             provenance: meta.provenance,

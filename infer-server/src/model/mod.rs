@@ -77,6 +77,8 @@ pub struct ModelInfo {
     pub previous_force: Option<String>,
     /// `haptics.step_s`: the period its state steps at, s, if the model declares it.
     pub step_s: Option<f64>,
+    /// `haptics.feature_gains`: (g_v, g_a) of its training features, rad/s, if declared.
+    pub feature_gains: Option<(f64, f64)>,
     /// The model's input features, in its input order.
     pub features: Vec<String>,
     pub units: String,

@@ -205,13 +205,15 @@ impl LoopIo {
     }
 
     /// Sets what does not change between runs (off the real-time path).
-    pub fn set_identity(&mut self, clock: crate::config::ClockKind, board: &str, rate_hz: f64) {
-        self.status.clock = match clock {
+    pub fn set_identity(&mut self, cfg: &RunConfig) {
+        self.status.clock = match cfg.clock {
             crate::config::ClockKind::Lockstep => LoopClock::Lockstep,
             crate::config::ClockKind::Realtime => LoopClock::Realtime,
         };
-        self.status.board.set(board);
-        self.status.rate_hz = rate_hz;
+        self.status.board.set(&cfg.board.to_string());
+        self.status.rate_hz = cfg.rate_hz;
+        self.status.velocity_gain_rad_s = cfg.params.g_v;
+        self.status.acceleration_gain_rad_s = cfg.params.g_a;
     }
 
     /// A run begins (off the real-time path): its counters start at 0, the scheduling it
@@ -222,7 +224,7 @@ impl LoopIo {
         scheduling: &str,
         recording: Option<&std::path::Path>,
     ) {
-        self.set_identity(cfg.clock, &cfg.board.to_string(), cfg.rate_hz);
+        self.set_identity(cfg);
         let s = &mut self.status;
         s.running = true;
         s.run_id = u64::from(self.run_id);

@@ -12,8 +12,9 @@ use crate::status_block::{StatusBlock, STATUS_WORDS};
 /// protocol's message must carry at most as many values).
 pub const MAX_SCHEMA_NAMES: usize = 16;
 
-// The status block's size is part of the layout (LAYOUT_VERSION 4: 76 words; 4 added the
-// saturated steps, the board's fault counters and the passivity layer's figures).
+// The status block's size is part of the layout (LAYOUT_VERSION 5: 78 words; 4 added the
+// saturated steps, the board's fault counters and the passivity layer's figures, 5 the
+// features' filter gains).
 const _: () = assert!(std::mem::size_of::<StatusBlock>() == (1 + STATUS_WORDS) * 8);
 
 /// "HAPTSHM1" little-endian: the first word of every segment.
@@ -23,7 +24,9 @@ pub const MAGIC: u64 = u64::from_le_bytes(*b"HAPTSHM1");
 /// 3: the loop-status block gained the degradation ladder's counters and the experiment name.
 /// 4: the loop-status block gained the saturated steps' count (issue 23), the board's fault
 ///    counters and last fault, and the passivity layer's figures (issue 20).
-pub const LAYOUT_VERSION: u64 = 4;
+/// 5: the loop-status block gained the filter gains of the loop's velocity and acceleration
+///    features (a model fitted on other ones is named when it is activated).
+pub const LAYOUT_VERSION: u64 = 5;
 
 /// Per-channel description in the header.
 #[repr(C)]

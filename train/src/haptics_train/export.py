@@ -93,6 +93,10 @@ def to_contract_onnx(model: ForceModel, prov: dict, **onnx_kw: object) -> onnx.M
         # the period the state is stepped at (its decays are exp(-step / tau)): one control
         # step of the loop it is meant for; infer-server refuses it beside a loop of another
         meta["haptics.step_s"] = repr(float(model.serve_dt_))  # type: ignore[attr-defined]
+    gains = getattr(model, "feature_gains_", None)
+    if gains is not None:
+        # the filters of its training features: infer-server names a loop whose are others
+        meta["haptics.feature_gains"] = json.dumps({"g_v": gains[0], "g_a": gains[1]})
     del m.metadata_props[:]
     for k, v in meta.items():
         m.metadata_props.add(key=k, value=v)

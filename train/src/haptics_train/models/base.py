@@ -233,7 +233,12 @@ def fit_recordings(model: ForceModel, recs: Sequence[Recording], cfg: TrainConfi
         cfg.target_rate_hz,
     )  # fmt: skip
     model.set_params(seed=cfg.seed, progress=cfg.progress)
-    return model.fit(X, y, **params)
+    fitted = model.fit(X, y, **params)
+    # the filters its velocity and acceleration features were computed with, where every
+    # recording says the same (export writes them: `haptics.feature_gains`)
+    gains = {r.feature_gains for r in recs}
+    fitted.feature_gains_ = next(iter(gains)) if len(gains) == 1 else None
+    return fitted
 
 
 def predict_at(model: ForceModel, X: np.ndarray, period_s: float) -> np.ndarray:
