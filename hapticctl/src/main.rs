@@ -179,17 +179,23 @@ async fn run(cli: Cli) -> Result<(), CliError> {
             }
         }
         Command::Swap { model, r#as } => {
-            let (model, step) = swap(&mut c, &model, r#as).await?;
+            let (model, step, warnings) = swap(&mut c, &model, r#as).await?;
             if cli.json {
-                print_json(
-                    &serde_json::json!({ "model": output::model_json(&model), "effective_step": step }),
-                );
+                print_json(&serde_json::json!({
+                    "model": output::model_json(&model),
+                    "effective_step": step,
+                    "warnings": warnings,
+                }));
             } else {
                 println!(
                     "{} is active from feature message {step} (the segment's count since the \
                      loop started serving; status's step counts the current run)",
                     model.name
                 );
+                // served anyway, but the user should know (e.g. other feature filters)
+                for w in &warnings {
+                    eprintln!("hapticctl: warning: {}: {w}", model.name);
+                }
             }
         }
         Command::Unload { name } => {
@@ -443,7 +449,7 @@ async fn swap(
     c: &mut Client,
     model: &str,
     upload_as: Option<String>,
-) -> Result<(pb::ModelInfo, u64), CliError> {
+) -> Result<(pb::ModelInfo, u64, Vec<String>), CliError> {
     let local = Path::new(model);
     if upload_as.is_some() && !local.is_file() {
         return Err(CliError::new(
@@ -478,5 +484,5 @@ async fn swap(
     let model = r.model.ok_or_else(|| {
         CliError::new("the server answered without the model", client::EXIT_SERVER)
     })?;
-    Ok((model, r.effective_step))
+    Ok((model, r.effective_step, r.warnings))
 }

@@ -1314,7 +1314,7 @@ async fn a_model_stepped_for_another_loop_rate_is_refused() {
 
 /// A model whose training features were computed with other filters than the loop's
 /// (`haptics.feature_gains` against the gains in the loop's status block) is served, and the
-/// server says so on stderr, naming both.
+/// server says so on stderr and in the swap's answer, naming both.
 #[tokio::test(flavor = "multi_thread")]
 async fn a_model_of_other_feature_filters_is_served_and_named() {
     use haptics_proto::{LoopStatus, LoopStatusLink};
@@ -1343,9 +1343,15 @@ async fn a_model_of_other_feature_filters_is_served_and_named() {
         "{}",
         server.stderr()
     );
-    activate(&mut c, "linear_other_filters.onnx", true)
+    let r = activate(&mut c, "linear_other_filters.onnx", true)
         .await
         .expect("served, not refused");
+    // in the swap's answer too (hapticctl prints it)
+    assert!(
+        r.warnings.len() == 1 && r.warnings[0].contains("velocity at g_v 10"),
+        "{:?}",
+        r.warnings
+    );
     let said = server.stderr();
     assert!(
         said.contains("warning: model linear_other_filters.onnx")

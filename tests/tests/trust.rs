@@ -11,7 +11,8 @@
 //! - a model that allocates 1 GiB at run time, and one with 10 MB of metadata: refused at load
 //!   within the load timeout, the active model still answering;
 //! - a model trained elsewhere uploaded under a name the server's directory has for another
-//!   file: refused with the way round (`hapticctl swap PATH --as NAME`), which then works.
+//!   file: refused with the way round (`hapticctl swap PATH --as NAME`), which then works; one
+//!   fitted on features of other filters than the loop's: served, and hapticctl says so.
 //!
 //! Switching users, `mknod` and mounting a tmpfs need root (CI runs as root): without it those
 //! parts are counted skips (failures under CI=true).
@@ -626,4 +627,14 @@ fn a_model_named_as_a_directory_model_is_refused_and_swapped_under_a_name_of_its
     let o = sys.owner_ctl(&["--json", "active"]);
     let active: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(active["name"], "mine_linear.onnx", "{active}");
+    // A model fitted on features of other filters than this loop's (rt-loop's 30 / 100 rad/s):
+    // served, and hapticctl says so.
+    let o = sys.owner_ctl(&["swap", "linear_other_filters.onnx"]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(
+        t.contains("hapticctl: warning: linear_other_filters.onnx: its training features")
+            && t.contains("velocity at g_v 10.0 rad/s (the loop's 30.0)"),
+        "{t}"
+    );
 }

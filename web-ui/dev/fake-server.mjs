@@ -176,7 +176,13 @@ const SIX = vocab.THESIS_FEATURES.slice(0, 6);
 const MODELS = {
   rf6: { kind: "stateless", features: SIX, predict: (_x, _v, F, r) => F * 1.01 + 0.06 * r.n() },
   lstm6: { kind: "stateful", features: SIX, predict: (_x, _v, F, r) => 0.93 * F + 0.15 + 0.08 * r.n() },
-  spring_damper2: { kind: "stateless", features: SIX.slice(0, 2), predict: (x, v) => Math.max(0, 180 * x + 9000 * x * x + 40 * v) },
+  spring_damper2: {
+    kind: "stateless",
+    features: SIX.slice(0, 2),
+    predict: (x, v) => Math.max(0, 180 * x + 9000 * x * x + 40 * v),
+    // As infer-server says of a model fitted on features of other filters than the loop's.
+    warnings: ["its training features were computed with other filters (haptics.feature_gains): velocity at g_v 10.0 rad/s (the loop's 30.0)"],
+  },
 };
 
 const MIME = { ".html": "text/html; charset=utf-8", ".js": "text/javascript", ".css": "text/css", ".svg": "image/svg+xml", ".png": "image/png", ".json": "application/json" };
@@ -366,7 +372,7 @@ export async function startFakeServer(opts = {}) {
         state.models[name] = "active";
         state.modelIds[name] = ++state.generation;
         state.activeSince = bench.step + 1;
-        return json(res, 200, { effective_step: state.activeSince, model: modelJson(name) });
+        return json(res, 200, { effective_step: state.activeSince, model: modelJson(name), warnings: MODELS[name].warnings ?? [] });
       }
       if (req.method === "POST" && p === "/api/experiment/start") {
         let body;

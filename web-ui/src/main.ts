@@ -108,7 +108,7 @@ let secondStart = performance.now();
 // ---------------------------------------------------------------------------------------------
 // Messages
 
-function log(text: string, kind: "ok" | "err" | "" = ""): void {
+function log(text: string, kind: "ok" | "warn" | "err" | "" = ""): void {
   const li = document.createElement("li");
   li.textContent = `${new Date().toLocaleTimeString()} ${text}`;
   if (kind) li.className = kind;
@@ -703,8 +703,10 @@ async function swapModel(m: ModelInfo, button: HTMLButtonElement): Promise<void>
       log(`Loading ${m.name}…`);
       await api.load(m.name);
     }
-    const r = (await api.activate(m.name)) as { effective_step?: number };
+    const r = (await api.activate(m.name)) as { effective_step?: number; warnings?: string[] };
     log(`Active model: ${m.name}${r && typeof r.effective_step === "number" ? ` from step ${r.effective_step}` : ""}`, "ok");
+    // served anyway, but the user should know (e.g. features of other filters than the loop's)
+    for (const w of r?.warnings ?? []) log(`Warning: ${m.name}: ${w}`, "warn");
   } catch (e) {
     log(`Could not activate ${m.name}: ${(e as Error).message}`, "err");
   }

@@ -135,6 +135,8 @@ describe("page against the fake server", () => {
       },
       { what: "the strip: lstm6, then spring_damper2 for half a second" },
     );
+    // The swap's warning (a model fitted on other feature filters) is in the log, as a warning.
+    await waitFor(async () => (await page.$$eval("#log li.warn", (els) => els.map((e) => e.textContent))).some((t) => t.includes("Warning: spring_damper2: its training features")), { what: "the swap's warning in the log" });
     const swapAt = runs.at(-1).t0;
     assert.ok(swapAt > tSwap - 0.05 && swapAt < tSwap + 2, `the new model's stretch starts at the swap (${swapAt} s; clicked at ${tSwap} s)`);
     assert.ok(runs.at(-1).id > runs.at(-2).id, `a new model id (${runs.at(-2).id} -> ${runs.at(-1).id})`);

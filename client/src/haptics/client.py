@@ -41,10 +41,13 @@ _MAX_MESSAGE = 64 << 20
 
 @dataclass(frozen=True)
 class Swap:
-    """A model swap: the model now active and the first loop step it answered."""
+    """A model swap: the model now active, the first loop step it answered, and what the
+    server says the user should know about it (e.g. its training features were computed with
+    other filters than the loop's: served anyway)."""
 
     model: pb.ModelInfo
     effective_step: int
+    warnings: tuple[str, ...] = ()
 
 
 class Client:
@@ -188,7 +191,7 @@ class Client:
             pb.ActivateModelRequest(name=name, load_if_needed=True), ACTIVATE_MODEL_CODES,
             timeout=120.0,
         )  # fmt: skip
-        return Swap(r.model, int(r.effective_step))
+        return Swap(r.model, int(r.effective_step), tuple(r.warnings))
 
     def unload(self, name: str) -> None:
         """Drop a loaded model from the server's memory (not the active one)."""

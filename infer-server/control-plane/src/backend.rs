@@ -154,6 +154,9 @@ pub struct Activation {
     pub model: ModelInfo,
     /// The first loop step (sequence number) answered by the new model.
     pub effective_step: u64,
+    /// What the user should know about the model now served (e.g. features of other filters
+    /// than the loop's): served anyway.
+    pub warnings: Vec<String>,
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

@@ -70,6 +70,7 @@ impl pb::model_service_server::ModelService for ModelSvc {
         Ok(Response::new(pb::ActivateModelResponse {
             model: Some(model_to_pb(&a.model)),
             effective_step: a.effective_step,
+            warnings: a.warnings,
         }))
     }
 

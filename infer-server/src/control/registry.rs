@@ -483,14 +483,17 @@ impl Registry {
                 "{name} cannot be served by this loop: {why}; nothing changed"
             )));
         }
-        // Features of other filters than the loop's: said (on stderr, where up.sh shows it),
-        // not refused: nothing else can serve the model, and at a testing machine's slow
-        // rates the two filters agree.
+        // Features of other filters than the loop's: said (on stderr, where up.sh shows it,
+        // and in the swap's answer), not refused: nothing else can serve the model, and at a
+        // testing machine's slow rates the two filters agree.
         let loop_gains = self.server.loop_status().map_or((0.0, 0.0), |s| {
             (s.velocity_gain_rad_s, s.acceleration_gain_rad_s)
         });
         let info = engine.info();
-        if let Some(why) = gains_mismatch(info.feature_gains, &info.features, loop_gains) {
+        let warnings: Vec<String> = gains_mismatch(info.feature_gains, &info.features, loop_gains)
+            .into_iter()
+            .collect();
+        for why in &warnings {
             eprintln!("infer-server: warning: model {name}: {why}");
         }
         let mut engine = engine;
@@ -561,6 +564,7 @@ impl Registry {
                 ..model
             },
             effective_step,
+            warnings,
         })
     }
 

@@ -373,6 +373,7 @@ impl Backend for SimBackend {
         Ok(Activation {
             model,
             effective_step,
+            warnings: Vec::new(),
         })
     }
 

@@ -255,6 +255,7 @@ pub async fn activate_model(
     Ok(Json(json!({
         "effective_step": a.effective_step,
         "model": ModelJson::from(&a.model),
+        "warnings": a.warnings,
     }))
     .into_response())
 }
