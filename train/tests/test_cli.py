@@ -159,6 +159,14 @@ def test_manifest_errors_are_clear(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["train", "--manifest", str(man), "--models-dir", str(tmp_path)])
     assert "no such recording" in capsys.readouterr().err
+    # a training recording alone: the refusal says how to set a test aside
+    from haptics_train.synthetic import write_recording
+
+    write_recording(tmp_path / "a.parquet", ramp_rate=6.2, cycles=1)
+    man.write_text('[recordings.a]\npath = "a.parquet"\nrole = "train"\n')
+    with pytest.raises(SystemExit):
+        main(["train", "--manifest", str(man), "--models-dir", str(tmp_path)])
+    assert f"--manifest {man} --role test" in capsys.readouterr().err
 
 
 def test_defaults_scale_with_the_data(tmp_path):

@@ -461,7 +461,11 @@ def load_manifest(path: str | Path) -> Dataset:
     if not by_role["train"]:
         raise DataError(f"{path}: no recording with role = \"train\"")
     if not by_role["test"]:
-        raise DataError(f"{path}: no recording with role = \"test\"")
+        raise DataError(
+            f"{path}: no recording with role = \"test\": every model is scored once on a test "
+            "recording no choice has seen; set one aside (haptics-train import ... --manifest "
+            f"{path} --role test), e.g. a test at another rate or depth"
+        )
     return Dataset(
         train=by_role["train"], test=by_role["test"], validation=by_role["validation"],
         root=str(path.parent), manifest=str(path),
