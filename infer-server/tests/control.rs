@@ -212,6 +212,18 @@ fn features_at(seq: u64) -> [f64; 4] {
 }
 
 /// A fixture model's force as a function of the features (SCHEMA order).
+/// A loop side on a new segment `segment` that has published `status` (the rate and feature
+/// filters infer-server checks a model against when it activates it).
+fn loop_publishing(segment: &SegmentName, status: &haptics_proto::LoopStatus) -> LoopSide {
+    use haptics_proto::LoopStatusLink;
+    let lp = Segment::create(segment, &loop_config())
+        .unwrap()
+        .loop_side()
+        .unwrap();
+    lp.link.publish_loop_status(status);
+    lp
+}
+
 /// Waits (at most 20 s) until the server has an active model.
 async fn wait_active(c: &mut ModelServiceClient<Authed>, server: &ServerProcess) {
     let end = Instant::now() + Duration::from_secs(20);
@@ -1246,7 +1258,7 @@ async fn a_python_grpc_client_uses_the_real_server_through_reflection() {
 /// active model stays; one exported for this loop's rate is served.
 #[tokio::test(flavor = "multi_thread")]
 async fn a_model_stepped_for_another_loop_rate_is_refused() {
-    use haptics_proto::{LoopStatus, LoopStatusLink};
+    use haptics_proto::LoopStatus;
     let Some(fixtures) = common::fixtures() else {
         return;
     };
@@ -1256,15 +1268,13 @@ async fn a_model_stepped_for_another_loop_rate_is_refused() {
         &["linear", "stepped_5khz", "stepped_10khz"],
     );
     let segment = segment_name("step");
-    let lp = Segment::create(&segment, &loop_config())
-        .unwrap()
-        .loop_side()
-        .unwrap();
-    let status = LoopStatus {
-        rate_hz: 10_000.0,
-        ..LoopStatus::default()
-    };
-    lp.link.publish_loop_status(&status);
+    let lp = loop_publishing(
+        &segment,
+        &LoopStatus {
+            rate_hz: 10_000.0,
+            ..LoopStatus::default()
+        },
+    );
     let server = ServerProcess::start("step", &dir, &segment, &["--model", "linear.onnx"]);
     let stepper = StepLoop::start(lp);
     let mut c = server.models().await;
@@ -1317,22 +1327,21 @@ async fn a_model_stepped_for_another_loop_rate_is_refused() {
 /// server says so on stderr and in the swap's answer, naming both.
 #[tokio::test(flavor = "multi_thread")]
 async fn a_model_of_other_feature_filters_is_served_and_named() {
-    use haptics_proto::{LoopStatus, LoopStatusLink};
+    use haptics_proto::LoopStatus;
     let Some(fixtures) = common::fixtures() else {
         return;
     };
     let dir = models_dir("gains", fixtures, &["linear", "linear_other_filters"]);
     let segment = segment_name("gains");
-    let lp = Segment::create(&segment, &loop_config())
-        .unwrap()
-        .loop_side()
-        .unwrap();
-    lp.link.publish_loop_status(&LoopStatus {
-        rate_hz: 10_000.0,
-        velocity_gain_rad_s: 30.0,
-        acceleration_gain_rad_s: 100.0,
-        ..LoopStatus::default()
-    });
+    let lp = loop_publishing(
+        &segment,
+        &LoopStatus {
+            rate_hz: 10_000.0,
+            velocity_gain_rad_s: 30.0,
+            acceleration_gain_rad_s: 100.0,
+            ..LoopStatus::default()
+        },
+    );
     let server = ServerProcess::start("gains", &dir, &segment, &["--model", "linear.onnx"]);
     let stepper = StepLoop::start(lp);
     let mut c = server.models().await;
@@ -1367,20 +1376,19 @@ async fn a_model_of_other_feature_filters_is_served_and_named() {
 /// says why).
 #[tokio::test(flavor = "multi_thread")]
 async fn a_start_model_stepped_for_another_loop_rate_is_refused() {
-    use haptics_proto::{LoopStatus, LoopStatusLink};
+    use haptics_proto::LoopStatus;
     let Some(fixtures) = common::fixtures() else {
         return;
     };
     let dir = models_dir("step-start", fixtures, &["stepped_5khz"]);
     let segment = segment_name("step-start");
-    let lp = Segment::create(&segment, &loop_config())
-        .unwrap()
-        .loop_side()
-        .unwrap();
-    lp.link.publish_loop_status(&LoopStatus {
-        rate_hz: 10_000.0,
-        ..LoopStatus::default()
-    });
+    let lp = loop_publishing(
+        &segment,
+        &LoopStatus {
+            rate_hz: 10_000.0,
+            ..LoopStatus::default()
+        },
+    );
     let server = ServerProcess::start(
         "step-start",
         &dir,

@@ -23,6 +23,7 @@ number still reaches the importer's check and is refused with its row.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import re
 from dataclasses import dataclass
@@ -111,7 +112,7 @@ def _cells(line: str, sep: str) -> list[str]:
 
 
 def _names_match(cells: list[str], wanted: list[str]) -> bool:
-    bases = {c for c in cells} | {hu[0] for c in cells if (hu := header_unit(c)) is not None}
+    bases = set(cells) | {hu[0] for c in cells if (hu := header_unit(c)) is not None}
     return all(w in bases for w in wanted)
 
 
@@ -232,7 +233,6 @@ def read_table(path: Path, wanted: list[str]) -> tuple[CsvLayout, pa.Table]:
             decimal_comma = True
             for k in asked:
                 cols[k] = [c.replace(",", ".") for c in cols[k]]
-    layout = CsvLayout(layout.separator, decimal_comma, layout.header_line, layout.units_row,
-                       layout.encoding, layout.names)  # fmt: skip
+    layout = dataclasses.replace(layout, decimal_comma=decimal_comma)
     arrays = [pa.array(col, type=pa.string()) for col in cols]
     return layout, pa.Table.from_arrays(arrays, names=list(layout.names))
