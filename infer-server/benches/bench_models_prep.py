@@ -12,6 +12,8 @@ Usage: bench_models_prep.py DATASET OUT [--retrain]
   networks, the LSTMs, lstm_slow, svr, the spring-dampers, the forests), also writes
   their multi-node graph of standard operators as OUT/families/NAME_graph.onnx (same fitted
   model, same metadata), so one run measures the fused node against the graph it replaces;
+- `lawfree_net`: the fitted `lawfree` read through the widest network its training may keep
+  (lawfree_net.py), fused and as a graph, parity checked as above;
 - writes OUT/families/identity.onnx: one node, the stateless contract's input and output (the
   floor of calling ONNX Runtime at all);
 - OUT/families/nodes.json: each graph's node count;
@@ -50,7 +52,15 @@ HYPER: dict[str, dict] = {
     "dnn": {"epochs": 2},
     "lstm": {"iterations": 60},
     "lstm_slow": {"iterations": 60, "horizon_s": 0.5, "burn_in_s": 0.2, "streams": 8},
+    # the linear readout here; its network readout is its own family below (`lawfree_net`)
+    "lawfree": {"network_steps": 0},
 }
+
+#: `lawfree` read through the costliest network `haptics-train train` may keep (the widest of
+#: lawfree_net.NET_GRID, on top of the linear readout), trained briefly: the served cost
+#: depends on the widths, not on how long it trained
+NET_FAMILY = ("residual", 32, 1e-4)
+NET_STEPS = 300
 
 PARITY_N = 1e-4
 ROWS = 30_000
@@ -106,6 +116,7 @@ def main(argv: list[str]) -> int:
         p = results[m.name].get("parity", {})
         if not p or p["max_abs_diff"] > PARITY_N or not p["all_finite"]:
             bad.append(f"{m.name}: {p}")
+    bad += lawfree_net(dict((m.name, m) for m, _ in models)["lawfree"], dataset, cfg, fam)
     onnx.save(identity(2), str(fam / "identity.onnx"))
     nodes = {f.stem: len(onnx.load(str(f)).graph.node) for f in sorted(fam.glob("*.onnx"))}
     (fam / "nodes.json").write_text(json.dumps(nodes, indent=1))
@@ -120,6 +131,37 @@ def main(argv: list[str]) -> int:
         print("[bench-models] parity with predict above 1e-4 N:\n  " + "\n  ".join(bad),
               file=sys.stderr)  # fmt: skip
     return 0
+
+
+def lawfree_net(lf: object, dataset: object, cfg: TrainConfig, fam: Path) -> list[str]:
+    """Writes FAM/lawfree_net.onnx (the fused node) and its multi-node graph: `lf` read through
+    a network of `NET_FAMILY`; returns the parity failures (stepped through ONNX Runtime
+    against `predict_served` over 3000 rows of the test recording)."""
+    from haptics_train.closed_loop import OnnxStepper
+    from haptics_train.data import training_arrays
+    from haptics_train.export import provenance, to_contract_onnx
+    from haptics_train.models.lawfree_net import fit_network_readout
+
+    X, y, params = training_arrays(dataset.train, lf.features, lf.layout, (), cfg.target,
+                                   cfg.decimate, cfg.target_rate_hz)  # fmt: skip
+    valid = [(r.matrix(lf.features), r.target(cfg.target), 1.0 / r.sample_rate_hz)
+             for r in dataset.validation]  # fmt: skip
+    net, _ = fit_network_readout(lf, X, y, params["info"], valid, grid=(NET_FAMILY,),
+                                 max_steps=NET_STEPS)  # fmt: skip
+    prov = provenance(net, cfg, dataset, None)
+    fused, graph = to_contract_onnx(net, prov), to_contract_onnx(net, prov, fused=False)
+    onnx.save(fused, str(fam / "lawfree_net.onnx"))
+    onnx.save(graph, str(fam / "lawfree_net_graph.onnx"))
+    rec = dataset.test[0]
+    xv = rec.matrix(list(net.features))[:3000]
+    ref = net.predict_served(xv, 1.0 / rec.sample_rate_hz)
+    worst = 0.0
+    for m in (fused, graph):
+        st = OnnxStepper(m)
+        got = np.array([st.step(r) for r in xv.astype(np.float32)])
+        worst = max(worst, float(np.max(np.abs(got - ref))))
+    print(f"[bench-models] lawfree_net: parity max |onnx - predict| {worst:.2e} N", flush=True)
+    return [f"lawfree_net: {worst:.2e} N"] if not worst <= PARITY_N else []
 
 
 def _name(spec: str) -> str:

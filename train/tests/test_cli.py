@@ -228,8 +228,10 @@ def test_irreversible_memory_is_kept_only_when_clearly_closer_on_both_scores():
 def test_lawfree_readout_is_chosen_on_validation(tmp_path):
     """`lawfree`'s readout, ridge and memory span (`pipeline.lawfree_candidates`) are chosen on the
     validation recording's free run over its sliding rows, like the recommendation, then the
-    choice is tried once with the irreversible memory; what the user sets is not searched."""
+    choice is tried once with the irreversible memory and once read through each network of
+    `NET_GRID` (the best kept only at the margin); what the user sets is not searched."""
     from haptics_train.data import load_manifest
+    from haptics_train.models.lawfree_net import NET_GRID
     from haptics_train.pipeline import (
         BOTH_SCORES_RULE,
         DAMAGE_RULE,
@@ -237,6 +239,7 @@ def test_lawfree_readout_is_chosen_on_validation(tmp_path):
         LAWFREE_READOUTS,
         LAWFREE_RIDGES,
         LAWFREE_SPANS_S,
+        NETWORK_RULE,
         SELECTION_METRIC,
         _candidates,
         choose_on_both,
@@ -248,7 +251,8 @@ def test_lawfree_readout_is_chosen_on_validation(tmp_path):
                                         ("v", 2.9, "validation"), ("t", 2.1, "test")))  # fmt: skip
     models = tmp_path / "m"
     main(["pipeline", "--manifest", str(man), "--models-dir", str(models), "--out",
-          str(tmp_path / "r"), "--no-progress", "--models", "lawfree"])  # fmt: skip
+          str(tmp_path / "r"), "--no-progress", "--models", "lawfree",
+          "--lawfree-network-steps", "300"])  # fmt: skip
     res = json.loads((models / "results.json").read_text())["lawfree"]
     sel = res["training"]["selection"]
     options = dict(lawfree_candidates({}))
@@ -258,7 +262,7 @@ def test_lawfree_readout_is_chosen_on_validation(tmp_path):
     grid = {k: v for k, v in sel["candidates"].items() if k in options}
     grid_every = {k: sel["candidates_every_row"][k] for k in grid}
     assert list(grid) == list(options)
-    assert sel["rule"] == BOTH_SCORES_RULE + DAMAGE_RULE
+    assert sel["rule"] == BOTH_SCORES_RULE + DAMAGE_RULE + NETWORK_RULE
     pick = choose_on_both(grid, grid_every)
     damage = f"{pick}, damage memory"
     # the grid, then its choice with the irreversible memory, each scored
@@ -269,10 +273,22 @@ def test_lawfree_readout_is_chosen_on_validation(tmp_path):
     for key, value in options[pick].items():
         assert res["hyperparameters"][key] == value, key
     assert res["hyperparameters"]["damage_frac"] == (list(LAWFREE_DAMAGE_FRAC) if kept else [])
+    # then the choice read through every network of the grid, the best kept at the margin
+    net = sel["network_readout"]
+    assert len(net["candidates_every_row"]) == len(NET_GRID)
+    best = min(net["candidates_every_row"].values())
+    assert net["chosen"]["validation_every_row_rmse_n"] == pytest.approx(best)
+    c = sel["chosen"]
+    net_kept = keep_damage_memory({"n": net["validation"], "c": sel["candidates"][c]},
+                                  {"n": net["validation_every_row"],
+                                   "c": sel["candidates_every_row"][c]}, "c", "n")  # fmt: skip
+    assert net["kept"] == net_kept
+    assert ("network_readout" in res["training"]) == net_kept
     # the score is the sliding rows' when the validation recording has them, as evaluate wrote
     sliding = res["validation_pooled"]["sliding"]
     assert sliding["rows"] > 0
-    assert sel["candidates"][sel["chosen"]] == pytest.approx(sliding["rmse"], rel=1e-6)
+    score = net["validation"] if net_kept else sel["candidates"][sel["chosen"]]
+    assert score == pytest.approx(sliding["rmse"], rel=1e-6)
     ds = load_manifest(man)
     taus = LAWFREE_DEFAULT["taus_s"]
     spans = [(f"memory {s:g} s", [t for t in taus if t <= s]) for s in LAWFREE_SPANS_S]

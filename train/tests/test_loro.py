@@ -124,6 +124,14 @@ def test_loro_runs_end_to_end_quick(rt_loop: Path, tmp_path: Path) -> None:
     text = loro.table(out, ("sd_poly2", "lawfree"))
     assert "**No model shares this law's class** (bouc-wen)" in text
     assert text.count("Law-free learner `lawfree`") == 3
+    # the network readout was tried in each fold and the report says what validation decided
+    nets = [f["lawfree_network"] for f in out["folds"].values()]
+    assert all(n is not None for n in nets)
+    for k, n in zip(out["folds"], nets, strict=True):
+        ratio = max(n["validation"] / n["against"],
+                    n["validation_every_row"] / n["against_every_row"])  # fmt: skip
+        assert n["kept"] == (ratio <= 0.9)
+        assert f"- held out {k}: {'kept' if n['kept'] else 'not kept'}: validation" in text
     # run again on the same work folder (the default one, data/loro-NAME, is reused): same folds
     again = loro.run(tmp_path, ("sd_poly2", "lawfree"), quick=True, generator="bouc-wen")
     assert again["folds"]["rate_2"]["test"] == pytest.approx(out["folds"]["rate_2"]["test"])

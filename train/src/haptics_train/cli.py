@@ -87,6 +87,12 @@ def _train_opts(p: argparse.ArgumentParser) -> None:
         help="LSTM truncated-BPTT window in seconds (default 1.0, capped at 50 steps)",
     )
     p.add_argument(
+        "--lawfree-network-steps",
+        type=int,
+        help="mini-batches each of lawfree's network readouts trains for at most (default "
+        "15000; 0: the network readout is not tried; lawfree_net.py)",
+    )
+    p.add_argument(
         "--feedback-noise",
         type=float,
         help="N, scale of the previous-force error dnn_fb/lstm_fb train with (default: "
@@ -138,6 +144,10 @@ def _hyper(a: argparse.Namespace) -> dict[str, dict]:
         h["lstm"]["iterations"] = a.lstm_iterations
     if a.lstm_horizon_s:
         h["lstm"]["horizon_s"] = a.lstm_horizon_s
+    if a.lawfree_network_steps is not None:
+        if a.lawfree_network_steps < 0:
+            raise SystemExit("haptics-train: --lawfree-network-steps must be >= 0")
+        h["lawfree"] = {"network_steps": a.lawfree_network_steps}
     if a.feedback_noise is not None:
         h["dnn_fb"] = {"feedback_noise": a.feedback_noise, "feedback_noise_frac": None}
         h["lstm_fb"] = dict(h["dnn_fb"])

@@ -77,7 +77,8 @@ def run(work: Path, specs: tuple[str, ...], quick: bool = False, seed: int = 0,
     # on a shared 2-core machine; the data are a few thousand rows
     hyper: dict[str, dict] = {"lstm": {"iterations": 300}}
     if quick:
-        hyper = {"dnn": {"epochs": 3}, "lstm": {"iterations": 60}, "rf": {"n_estimators": 20}}
+        hyper = {"dnn": {"epochs": 3}, "lstm": {"iterations": 60}, "rf": {"n_estimators": 20},
+                 "lawfree": {"network_steps": 100}}
     folds = {}
     for held in RATES_MM_S:
         name = f"rate_{held:g}"
@@ -108,10 +109,44 @@ def run(work: Path, specs: tuple[str, ...], quick: bool = False, seed: int = 0,
                                    for n, e in res.items()},  # fmt: skip
             "one_step_persistence": pooled_rmse(base["persistence"], "test", "one_step"),
             "range_n": float(np.ptp(ds.test[0].target())),
+            "lawfree_network": network_note(models),
         }
     return {"generator": generator, "law": gen.law, "folds": folds, "quick": quick,
             "hyper": hyper, "seconds": round(time.perf_counter() - t0, 1),
             "material": gen.params(), "validation": ", ".join(vals)}  # fmt: skip
+
+
+def network_note(models: list) -> dict | None:
+    """What `lawfree`'s network readout did in a fold (`pipeline.try_network_readout`): its
+    validation scores against the linear readout's, whether it was kept, the network chosen;
+    None where `lawfree` was not trained or the network not tried."""
+    lf = next((m for m in models if m.name == "lawfree"), None)
+    sel = (lf.train_info_.get("selection") or {}) if lf is not None else {}
+    net = sel.get("network_readout")
+    if net is None:
+        return None
+    return {"kept": net["kept"], "validation": net["validation"],
+            "validation_every_row": net["validation_every_row"], "chosen": net["chosen"],
+            "against": sel["candidates"][sel["chosen"]],
+            "against_every_row": sel["candidates_every_row"][sel["chosen"]]}  # fmt: skip
+
+
+def network_lines(folds: dict) -> list[str]:
+    """The report's lines on `lawfree`'s network readout, one per fold where it was tried."""
+    tried = {k: f["lawfree_network"] for k, f in folds.items() if f.get("lawfree_network")}
+    if not tried:
+        return []
+    md = ["", "`lawfree`'s network readout (tried on its validated choice, kept where it is at "
+          "most 0.9x the linear readout's on both validation scores; models/lawfree_net.py):", ""]
+    for k, n in tried.items():
+        c = n["chosen"]
+        md.append(f"- held out {k}: {'kept' if n['kept'] else 'not kept'}: validation "
+                  f"{_f(n['validation'])} N against {_f(n['against'])} N "
+                  f"({n['validation'] / n['against']:.2f}x; every row "
+                  f"{n['validation_every_row'] / n['against_every_row']:.2f}x); the network: "
+                  f"{c['mode']}, {c['hidden']} wide, decay {c['weight_decay']:g}, epoch "
+                  f"{c['epoch']}.")  # fmt: skip
+    return md
 
 
 def _ratio(sd: float | None, t: float | None) -> float:
@@ -245,6 +280,7 @@ def table(out: dict, specs: tuple[str, ...]) -> str:
         if have:
             met = sum(h["met"] for h in have)
             md.append(f"- The {what} meets the {goal:g}x goal in {met} of {len(have)} folds.")
+    md += network_lines(folds)
     flag = " --quick" if out.get("quick") else ""
     md += ["", f"Run time: {out['seconds']:.0f} s. Reproduce: `.venv/bin/python -m "
            f"haptics_train.loro --generator {gen}{flag}`.", ""]  # fmt: skip

@@ -26,7 +26,7 @@ from .blocked_validation import BLOCKED_VALIDATION, blocked_scores
 from .contract import ContractError
 from .cost import COST_KEY, measure_cost
 from .dagger import fit_dagger
-from .data import Dataset
+from .data import Dataset, training_arrays
 from .evaluate import BASELINES, evaluate, pooled_metrics, score_baselines
 from .export import parity, provenance, save_onnx, to_contract_onnx
 from .fidelity import (
@@ -39,6 +39,7 @@ from .fidelity import (
 )
 from .models import ForceModel, TrainConfig, fit_recordings, parse_spec
 from .models.lawfree import LAWFREE_DEFAULT
+from .models.lawfree_net import NET_MAX_STEPS, fit_network_readout
 
 #: The pipeline's default comparison: Table 6.2 baselines, Table 6.15 algorithms on the six
 #: features, Table 6.10 ablation, and the better-conditioned/memory alternatives.
@@ -242,6 +243,47 @@ def keep_damage_memory(
     return max(d[damage] / d[grid] for d in (sliding, every)) <= LAWFREE_DAMAGE_MARGIN
 
 
+#: What `train_info_["selection"]["rule"]` adds where `lawfree`'s network readout was tried
+#: (`try_network_readout`): the same margin as the irreversible memory's, for a like reason: a
+#: network extrapolates differently from the linear readout (it saturates where the linear
+#: readout goes on linearly past the deepest training press), and its training length is
+#: itself chosen on the validation recordings, which favours it there.
+NETWORK_RULE = (
+    "; then the choice read through a network (lawfree_net.py), kept where it is at most "
+    f"{LAWFREE_DAMAGE_MARGIN:g}x the choice's on both"
+)
+
+
+def try_network_readout(
+    m: ForceModel, dataset: Dataset, cfg: TrainConfig, sliding: float, every: float,
+    max_steps: int = NET_MAX_STEPS,
+) -> tuple[ForceModel, dict]:
+    """`lawfree` `m` (scored `sliding`, `every` on validation) read through each network of
+    `lawfree_net.NET_GRID` (each trained for at most `max_steps` mini-batches: the user's
+    `network_steps`, `haptics-train train --lawfree-network-steps`), the best on validation
+    kept where it is at most
+    `LAWFREE_DAMAGE_MARGIN` times `m` on both scores; returns (the model kept, what was tried,
+    for `train_info_["selection"]["network_readout"]`)."""
+    X, y, params = training_arrays(dataset.train, m.features, m.layout, (), cfg.target,
+                                   cfg.decimate, cfg.target_rate_hz)  # fmt: skip
+    valid = [(r.matrix(m.features), r.target(cfg.target), 1.0 / r.sample_rate_hz)
+             for r in dataset.validation]  # fmt: skip
+    t0 = time.perf_counter()
+    cand, tried = fit_network_readout(
+        m, X, y, params["info"], valid, seed=cfg.seed, max_steps=max_steps,  # type: ignore[arg-type]
+        log=lambda line: print(f"[train] lawfree network readout {line}", flush=True),
+    )
+    s, e = validation_free_run_scores(cand, cfg, dataset)
+    keep = keep_damage_memory({"net": s, "m": sliding}, {"net": e, "m": every}, "m", "net")
+    print(f"[train] lawfree network readout: validation free-run RMSE {_fmt(s)} N (every row "
+          f"{_fmt(e)} N) against {_fmt(sliding)} N ({_fmt(every)} N): "
+          f"{'kept' if keep else 'not kept'}", flush=True)  # fmt: skip
+    note = {"candidates_every_row": tried, "chosen": cand.network.describe(),  # type: ignore[attr-defined]
+            "validation": s, "validation_every_row": e, "kept": keep,
+            "seconds": round(time.perf_counter() - t0, 1)}  # fmt: skip
+    return (cand if keep else m), note
+
+
 def lawfree_damage_candidate(label: str, extra: dict, user: dict) -> tuple[str, dict] | None:
     """The grid's choice (`label`, its hyper-parameters `extra`) with the irreversible memory,
     or None where the user set `damage_frac`."""
@@ -407,6 +449,12 @@ def train_models(
                     if keep_damage_memory(scored, every, pick, damage[0]):
                         pick = damage[0]
                 chosen, m = tried.chosen(pick)
+                network = None
+                steps = int(user.get("network_steps", NET_MAX_STEPS))
+                if both and not tried.blocked and steps > 0:
+                    rule += NETWORK_RULE
+                    m, network = try_network_readout(m, dataset, cfg, scored[pick], every[pick],
+                                                     steps)  # fmt: skip
                 m.train_info_["selection"] = {
                     "parameter": parameter,
                     "metric": SELECTION_METRIC,
@@ -416,6 +464,8 @@ def train_models(
                     "candidates_every_row": every,
                     "chosen": chosen,
                 }
+                if network is not None:
+                    m.train_info_["selection"]["network_readout"] = network
             rounds = int(m.hyper.get("dagger_rounds") or 0)
             if rounds:
                 if not dataset.validation:

@@ -42,8 +42,10 @@ train` tries it once on the grid's choice and keeps it where validation prefers 
 of the depth (phi), so a memory may grow with the compression as a relaxing or hysteretic force
 does in soft materials: as a power (w, w^2) or saturating within a tenth or a third of the
 deepest press (1 - exp(-w/a): soft materials stiffen early, and their memory with them), up to
-the deepest training press (beyond it the force goes on linearly in u; a small MLP readout was
-tried first and extrapolated badly to rates it was not fitted on). A memory's weight has no
+the deepest training press (beyond it the force goes on linearly in u). A network readout
+over the same memory (lawfree_net.py) is a choice `haptics-train train` makes on validation:
+kept only where validation prefers it clearly, since a network fitted without that guard
+extrapolated badly to rates it was not fitted on. A memory's weight has no
 constant term (`memory_at_surface` false): the object holds no force at its own surface, and a
 hysteresis of one size at every depth is the bench's friction, not the object's
 (`_readout_mask`). Measured on the validation recordings of the six bench objects against
@@ -78,7 +80,7 @@ Sequences layout (`models.base`): `fit(X, y, info)`. Fitted attributes: `dt_`,
 (the c; empty without the irreversible memory), `w_` (the
 readout's weights, (3 + S) blocks of one weight per input, zeros where `_readout_mask` left
 a term out), `c_`
-(friction), `train_info_`.
+(friction), `net_` (the network readout, `NetReadout`, or None: `network`), `train_info_`.
 """
 
 from __future__ import annotations
@@ -96,7 +98,11 @@ from ..metrics import loop_work
 from .base import ForceModel, check_sequences, serve_dt, served_dt, step_dt
 from .contact_rows import sliding_rows
 from .lawfree_graph import lawfree_fused, lawfree_graph
+from .lawfree_net import NetReadout, with_w
 from .structured import dahl
+
+#: one recording's (x, v, target, the rows the readout is fitted on, the rows' period)
+FitRows = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]
 
 LAWFREE_DEFAULT: dict = {
     "taus_s": [0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0],
@@ -212,25 +218,12 @@ class LawFreeModel(ForceModel):
         """`holdout`: per sequence, the rows left out of the fit (a boolean mask as long as the
         sequence; `blocked_validation.py` scores the model on them). The memory still runs
         along every row: a held-out block keeps the history that leads into it."""
-        seqs, targets = check_sequences(X, y, len(self.features), len(info))
-        if holdout is not None and [len(m) for m in holdout] != [len(x) for x in seqs]:
-            raise ValueError("lawfree: holdout needs one mask per sequence, as long as it")
         h = self.hyper
         t0 = time.perf_counter()
         self.dt_ = step_dt("lawfree", info, one_rate=False)
         self.serve_dt_ = serve_dt("lawfree", info)
-        # sliding rows: in contact where the object's force is above the contact threshold, and
-        # out of contact too, where the object is 0 and the target is the bench's friction
-        # alone: that is what tells the friction from a hysteresis of the object, which inside
-        # the object looks the same (a force step with the direction of motion); contact_rows.py
-        friction, thinned = sliding_rows(seqs, targets, info, float(h["fit_min_speed_mps"]))
-        if holdout is not None:
-            thinned = [(x, v, t, keep & ~np.asarray(out, dtype=bool)[::k], k)  # fmt: skip
-                       for (x, v, t, keep, k), out in zip(thinned, holdout, strict=True)]
-        # each recording stepped at its own rows' period (tests logged at other rates: a
-        # testing machine that records every 0.01 mm logs a faster test at a higher rate)
-        picked = [(x, v, t, keep, k / i.sample_rate_hz)
-                  for (x, v, t, keep, k), i in zip(thinned, info, strict=True)]  # fmt: skip
+        self.net_ = None
+        friction, picked = self._fit_rows(X, y, info, holdout)
         xs = np.concatenate([x[kp & (x > 0)] for x, _, _, kp, _ in picked])
         if len(xs) == 0:
             raise ValueError("lawfree: no training row in contact with the probe sliding")
@@ -299,13 +292,59 @@ class LawFreeModel(ForceModel):
         ]
         return self
 
+    def _fit_rows(
+        self, X: list[np.ndarray], y: list[np.ndarray], info: list[SequenceInfo],
+        holdout: list[np.ndarray] | None = None,
+    ) -> tuple[float, list[FitRows]]:  # fmt: skip
+        """(the friction the free air shows, each recording's (x, v, target, the rows the
+        readout is fitted on, its rows' period)), as `fit` picks them."""
+        seqs, targets = check_sequences(X, y, len(self.features), len(info))
+        if holdout is not None and [len(m) for m in holdout] != [len(x) for x in seqs]:
+            raise ValueError("lawfree: holdout needs one mask per sequence, as long as it")
+        # sliding rows: in contact where the object's force is above the contact threshold, and
+        # out of contact too, where the object is 0 and the target is the bench's friction
+        # alone: that is what tells the friction from a hysteresis of the object, which inside
+        # the object looks the same (a force step with the direction of motion); contact_rows.py
+        friction, thinned = sliding_rows(seqs, targets, info,
+                                         float(self.hyper["fit_min_speed_mps"]))  # fmt: skip
+        if holdout is not None:
+            thinned = [(x, v, t, keep & ~np.asarray(out, dtype=bool)[::k], k)  # fmt: skip
+                       for (x, v, t, keep, k), out in zip(thinned, holdout, strict=True)]
+        # each recording stepped at its own rows' period (tests logged at other rates: a
+        # testing machine that records every 0.01 mm logs a faster test at a higher rate)
+        return friction, [(x, v, t, keep, k / i.sample_rate_hz)
+                          for (x, v, t, keep, k), i in zip(thinned, info, strict=True)]  # fmt: skip
+
+    def fit_rows(
+        self, X: list[np.ndarray], y: list[np.ndarray], info: list[SequenceInfo]
+    ) -> list[FitRows]:
+        """Each training recording's (x, v, target, the rows the readout was fitted on, their
+        period): what the network readout (lawfree_net.py) is trained on."""
+        self._check_fitted()
+        return self._fit_rows(X, y, info)[1]
+
+    @property
+    def network(self) -> NetReadout | None:
+        """The network readout where `haptics-train train` kept one (lawfree_net.py), else
+        None (and for a model pickled before it existed)."""
+        return getattr(self, "net_", None)
+
+    def linear_object(self, z: np.ndarray) -> np.ndarray:
+        """The linear readout's force from the readout's inputs, before the clamp."""
+        return _readout_columns(z, self.readout_depth_scales) @ self.w_
+
     @property
     def readout_depth_scales(self) -> list[float]:
         """The fitted a_s (none for a model pickled before the depth functions existed)."""
         return list(getattr(self, "depth_scales_", ()))
 
     def _object(self, z: np.ndarray, contact: np.ndarray) -> np.ndarray:
-        out = _readout_columns(z, self.readout_depth_scales) @ self.w_
+        net = self.network
+        if net is None:
+            out = self.linear_object(z)
+        else:
+            # the network alone, or on top of the linear readout (lawfree_net.py)
+            out = net(with_w(z)) + (self.linear_object(z) if net.residual else 0.0)
         return np.where(contact, np.maximum(out, 0.0), 0.0)
 
     def predict_served(self, X: np.ndarray, dt: float | None = None) -> np.ndarray:

@@ -16,6 +16,8 @@ state [s (K filters), p (P plays), (u_max)] at once, so no node slices it:
 - the readout sum_j q_j sum_i W_ij phi_i, w = min(u, 1), as [q] W (one MatMul) times
   phi = [1, w, w^2, 1 - exp(-w/a_1), ..] (one Pow of w by [0, 1, 2], with depth scales a
   Mul, Exp, Sub and Concat; one MatMul), q = [u, v/V, u - state];
+- with the network readout (`m.network`, lawfree_net.py): q' = [q, w] through MatMul, Add,
+  Tanh twice and a last MatMul, added to the linear readout or in its place;
 - relu, times contact. `c` is passed through.
 
 `lawfree_fused` writes the same step as one node of the project's fused operator,
@@ -85,6 +87,15 @@ def lawfree_graph(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
         e = g.op("Exp", g.op("Mul", wu, g.const((-1.0 / scales).reshape(len(scales), 1))))
         phi = g.op("Concat", phi, g.op("Sub", g.const(1.0), e), axis=1)  # [1, 3 + S, 1]
     f = g.op("MatMul", c, phi)  # [1, 1, 1]
+    net = m.network
+    if net is not None:
+        # the network readout (lawfree_net.py): q' = [q, w] through two tanh layers, alone or
+        # on top of the linear readout
+        qw = g.op("Concat", q, wu, axis=2)  # [1, 1, inputs + 1]
+        h = g.op("Tanh", g.op("Add", g.op("MatMul", qw, g.const(net.w1.T)), g.const(row(net.b1))))
+        h = g.op("Tanh", g.op("Add", g.op("MatMul", h, g.const(net.w2.T)), g.const(row(net.b2))))
+        out = g.op("Add", g.op("MatMul", h, g.const(net.w3.reshape(-1, 1))), g.const(net.b3))
+        f = g.op("Add", f, out) if net.residual else out
     force = g.op("Mul", g.op("Relu", f), contact)
     return stateful_model(g, len(m.features), m.state_size, force, state)
 
@@ -100,8 +111,15 @@ def lawfree_fused(m: LawFreeModel, decay: np.ndarray) -> onnx.ModelProto:
         floats_attr("filter_decay", decay),
         floats_attr("filter_gain", 1.0 - decay),
         floats_attr("play_widths", widths),
-        floats_attr("readout", m.w_),
+        # the network alone renders without the linear readout: its weights written as zeros
+        floats_attr("readout", m.w_ if m.network is None or m.network.residual
+                    else np.zeros_like(m.w_)),
     ]
+    net = m.network
+    if net is not None:  # absent: the linear readout alone (fused-ops/src/lawfree.rs)
+        attrs += [floats_attr("net_w1", net.w1.ravel()), floats_attr("net_b1", net.b1),
+                  floats_attr("net_w2", net.w2.ravel()), floats_attr("net_b2", net.b2),
+                  floats_attr("net_w3", net.w3), floats_attr("net_b3", [net.b3])]
     scales = m.readout_depth_scales
     if scales:  # absent: the readout of 1, w, w^2 alone (models exported before the scales)
         attrs.append(floats_attr("readout_depth_scales", scales))
