@@ -174,6 +174,7 @@ def test_lawfree_network_readout_follows_a_force_dependent_relaxation_and_steps_
     import dataclasses
 
     from haptics_train.models.lawfree_net import fit_network_readout
+    from haptics_train.pipeline import network_skipped
 
     def rec(depths: list[float], period_s: float) -> tuple[np.ndarray, np.ndarray]:
         x, v = presses(depths, period_s)
@@ -190,6 +191,8 @@ def test_lawfree_network_readout_follows_a_force_dependent_relaxation_and_steps_
                                       [(a, b, 1 / RATE) for a, b in valid], grid=grid,
                                       max_steps=3000)  # fmt: skip
     assert len(scores) == 2 and net.network is not None and lin.network is None
+    # no friction in these recordings: `haptics-train train` tries the network on them
+    assert network_skipped(lin) is None
     assert net.network.validation_rmse_n == pytest.approx(min(scores.values()))
 
     def err(m: object, recs: list) -> float:
@@ -212,3 +215,14 @@ def test_lawfree_network_readout_follows_a_force_dependent_relaxation_and_steps_
         assert np.ptp(ref) > 0.3  # a force that moves, so parity means something
         np.testing.assert_allclose(got, ref, atol=1e-4)
         np.testing.assert_allclose(got_graph, ref, atol=1e-4)
+
+
+def test_lawfree_network_readout_is_not_tried_on_recordings_with_a_friction(fitted):
+    """The pad's presses slide out of contact through the bench's Coulomb friction: the free
+    air shows it, and a network would render it as the object's (docs/laws.md), so
+    `haptics-train train` does not try one there (`pipeline.network_skipped`)."""
+    from haptics_train.pipeline import network_skipped
+
+    assert fitted.train_info_["free_air_friction_n"] == pytest.approx(FRICTION_N, rel=0.1)
+    why = network_skipped(fitted)
+    assert why is not None and "friction in free air" in why
