@@ -125,6 +125,8 @@ def network_note(models: list) -> dict | None:
     net = sel.get("network_readout")
     if net is None:
         return None
+    if "skipped" in net:
+        return {"skipped": net["skipped"]}
     return {"kept": net["kept"], "validation": net["validation"],
             "validation_every_row": net["validation_every_row"], "chosen": net["chosen"],
             "against": sel["candidates"][sel["chosen"]],
@@ -139,6 +141,9 @@ def network_lines(folds: dict) -> list[str]:
     md = ["", "`lawfree`'s network readout (tried on its validated choice, kept where it is at "
           "most 0.9x the linear readout's on both validation scores; models/lawfree_net.py):", ""]
     for k, n in tried.items():
+        if "skipped" in n:
+            md.append(f"- held out {k}: not tried: {n['skipped']}.")
+            continue
         c = n["chosen"]
         md.append(f"- held out {k}: {'kept' if n['kept'] else 'not kept'}: validation "
                   f"{_f(n['validation'])} N against {_f(n['against'])} N "

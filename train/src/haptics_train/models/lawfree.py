@@ -280,6 +280,9 @@ class LawFreeModel(ForceModel):
             "depth_scale_m": self.depth_scale_m_,
             "speed_scale_mps": self.speed_scale_mps_,
             "free_air_friction_n": friction,
+            # the largest force fitted: what the free air's friction is measured against
+            # (pipeline.network_skipped)
+            "target_max_n": float(np.max(np.abs(t))),
             "readout_terms": int(n_obj),
             "fit_rmse_n": float(np.sqrt(np.mean(resid**2))),
             "friction_n": self.c_.tolist(),
