@@ -116,7 +116,7 @@ def main(argv: list[str]) -> int:
         p = results[m.name].get("parity", {})
         if not p or p["max_abs_diff"] > PARITY_N or not p["all_finite"]:
             bad.append(f"{m.name}: {p}")
-    bad += lawfree_net(dict((m.name, m) for m, _ in models)["lawfree"], dataset, cfg, fam)
+    bad += lawfree_net({m.name: m for m, _ in models}["lawfree"], dataset, cfg, fam)
     onnx.save(identity(2), str(fam / "identity.onnx"))
     nodes = {f.stem: len(onnx.load(str(f)).graph.node) for f in sorted(fam.glob("*.onnx"))}
     (fam / "nodes.json").write_text(json.dumps(nodes, indent=1))
