@@ -17,8 +17,9 @@ from haptics_train.data import load_manifest, write_manifest_entry
 from haptics_train.export import provenance, to_contract_onnx
 from haptics_train.import_fixtures import write_examples
 from haptics_train.importer import import_series
+from haptics_train.lawfree_selection import lawfree_candidates
 from haptics_train.models import TrainConfig, make_model, predict_at
-from haptics_train.pipeline import feature_gains_note, lawfree_candidates, train_models
+from haptics_train.pipeline import feature_gains_note, train_models
 
 
 def test_blocks_cover_every_row_once_each_contiguous():

@@ -196,7 +196,7 @@ def test_lawfree_choice_needs_both_validation_scores():
     """`choose_on_both`: the candidate best on the sliding rows loses to one within 4 % of it
     there that is 20 % closer over every row (a slow memory the rests show); a candidate best
     on both wins; a diverged candidate (NaN) is never chosen and does not set the best."""
-    from haptics_train.pipeline import choose_on_both
+    from haptics_train.lawfree_selection import choose_on_both
 
     nan = float("nan")
     assert choose_on_both({"a": 1.0, "b": 1.04}, {"a": 1.2, "b": 1.0}) == "b"
@@ -207,18 +207,18 @@ def test_lawfree_choice_needs_both_validation_scores():
 
 
 def test_irreversible_memory_is_kept_only_when_clearly_closer_on_both_scores():
-    """`keep_damage_memory`: kept at 10 % closer on both scores (0.9x), not at 2 % (within
+    """`keep_at_margin`: kept at 10 % closer on both scores (0.9x), not at 2 % (within
     the recordings' noise), not when it is closer on the sliding rows alone; never when its
     own score is not finite, always when the grid's choice has none."""
-    from haptics_train.pipeline import LAWFREE_DAMAGE_MARGIN, keep_damage_memory
+    from haptics_train.lawfree_selection import KEEP_MARGIN, keep_at_margin
 
     nan = float("nan")
 
     def keep(sliding: float, every: float, grid: tuple[float, float] = (1.0, 1.0)) -> bool:
-        return keep_damage_memory({"g": grid[0], "d": sliding}, {"g": grid[1], "d": every},
-                                  "g", "d")  # fmt: skip
+        return keep_at_margin({"g": grid[0], "d": sliding}, {"g": grid[1], "d": every},
+                              "g", "d")  # fmt: skip
 
-    assert LAWFREE_DAMAGE_MARGIN == 0.9
+    assert KEEP_MARGIN == 0.9
     assert keep(0.9, 0.9) and keep(0.2, 0.7)
     assert not keep(0.98, 0.98) and not keep(0.5, 0.95) and not keep(0.95, 0.5)
     assert not keep(nan, 0.5) and not keep(0.5, nan)
@@ -226,13 +226,13 @@ def test_irreversible_memory_is_kept_only_when_clearly_closer_on_both_scores():
 
 
 def test_lawfree_readout_is_chosen_on_validation(tmp_path):
-    """`lawfree`'s readout, ridge and memory span (`pipeline.lawfree_candidates`) are chosen on the
-    validation recording's free run over its sliding rows, like the recommendation, then the
-    choice is tried once with the irreversible memory and once read through each network of
-    `NET_GRID` (the best kept only at the margin); what the user sets is not searched."""
+    """`lawfree`'s readout, ridge and memory span (`lawfree_selection.lawfree_candidates`) are
+    chosen on the validation recording's free run over its sliding rows, like the
+    recommendation, then the choice is tried once with the irreversible memory and once read
+    through each network of `NET_GRID` (the best kept only at the margin); what the user sets
+    is not searched."""
     from haptics_train.data import load_manifest
-    from haptics_train.models.lawfree_net import NET_GRID
-    from haptics_train.pipeline import (
+    from haptics_train.lawfree_selection import (
         BOTH_SCORES_RULE,
         DAMAGE_RULE,
         LAWFREE_DAMAGE_FRAC,
@@ -240,12 +240,12 @@ def test_lawfree_readout_is_chosen_on_validation(tmp_path):
         LAWFREE_RIDGES,
         LAWFREE_SPANS_S,
         NETWORK_RULE,
-        SELECTION_METRIC,
-        _candidates,
         choose_on_both,
-        keep_damage_memory,
+        keep_at_margin,
         lawfree_candidates,
     )
+    from haptics_train.models.lawfree_net import NET_GRID
+    from haptics_train.pipeline import SELECTION_METRIC, _candidates
 
     man = synthetic_manifest(tmp_path, (("a", 0.8, "train"), ("b", 3.9, "train"),
                                         ("v", 2.9, "validation"), ("t", 2.1, "test")))  # fmt: skip
@@ -268,7 +268,7 @@ def test_lawfree_readout_is_chosen_on_validation(tmp_path):
     # the grid, then its choice with the irreversible memory, each scored
     assert list(sel["candidates"]) == [*options, damage]
     assert list(sel["candidates_every_row"]) == [*options, damage]
-    kept = keep_damage_memory(sel["candidates"], sel["candidates_every_row"], pick, damage)
+    kept = keep_at_margin(sel["candidates"], sel["candidates_every_row"], pick, damage)
     assert sel["chosen"] == (damage if kept else pick)
     for key, value in options[pick].items():
         assert res["hyperparameters"][key] == value, key
@@ -279,9 +279,9 @@ def test_lawfree_readout_is_chosen_on_validation(tmp_path):
     best = min(net["candidates_every_row"].values())
     assert net["chosen"]["validation_every_row_rmse_n"] == pytest.approx(best)
     c = sel["chosen"]
-    net_kept = keep_damage_memory({"n": net["validation"], "c": sel["candidates"][c]},
-                                  {"n": net["validation_every_row"],
-                                   "c": sel["candidates_every_row"][c]}, "c", "n")  # fmt: skip
+    net_kept = keep_at_margin({"n": net["validation"], "c": sel["candidates"][c]},
+                              {"n": net["validation_every_row"],
+                               "c": sel["candidates_every_row"][c]}, "c", "n")  # fmt: skip
     assert net["kept"] == net_kept
     assert ("network_readout" in res["training"]) == net_kept
     # the score is the sliding rows' when the validation recording has them, as evaluate wrote

@@ -173,8 +173,8 @@ def test_lawfree_network_readout_follows_a_force_dependent_relaxation_and_steps_
     (the linear readout exported as zeros) and on top of the linear readout alike."""
     import dataclasses
 
+    from haptics_train.lawfree_selection import network_skipped
     from haptics_train.models.lawfree_net import fit_network_readout
-    from haptics_train.pipeline import network_skipped
 
     def rec(depths: list[float], period_s: float) -> tuple[np.ndarray, np.ndarray]:
         x, v = presses(depths, period_s)
@@ -220,8 +220,8 @@ def test_lawfree_network_readout_follows_a_force_dependent_relaxation_and_steps_
 def test_lawfree_network_readout_is_not_tried_on_recordings_with_a_friction(fitted):
     """The pad's presses slide out of contact through the bench's Coulomb friction: the free
     air shows it, and a network would render it as the object's (docs/laws.md), so
-    `haptics-train train` does not try one there (`pipeline.network_skipped`)."""
-    from haptics_train.pipeline import network_skipped
+    `haptics-train train` does not try one there (`lawfree_selection.network_skipped`)."""
+    from haptics_train.lawfree_selection import network_skipped
 
     assert fitted.train_info_["free_air_friction_n"] == pytest.approx(FRICTION_N, rel=0.1)
     why = network_skipped(fitted)

@@ -117,7 +117,7 @@ def run(work: Path, specs: tuple[str, ...], quick: bool = False, seed: int = 0,
 
 
 def network_note(models: list) -> dict | None:
-    """What `lawfree`'s network readout did in a fold (`pipeline.try_network_readout`): its
+    """What `lawfree`'s network readout did in a fold (`lawfree_selection.try_network_readout`): its
     validation scores against the linear readout's, whether it was kept, the network chosen;
     None where `lawfree` was not trained or the network not tried."""
     lf = next((m for m in models if m.name == "lawfree"), None)

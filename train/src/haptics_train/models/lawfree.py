@@ -30,7 +30,7 @@ compression) and V (the 99th percentile of |v|) are measured on the training dat
 the memory reaches is the data's to say: `haptics-train train` fits the filters up to 1, 10
 and 100 s and keeps the span whose validation free run is near the best both on the sliding
 rows and over every row
-(`pipeline.LAWFREE_SPANS_S`, `choose_on_both`): a filter much slower than the training
+(`lawfree_selection.LAWFREE_SPANS_S`, `choose_on_both`): a filter much slower than the training
 recordings is fitted as a copy of the compression and extrapolates when a slower motion moves
 it, while a foam's compression set needs the slow ones (docs/laws.md, "`lawfree`'s memory
 span"). The irreversible memory (`damage_frac`, off by default) is a third kind: a fading
@@ -38,7 +38,7 @@ memory forgets and a play is wiped out by a larger excursion, but a material tha
 below the deepest load it has carried (the Mullins effect of filled rubbers, the
 preconditioning of tissues, a foam's damage) remembers that load for good; `haptics-train
 train` tries it once on the grid's choice and keeps it where validation prefers it
-(`pipeline.LAWFREE_DAMAGE_FRAC`). Every input's weight is a function
+(`lawfree_selection.LAWFREE_DAMAGE_FRAC`). Every input's weight is a function
 of the depth (phi), so a memory may grow with the compression as a relaxing or hysteretic force
 does in soft materials: as a power (w, w^2) or saturating within a tenth or a third of the
 deepest press (1 - exp(-w/a): soft materials stiffen early, and their memory with them), up to
@@ -281,7 +281,7 @@ class LawFreeModel(ForceModel):
             "speed_scale_mps": self.speed_scale_mps_,
             "free_air_friction_n": friction,
             # the largest force fitted: what the free air's friction is measured against
-            # (pipeline.network_skipped)
+            # (lawfree_selection.network_skipped)
             "target_max_n": float(np.max(np.abs(t))),
             "readout_terms": int(n_obj),
             "fit_rmse_n": float(np.sqrt(np.mean(resid**2))),

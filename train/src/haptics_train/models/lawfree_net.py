@@ -6,12 +6,13 @@ term, lawfree.py). A law whose memory relaxes at a rate set by the force it carr
 dashpot, a sinh of the stress: the Hunt-Crossley object; nonlinear viscoelasticity in general)
 is outside it: on the leave-one-rate-out folds `lawfree` stayed 0.98-2.3x of sd_poly2 there.
 Read through two tanh layers, the same memory came 1.3-1.9x closer on all three Hunt-Crossley
-folds, and within 7 % elsewhere but one fold (docs/laws.md, "A network readout on `lawfree`'s
-memory", the prototype `scripts/lawfree-mlp-readout.py`). So `haptics-train train` tries it on
-`lawfree`'s validated choice and keeps it only where validation prefers it clearly
-(`pipeline.try_network_readout`): a network extrapolates differently from the linear readout
-(it saturates where the linear readout goes on linearly past the deepest training press), and
-only a validation recording can say which a law needs.
+folds, and within 7 % elsewhere but one fold (docs/laws.md, "A network readout on
+`lawfree`'s memory"; the prototype that measured it, since retired, is `git show
+0552afc:scripts/lawfree-mlp-readout.py`). So `haptics-train train` tries it on `lawfree`'s
+validated choice and keeps it only where validation prefers it clearly
+(`lawfree_selection.try_network_readout`): a network extrapolates differently from the linear
+readout (it saturates where the linear readout goes on linearly past the deepest training
+press), and only a validation recording can say which a law needs.
 
 The network (the memory itself is the fitted `lawfree`'s, unchanged):
 
