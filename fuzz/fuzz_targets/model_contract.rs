@@ -4,8 +4,8 @@
 //! accepted or refused with a `ModelError`, never a panic; what is accepted is what the engine
 //! may allocate: a features shape of ones and `n`, a state shape within the element cap.
 //!
-//! Input: metadata lines (features, kind, units, provenance, state size, previous force; an
-//! empty line is a missing entry), a 0xFF byte, then the declared tensors, 3 bytes + dims each.
+//! Input: metadata lines (features, kind, units, provenance, state size, previous force,
+//! reference steps; an empty line is a missing entry), a 0xFF byte, then the declared tensors, 3 bytes + dims each.
 #![no_main]
 
 #[path = "../../infer-server/src/model/contract.rs"]
@@ -19,13 +19,14 @@ use contract_check::{check_declared, parse_metadata, Declared, ModelError};
 
 /// Names a declared tensor can have: the contract's, and one it does not know.
 const NAMES: [&str; 7] = ["features", "h_in", "c_in", "force", "h_out", "c_out", "x"];
-const KEYS: [&str; 6] = [
+const KEYS: [&str; 7] = [
     contract::META_FEATURES,
     contract::META_KIND,
     contract::META_UNITS,
     contract::META_PROVENANCE,
     contract::META_STATE_SIZE,
     contract::META_PREVIOUS_FORCE,
+    contract::META_REFERENCE,
 ];
 
 /// The declared inputs and outputs described by `spec`.
@@ -91,6 +92,13 @@ libfuzzer_sys::fuzz_target!(|data: &[u8]| {
     assert!(n > 0 && meta.features.iter().all(|f| !f.is_empty()));
     if meta.kind == contract::ModelKind::Stateful {
         assert!(meta.state_size.is_some_and(|h| h > 0));
+    }
+    if let Some(r) = &meta.reference {
+        // what the engine steps without another check: a row per force, each of n values
+        assert!(!r.force.is_empty() && r.force.len() <= contract::MAX_REFERENCE_STEPS);
+        assert_eq!(r.inputs.len(), r.force.len());
+        assert!(r.inputs.iter().all(|row| row.len() == n));
+        assert!(r.tolerance_n > 0.0 && r.tolerance_n <= contract::MAX_REFERENCE_TOLERANCE_N);
     }
     let _ = contract_check::map_features(&meta.features, &contract::FeatureSchema::standard());
     let (inputs, outputs) = declared(data.get(split + 1..).unwrap_or(&[]));

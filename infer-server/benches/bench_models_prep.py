@@ -33,11 +33,13 @@ from pathlib import Path
 
 import numpy as np
 import onnx
+from onnx import TensorProto, helper
+
 from haptics_train.data import load_data
 from haptics_train.models import TrainConfig
 from haptics_train.pipeline import export_models, load_models, train_models
+from haptics_train.reference import REFERENCE_KEY, add_reference
 from haptics_train.vocab import FEATURE_NAMES as SCHEMA_NAMES
-from onnx import TensorProto, helper
 
 #: one model per family (the spring-dampers, linear, SVR, forests, networks, feedback networks,
 #: the structured and law-free stateful models)
@@ -111,7 +113,10 @@ def main(argv: list[str]) -> int:
         if "fused" in inspect.signature(m.to_onnx).parameters:
             graph = m.to_onnx(fused=False)  # the multi-node graph the fused node replaces
             meta = onnx.load(str(fam / f"{m.name}.onnx")).metadata_props
-            graph.metadata_props.extend(meta)
+            graph.metadata_props.extend(p for p in meta if p.key != REFERENCE_KEY)
+            # its own reference steps: the graph's float32 arithmetic is not the fused node's
+            # (lawfree's slow filters, the SVR's kernel sum differ by about 1e-4 N)
+            add_reference(graph, dataset.test[0], m.features)
             onnx.save(graph, str(fam / f"{m.name}_graph.onnx"))
         p = results[m.name].get("parity", {})
         if not p or p["max_abs_diff"] > PARITY_N or not p["all_finite"]:
@@ -150,6 +155,8 @@ def lawfree_net(lf: object, dataset: object, cfg: TrainConfig, fam: Path) -> lis
                                  max_steps=NET_STEPS)  # fmt: skip
     prov = provenance(net, cfg, dataset, None)
     fused, graph = to_contract_onnx(net, prov), to_contract_onnx(net, prov, fused=False)
+    for m in (fused, graph):
+        add_reference(m, dataset.test[0], net.features)
     onnx.save(fused, str(fam / "lawfree_net.onnx"))
     onnx.save(graph, str(fam / "lawfree_net_graph.onnx"))
     rec = dataset.test[0]

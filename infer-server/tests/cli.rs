@@ -57,6 +57,8 @@ fn validate_json_refuses_with_code_and_message() {
         ),
         ("nan_output", None, "non_finite_output"),
         ("no_kind", None, "missing_metadata"),
+        ("linear_reference_wrong", None, "reference_mismatch"),
+        ("linear_reference_bad", None, "bad_metadata"),
     ] {
         let mut cmd = bin();
         cmd.args(["validate", "--json"])

@@ -407,3 +407,54 @@ fn warm_up_is_timed_into_the_cost() {
         }
     }
 }
+
+/// `haptics.reference` (docs/model-contract.md): the engine steps a model's reference rows
+/// from the zero state when it loads it, and refuses the model where a force is further than
+/// the tolerance from what its export computed.
+#[test]
+fn reference_steps_are_checked_at_load() {
+    let schema = FeatureSchema::standard();
+    // The linear model's own forces: it loads and serves as the plain one does.
+    let mut engine = load(&model_or_skip!("linear_reference"), &schema).expect("agrees");
+    let input = standard_vector(&[("position_x", 0.2), ("velocity", 0.7)]);
+    let got = engine.step(&input).unwrap();
+    assert!(close(got, 2.0 * 0.7 - 3.0 * 0.2 + 0.5, 1e-6), "{got}");
+    // The LSTM's forces as ONNX Runtime computed them stepping it from the zero state: the
+    // engine carries its state between the twelve steps as that stepping did (a state not
+    // carried, or not swapped, gives other forces from the second step on), and the check
+    // leaves the state at zero for the loop.
+    let engine = load(&model_or_skip!("lstm_reference"), &schema).expect("agrees");
+    assert!(engine.hidden_state().iter().all(|&v| v == 0.0));
+    // One force 10 mN off: refused, naming the step, both forces and the tolerance.
+    let err = load(&model_or_skip!("linear_reference_wrong"), &schema).unwrap_err();
+    assert_eq!(err.code(), "reference_mismatch", "{err}");
+    match &err {
+        ModelError::ReferenceMismatch {
+            step,
+            steps,
+            expected,
+            got,
+            tolerance,
+            input,
+        } => {
+            assert_eq!((*step, *steps), (5, 8));
+            assert!((expected - got - 0.01).abs() < 1e-5, "{expected} {got}");
+            assert_eq!(*tolerance, 1e-4);
+            assert_eq!(input.len(), 2);
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(err.to_string().contains("haptics_build"), "{err}");
+    // A row of the wrong width: the entry is refused as metadata, its size named, not its text.
+    let err = load(&model_or_skip!("linear_reference_bad"), &schema).unwrap_err();
+    assert_eq!(err.code(), "bad_metadata", "{err}");
+    let msg = err.to_string();
+    assert!(
+        msg.contains("row 3 has 3 values; the model has 2 features"),
+        "{msg}"
+    );
+    assert!(
+        msg.contains("bytes>") && !msg.contains("tolerance_n\""),
+        "{msg}"
+    );
+}

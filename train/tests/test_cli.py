@@ -48,6 +48,25 @@ def test_pipeline_end_to_end(tmp_path, capsys):
 
     main(["validate", str(models / "rf_six.onnx"), str(models / "lstm_six.onnx")])
     assert "ok (stateful" in capsys.readouterr().out
+    # every export carries its reference steps (reference.py): the parity recording's rows in
+    # contact, the force its ONNX Runtime computed; validate steps them again, and a force
+    # spoiled by 1 mN is refused, naming the step
+    from haptics_train.contract import ContractError, validate_model
+    from haptics_train.reference import REFERENCE_KEY, REFERENCE_STEPS
+
+    for name in res:
+        m = onnx.load(str(models / f"{name}.onnx"))
+        ref = json.loads({p.key: p.value for p in m.metadata_props}[REFERENCE_KEY])
+        assert len(ref["force"]) == len(ref["inputs"]) == REFERENCE_STEPS, name
+        assert ref["source"].startswith("test_2.1") and np.ptp(ref["force"]) > 0.1, name
+        validate_model(m)
+        ref["force"][7] += 1e-3
+        spoiled = onnx.load(str(models / f"{name}.onnx"))
+        for p in spoiled.metadata_props:
+            if p.key == REFERENCE_KEY:
+                p.value = json.dumps(ref)
+        with pytest.raises(ContractError, match=f"{REFERENCE_KEY}: step 7 of 32"):
+            validate_model(spoiled)
 
 
 def test_missing_dataset_is_a_clear_error(tmp_path, capsys):

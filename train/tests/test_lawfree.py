@@ -3,6 +3,9 @@ Bouc-Wen hysteretic pad with a relaxing branch, not a foam) from presses alone, 
 spring-damper on presses it was not fitted on, leaves the bench's friction out of what it
 renders, and its ONNX graph steps in parity with `predict`."""
 
+import copy
+import json
+
 import numpy as np
 import pytest
 from test_structured import RATE, info, presses  # the same presses and sequence info
@@ -11,6 +14,7 @@ from haptics_train.closed_loop import OnnxStepper
 from haptics_train.contract import validate_model
 from haptics_train.export import provenance, to_contract_onnx
 from haptics_train.models import TrainConfig, make_model
+from haptics_train.reference import REFERENCE_KEY, check_reference, reference_entry
 
 FRICTION_N = 0.4
 SMALL = {"taus_s": [0.1, 1.0, 10.0], "play_frac": [0.02, 0.1]}
@@ -215,6 +219,17 @@ def test_lawfree_network_readout_follows_a_force_dependent_relaxation_and_steps_
         assert np.ptp(ref) > 0.3  # a force that moves, so parity means something
         np.testing.assert_allclose(got, ref, atol=1e-4)
         np.testing.assert_allclose(got_graph, ref, atol=1e-4)
+    # its reference steps (reference.py) catch a server that ignores the network's attributes,
+    # as a build older than them does: the kernel without them is the linear readout alone
+    om.metadata_props.add(key=REFERENCE_KEY, value=json.dumps(reference_entry(om, Xs[::40], "t")))
+    assert check_reference(om) is None
+    older = copy.deepcopy(om)
+    node = older.graph.node[0]
+    keep = [a for a in node.attribute if not a.name.startswith("net_")]
+    del node.attribute[:]
+    node.attribute.extend(keep)
+    why = check_reference(older)
+    assert why is not None and why.startswith(f"{REFERENCE_KEY}: step "), why
 
 
 def test_lawfree_network_readout_is_not_tried_on_recordings_with_a_friction(fitted):

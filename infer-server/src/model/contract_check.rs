@@ -10,8 +10,9 @@ use std::path::PathBuf;
 
 use super::contract::{
     checked_elements, FeatureSchema, ModelKind, FEATURE_NAMES, INPUT_C, INPUT_FEATURES, INPUT_H,
-    META_FEATURES, META_FEATURE_GAINS, META_KIND, META_PREVIOUS_FORCE, META_PROVENANCE,
-    META_STATE_SIZE, META_STEP_S, META_UNITS, OUTPUT_C, OUTPUT_FORCE, OUTPUT_H,
+    MAX_REFERENCE_STEPS, MAX_REFERENCE_TOLERANCE_N, META_FEATURES, META_FEATURE_GAINS, META_KIND,
+    META_PREVIOUS_FORCE, META_PROVENANCE, META_REFERENCE, META_STATE_SIZE, META_STEP_S, META_UNITS,
+    OUTPUT_C, OUTPUT_FORCE, OUTPUT_H,
 };
 
 fn unknown_hint(name: &str) -> String {
@@ -62,6 +63,15 @@ pub enum ModelError {
         value: f32,
         input: Vec<f32>,
     },
+    #[error("reference step {step} of {steps} (input {input:?}) computes {got} N on this server, where the model's export computed {expected} N (tolerance {tolerance} N): this server's ONNX Runtime or fused operators read the model otherwise than its exporter's did (a build older than the exporter's ignores the attributes it does not know; rebuild: `source scripts/env.sh && haptics_build`)")]
+    ReferenceMismatch {
+        step: usize,
+        steps: usize,
+        input: Vec<f32>,
+        expected: f32,
+        got: f32,
+        tolerance: f32,
+    },
     #[error("ONNX Runtime failed to run the model: {reason}")]
     RunFailed { reason: String },
     #[error("could not configure the ONNX Runtime session: {reason}")]
@@ -85,6 +95,7 @@ impl ModelError {
             Self::WrongOutputs { .. } => "wrong_outputs",
             Self::BadShape { .. } => "bad_shape",
             Self::NonFinite { .. } => "non_finite_output",
+            Self::ReferenceMismatch { .. } => "reference_mismatch",
             Self::RunFailed { .. } => "run_failed",
             Self::Session { .. } => "session_failed",
             Self::TimedOut { .. } => "timed_out",
@@ -110,6 +121,69 @@ pub struct Metadata {
     /// `haptics.feature_gains`: (g_v, g_a) of its training features, rad/s (compared with the
     /// loop's when the model is activated).
     pub feature_gains: Option<(f64, f64)>,
+    /// `haptics.reference`: steps the engine checks itself against when it loads the model.
+    pub reference: Option<Reference>,
+}
+
+/// A model's reference steps (`haptics.reference`), checked when parsed: at least one and at
+/// most `MAX_REFERENCE_STEPS` rows, each of the model's feature count, every value finite, a
+/// tolerance in (0, `MAX_REFERENCE_TOLERANCE_N`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Reference {
+    /// Rows in the model's input order.
+    pub inputs: Vec<Vec<f32>>,
+    pub force: Vec<f32>,
+    pub tolerance_n: f32,
+}
+
+/// Parses `haptics.reference` for a model of `n` features. The error's value is the entry's
+/// size, not its text (kilobytes of numbers).
+pub fn parse_reference(raw: &str, n: usize) -> Result<Reference, ModelError> {
+    #[derive(serde::Deserialize)]
+    struct Doc {
+        inputs: Vec<Vec<f32>>,
+        force: Vec<f32>,
+        tolerance_n: f32,
+    }
+    let bad = |reason: String| ModelError::BadMetadata {
+        key: META_REFERENCE.to_string(),
+        value: format!("<{} bytes>", raw.len()),
+        reason,
+    };
+    let doc: Doc = serde_json::from_str(raw).map_err(|e| {
+        bad(format!(
+            "not a JSON object {{\"inputs\": rows, \"force\": forces, \"tolerance_n\": N}}: {e}"
+        ))
+    })?;
+    let k = doc.force.len();
+    if k == 0 || k > MAX_REFERENCE_STEPS || doc.inputs.len() != k {
+        return Err(bad(format!(
+            "{} input rows for {k} forces (1 to {MAX_REFERENCE_STEPS} steps, a row per force)",
+            doc.inputs.len()
+        )));
+    }
+    if let Some((i, row)) = doc.inputs.iter().enumerate().find(|(_, r)| r.len() != n) {
+        return Err(bad(format!(
+            "row {i} has {} values; the model has {n} features",
+            row.len()
+        )));
+    }
+    let all = doc.inputs.iter().flatten().chain(doc.force.iter());
+    if all.copied().any(|v| !v.is_finite()) {
+        return Err(bad("a value is not finite".into()));
+    }
+    let sane = doc.tolerance_n > 0.0 && doc.tolerance_n <= MAX_REFERENCE_TOLERANCE_N;
+    if !sane {
+        return Err(bad(format!(
+            "tolerance_n {} is not in (0, {MAX_REFERENCE_TOLERANCE_N}] N",
+            doc.tolerance_n
+        )));
+    }
+    Ok(Reference {
+        inputs: doc.inputs,
+        force: doc.force,
+        tolerance_n: doc.tolerance_n,
+    })
 }
 
 /// Checks the `haptics.*` metadata entries; `custom(key)` is the model's entry for `key`.
@@ -225,6 +299,10 @@ pub fn parse_metadata(custom: impl Fn(&str) -> Option<String>) -> Result<Metadat
                 }
             }
         };
+    let reference = match custom(META_REFERENCE) {
+        None => None,
+        Some(raw) => Some(parse_reference(&raw, features.len())?),
+    };
     Ok(Metadata {
         features,
         kind,
@@ -234,6 +312,7 @@ pub fn parse_metadata(custom: impl Fn(&str) -> Option<String>) -> Result<Metadat
         previous_force: custom(META_PREVIOUS_FORCE),
         step_s,
         feature_gains,
+        reference,
     })
 }
 
@@ -423,6 +502,62 @@ mod tests {
             META_STEP_S => step.map(str::to_string),
             _ => None,
         })
+    }
+
+    #[test]
+    fn reference_steps_are_optional_and_checked_before_anything_steps_them() {
+        let ok = r#"{"inputs": [[0.001, 0.01], [0.002, -0.5]], "force": [0.25, 0.5],
+                     "tolerance_n": 1e-4, "source": "test"}"#;
+        let r = parse_reference(ok, 2).unwrap();
+        assert_eq!(r.inputs, [[0.001, 0.01], [0.002, -0.5]]);
+        assert_eq!((r.force.len(), r.tolerance_n), (2, 1e-4));
+        // the whole metadata: absent, or parsed for the model's feature count
+        let with = |raw: Option<&str>| {
+            parse_metadata(|k| match k {
+                META_REFERENCE => raw.map(str::to_string),
+                META_FEATURES => Some("position_x,velocity".into()),
+                META_KIND => Some("stateless".into()),
+                META_UNITS => Some("N".into()),
+                META_PROVENANCE => Some("{}".into()),
+                _ => None,
+            })
+        };
+        assert_eq!(with(None).unwrap().reference, None);
+        assert_eq!(with(Some(ok)).unwrap().reference, Some(r));
+        let doc = |inputs: &str, force: &str, tolerance: &str| {
+            format!(r#"{{"inputs": {inputs}, "force": {force}, "tolerance_n": {tolerance}}}"#)
+        };
+        let many = format!(
+            r#"{{"inputs": {rows}, "force": {forces}, "tolerance_n": 1e-4}}"#,
+            rows = serde_json::json!(vec![[0.0, 0.0]; MAX_REFERENCE_STEPS + 1]),
+            forces = serde_json::json!(vec![0.0; MAX_REFERENCE_STEPS + 1]),
+        );
+        for (bad, says) in [
+            ("", "not a JSON object"),
+            ("[1, 2]", "not a JSON object"),
+            (r#"{"inputs": [[0, 0]], "force": [0]}"#, "not a JSON object"),
+            (&doc("[]", "[]", "1e-4"), "0 forces"),
+            (&doc("[[0, 0]]", "[0, 1]", "1e-4"), "1 input rows for 2"),
+            (&doc("[[0, 0, 0]]", "[0]", "1e-4"), "row 0 has 3 values"),
+            (&doc("[[0, 1e39]]", "[0]", "1e-4"), "not finite"),
+            (&doc("[[0, 0]]", "[0]", "0"), "tolerance_n 0"),
+            (&doc("[[0, 0]]", "[0]", "0.5"), "tolerance_n 0.5"),
+            (&many, "257 forces"),
+        ] {
+            let e = with(Some(bad)).unwrap_err();
+            match &e {
+                ModelError::BadMetadata { key, value, reason } => {
+                    assert_eq!(key, META_REFERENCE, "{bad:?}");
+                    assert_eq!(
+                        value,
+                        &format!("<{} bytes>", bad.len()),
+                        "the size, not the text"
+                    );
+                    assert!(reason.contains(says), "{bad:?}: {reason}");
+                }
+                other => panic!("{bad:?}: {other}"),
+            }
+        }
     }
 
     #[test]

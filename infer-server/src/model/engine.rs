@@ -226,7 +226,8 @@ impl StepEngine {
         cfg: &SessionConfig,
         run_options: Arc<RunOptions>,
     ) -> Result<Self, ModelError> {
-        let meta = model::read_metadata(&session)?;
+        let mut meta = model::read_metadata(&session)?;
+        let reference = meta.reference.take();
         let input_map = model::map_features(&meta.features, schema)?;
         let sig = model::check_signature(&session, &meta)?;
 
@@ -245,6 +246,7 @@ impl StepEngine {
             state_shape: sig.state_shape.clone(),
             force_shape: Vec::new(),
             cost: Box::new(serde_json::json!({ "export": model::read_cost(&session) })),
+            reference_steps: None,
         };
 
         // Inputs, in the contract's order.
@@ -385,7 +387,48 @@ impl StepEngine {
         }
         let times = engine.warm_up(cfg.warmup_runs.max(1))?;
         engine.info.cost["warmup"] = warmup_cost(&times);
+        if let Some(r) = &reference {
+            engine.check_reference(r)?;
+            engine.info.reference_steps = Some(r.force.len());
+        }
         Ok(engine)
+    }
+
+    /// Steps the model's reference rows (`haptics.reference`) from the zero state, as the
+    /// loop will start it, and refuses the model where a force is further than the reference's
+    /// tolerance from what its export computed: this engine would serve another model than
+    /// the one trained. Leaves the state reset. At load only, off the hot path.
+    fn check_reference(&mut self, r: &model::Reference) -> Result<(), ModelError> {
+        self.reset();
+        let steps = r.force.len();
+        for (step, (row, &expected)) in r.inputs.iter().zip(&r.force).enumerate() {
+            // SAFETY: `features` points at the feature tensor's `input_map.len()` floats, and
+            // the reference's rows were checked to have exactly that many values when parsed.
+            unsafe { ptr::copy_nonoverlapping(row.as_ptr(), self.features, self.input_map.len()) };
+            self.run_raw().map_err(|e| ModelError::RunFailed {
+                reason: format!("{e}: {}", self.last_error_message()),
+            })?;
+            // SAFETY: `force` points at the one float of the preallocated force output.
+            let got = unsafe { *self.force };
+            if self.state.is_some() {
+                self.phase ^= 1;
+            }
+            // a NaN answer is a mismatch too
+            let within = (got - expected).abs() <= r.tolerance_n;
+            if !within {
+                self.reset();
+                return Err(ModelError::ReferenceMismatch {
+                    step,
+                    steps,
+                    input: row.clone(),
+                    expected,
+                    got,
+                    tolerance: r.tolerance_n,
+                });
+            }
+        }
+        self.reset();
+        Ok(())
     }
 
     /// Why this model may not answer within the loop's deadline on this machine, from its

@@ -24,7 +24,8 @@ use ort::value::{TensorElementType, ValueType};
 
 use crate::model::contract::ModelKind;
 pub use crate::model::contract_check::{
-    check_declared, map_features, parse_metadata, Declared, Metadata, ModelError, Signature,
+    check_declared, map_features, parse_metadata, parse_reference, Declared, Metadata, ModelError,
+    Reference, Signature,
 };
 use crate::model::runtime::Runtime;
 
@@ -97,6 +98,10 @@ pub struct ModelInfo {
     /// "warmup": this load's warm-up on this machine}` (docs/model-contract.md, "Cost").
     /// Boxed: the info travels inside enums whose variants should stay small.
     pub cost: Box<serde_json::Value>,
+    /// How many reference steps (`haptics.reference`) this engine checked itself against when
+    /// it loaded the model, all within their tolerance; `None`: the model carries none (a
+    /// model exported before them, or written by hand).
+    pub reference_steps: Option<usize>,
 }
 
 /// rt-loop's default per-step deadline for the server's answer (`--deadline-us`), us: a model
@@ -195,6 +200,9 @@ fn float_tensor_shape(name: &str, ty: &ValueType) -> Result<Vec<i64>, ModelError
 pub const MAX_PROVENANCE_BYTES: usize = 64 << 10;
 /// Most bytes of any other `haptics.*` entry (4 KiB): names, a kind, units, a number.
 pub const MAX_METADATA_VALUE_BYTES: usize = 4 << 10;
+/// Most bytes of `haptics.reference` (16 KiB: the exporter's 32 steps of nine features take
+/// about 5 KiB). Read once at load, never listed.
+pub const MAX_REFERENCE_BYTES: usize = 16 << 10;
 
 /// Reads and checks the `haptics.*` metadata entries, each capped in size first.
 pub fn read_metadata(session: &Session) -> Result<Metadata, ModelError> {
@@ -209,7 +217,8 @@ pub fn read_metadata(session: &Session) -> Result<Metadata, ModelError> {
 /// [`MAX_METADATA_VALUE_BYTES`]); the error names the entry and its size, never its value.
 pub fn check_metadata_sizes(custom: impl Fn(&str) -> Option<String>) -> Result<(), ModelError> {
     use crate::model::contract::{
-        META_FEATURES, META_KIND, META_PREVIOUS_FORCE, META_PROVENANCE, META_STATE_SIZE, META_UNITS,
+        META_FEATURES, META_KIND, META_PREVIOUS_FORCE, META_PROVENANCE, META_REFERENCE,
+        META_STATE_SIZE, META_UNITS,
     };
     for key in [
         META_FEATURES,
@@ -218,11 +227,12 @@ pub fn check_metadata_sizes(custom: impl Fn(&str) -> Option<String>) -> Result<(
         META_PROVENANCE,
         META_STATE_SIZE,
         META_PREVIOUS_FORCE,
+        META_REFERENCE,
     ] {
-        let limit = if key == META_PROVENANCE {
-            MAX_PROVENANCE_BYTES
-        } else {
-            MAX_METADATA_VALUE_BYTES
+        let limit = match key {
+            META_PROVENANCE => MAX_PROVENANCE_BYTES,
+            META_REFERENCE => MAX_REFERENCE_BYTES,
+            _ => MAX_METADATA_VALUE_BYTES,
         };
         if let Some(v) = custom(key).filter(|v| v.len() > limit) {
             return Err(ModelError::BadMetadata {

@@ -104,6 +104,10 @@ def validate_model(
             out = sess.run(None, feeds)
             if not np.isfinite(out[0]).all() or out[0].shape != (1, 1):
                 problems.append(f"warm-up output not a finite [1, 1]: {out[0]!r}")
+            from .reference import check_reference  # reference.py steps models as served
+
+            if (wrong := check_reference(m)) is not None:
+                problems.append(wrong)
         except Exception as e:  # noqa: BLE001 - any runtime failure is a contract failure
             problems.append(f"onnxruntime cannot run it: {e}")
     if problems:

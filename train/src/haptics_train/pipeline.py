@@ -49,6 +49,7 @@ from .lawfree_selection import (
 )
 from .models import ForceModel, TrainConfig, fit_recordings, parse_spec
 from .models.lawfree_net import NET_MAX_STEPS
+from .reference import add_reference
 
 #: The pipeline's default comparison: Table 6.2 baselines, Table 6.15 algorithms on the six
 #: features, Table 6.10 ablation, and the better-conditioned/memory alternatives.
@@ -477,6 +478,10 @@ def export_models(
                 "recommended": rec["recommended"], "this_model_rank": place,
                 "of": len(rec["ranking"]), "metric": rec["metric"],
             }))  # fmt: skip
+        if dataset is not None and (recs := dataset.test or dataset.train):
+            # steps the server checks its own engine against when it loads the model
+            # (reference.py): a build that reads the graph otherwise refuses it, not renders it
+            add_reference(m, recs[0], model.features)
         # what one call costs on this machine, as infer-server steps it (docs/model-contract.md)
         m.metadata_props.add(key=COST_KEY, value=json.dumps(measure_cost(m)))
         path = save_onnx(m, folder / f"{model.name}.onnx")
