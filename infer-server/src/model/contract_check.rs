@@ -539,7 +539,12 @@ mod tests {
             (&doc("[]", "[]", "1e-4"), "0 forces"),
             (&doc("[[0, 0]]", "[0, 1]", "1e-4"), "1 input rows for 2"),
             (&doc("[[0, 0, 0]]", "[0]", "1e-4"), "row 0 has 3 values"),
-            (&doc("[[0, 1e39]]", "[0]", "1e-4"), "not finite"),
+            // past f32's range: read as infinite, or refused by the JSON reader itself,
+            // depending on serde_json's features in the build (JSON has no NaN or infinity)
+            (
+                &doc("[[0, 1e39]]", "[0]", "1e-4"),
+                "not finite|out of range",
+            ),
             (&doc("[[0, 0]]", "[0]", "0"), "tolerance_n 0"),
             (&doc("[[0, 0]]", "[0]", "0.5"), "tolerance_n 0.5"),
             (&many, "257 forces"),
@@ -553,7 +558,10 @@ mod tests {
                         &format!("<{} bytes>", bad.len()),
                         "the size, not the text"
                     );
-                    assert!(reason.contains(says), "{bad:?}: {reason}");
+                    assert!(
+                        says.split('|').any(|s| reason.contains(s)),
+                        "{bad:?}: {reason}"
+                    );
                 }
                 other => panic!("{bad:?}: {other}"),
             }
