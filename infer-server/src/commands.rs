@@ -107,6 +107,12 @@ pub fn validate(
                     println!("  state shape: {s:?}");
                 }
                 println!("  provenance: {}", info.provenance);
+                match info.reference_steps {
+                    Some(n) => println!(
+                        "  reference: {n} steps computed as at its export (haptics.reference)"
+                    ),
+                    None => println!("  reference: none carried (not checked)"),
+                }
                 println!(
                     "  ONNX Runtime {} ({})",
                     rt.version(),

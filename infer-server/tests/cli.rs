@@ -40,6 +40,21 @@ fn validate_json_accepts_a_good_model() {
     assert_eq!(v["model"]["input_map"], serde_json::json!([2, 0]));
     assert_eq!(v["model"]["state_shape"], serde_json::json!([1, 1, 3]));
     assert!(v["runtime"]["version"].as_str().unwrap().starts_with("1."));
+    assert_eq!(v["model"]["reference_steps"], serde_json::Value::Null);
+    // A model carrying reference steps: how many were checked, in JSON and in words.
+    let path = model_or_skip!("lstm_reference");
+    let out = bin()
+        .args(["validate", "--json"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert_eq!(json(&out)["model"]["reference_steps"], 12);
+    let out = bin().arg("validate").arg(&path).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("reference: 12 steps computed as at its export"),
+        "{text}"
+    );
 }
 
 #[test]

@@ -481,7 +481,9 @@ def export_models(
         if dataset is not None and (recs := dataset.test or dataset.train):
             # steps the server checks its own engine against when it loads the model
             # (reference.py): a build that reads the graph otherwise refuses it, not renders it
-            add_reference(m, recs[0], model.features)
+            ref = add_reference(m, recs[0], model.features)
+            print(f"[export] {model.name}: {len(ref['force'])} reference steps "
+                  f"({ref['source']}), checked by infer-server when it loads it", flush=True)
         # what one call costs on this machine, as infer-server steps it (docs/model-contract.md)
         m.metadata_props.add(key=COST_KEY, value=json.dumps(measure_cost(m)))
         path = save_onnx(m, folder / f"{model.name}.onnx")
