@@ -63,7 +63,7 @@ pub enum ModelError {
         value: f32,
         input: Vec<f32>,
     },
-    #[error("reference step {step} of {steps} (input {input:?}) computes {got} N on this server, where the model's export computed {expected} N (tolerance {tolerance} N): this server's ONNX Runtime or fused operators read the model otherwise than its exporter's did (a build older than the exporter's ignores the attributes it does not know; rebuild: `source scripts/env.sh && haptics_build`)")]
+    #[error("reference step {step} of {steps} (input {input:?}) computes {got} N on this server, where the model's export computed {expected} N (tolerance {tolerance} N): this server's ONNX Runtime or fused operators read the model otherwise than its exporter's did (a build older than the exporter's ignores the attributes it does not know; rebuild: `source scripts/env.sh && haptics_build`), or the graph was changed after its export (export it again: `haptics-train export`)")]
     ReferenceMismatch {
         step: usize,
         steps: usize,

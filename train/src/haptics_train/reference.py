@@ -108,5 +108,7 @@ def check_reference(m: onnx.ModelProto) -> str | None:
         got = stepper.step(r)
         if not abs(got - float(f)) <= tol:
             return (f"{REFERENCE_KEY}: step {i} of {len(rows)} computes {got:.9g} N where the "
-                    f"export computed {float(f):.9g} N (tolerance {tol:g} N)")  # fmt: skip
+                    f"export computed {float(f):.9g} N (tolerance {tol:g} N): this ONNX Runtime "
+                    "or fused-operator library reads the graph otherwise, or the graph was "
+                    "changed after its export")  # fmt: skip
     return None
