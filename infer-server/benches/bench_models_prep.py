@@ -38,7 +38,7 @@ from onnx import TensorProto, helper
 from haptics_train.data import load_data
 from haptics_train.models import TrainConfig
 from haptics_train.pipeline import export_models, load_models, train_models
-from haptics_train.reference import REFERENCE_KEY, add_reference
+from haptics_train.reference import add_reference
 from haptics_train.vocab import FEATURE_NAMES as SCHEMA_NAMES
 
 #: one model per family (the spring-dampers, linear, SVR, forests, networks, feedback networks,
@@ -113,9 +113,10 @@ def main(argv: list[str]) -> int:
         if "fused" in inspect.signature(m.to_onnx).parameters:
             graph = m.to_onnx(fused=False)  # the multi-node graph the fused node replaces
             meta = onnx.load(str(fam / f"{m.name}.onnx")).metadata_props
-            graph.metadata_props.extend(p for p in meta if p.key != REFERENCE_KEY)
-            # its own reference steps: the graph's float32 arithmetic is not the fused node's
-            # (lawfree's slow filters, the SVR's kernel sum differ by about 1e-4 N)
+            graph.metadata_props.extend(meta)
+            # its own reference steps in place of the fused node's: the graph's float32
+            # arithmetic is not the fused node's (lawfree's slow filters, the SVR's kernel sum
+            # differ by about 1e-4 N)
             add_reference(graph, dataset.test[0], m.features)
             onnx.save(graph, str(fam / f"{m.name}_graph.onnx"))
         p = results[m.name].get("parity", {})

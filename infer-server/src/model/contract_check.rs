@@ -492,15 +492,27 @@ mod tests {
     }
 
     fn meta_with_gains(step: Option<&str>, gains: Option<&str>) -> Result<Metadata, ModelError> {
-        parse_metadata(|k| match k {
-            META_FEATURE_GAINS => gains.map(str::to_string),
-            META_FEATURES => Some("position_x,velocity".into()),
-            META_KIND => Some("stateful".into()),
-            META_UNITS => Some("N".into()),
-            META_PROVENANCE => Some("{}".into()),
-            META_STATE_SIZE => Some("4".into()),
-            META_STEP_S => step.map(str::to_string),
-            _ => None,
+        parse_with(
+            "stateful",
+            &[(META_STEP_S, step), (META_FEATURE_GAINS, gains)],
+        )
+    }
+
+    /// The metadata of a model of `kind` over (position_x, velocity), with `extra` entries
+    /// (None: the entry is absent).
+    fn parse_with(kind: &str, extra: &[(&str, Option<&str>)]) -> Result<Metadata, ModelError> {
+        parse_metadata(|k| {
+            if let Some((_, v)) = extra.iter().find(|(key, _)| *key == k) {
+                return v.map(str::to_string);
+            }
+            match k {
+                META_FEATURES => Some("position_x,velocity".into()),
+                META_KIND => Some(kind.into()),
+                META_UNITS => Some("N".into()),
+                META_PROVENANCE => Some("{}".into()),
+                META_STATE_SIZE => Some("4".into()),
+                _ => None,
+            }
         })
     }
 
@@ -512,16 +524,7 @@ mod tests {
         assert_eq!(r.inputs, [[0.001, 0.01], [0.002, -0.5]]);
         assert_eq!((r.force.len(), r.tolerance_n), (2, 1e-4));
         // the whole metadata: absent, or parsed for the model's feature count
-        let with = |raw: Option<&str>| {
-            parse_metadata(|k| match k {
-                META_REFERENCE => raw.map(str::to_string),
-                META_FEATURES => Some("position_x,velocity".into()),
-                META_KIND => Some("stateless".into()),
-                META_UNITS => Some("N".into()),
-                META_PROVENANCE => Some("{}".into()),
-                _ => None,
-            })
-        };
+        let with = |raw: Option<&str>| parse_with("stateless", &[(META_REFERENCE, raw)]);
         assert_eq!(with(None).unwrap().reference, None);
         assert_eq!(with(Some(ok)).unwrap().reference, Some(r));
         let doc = |inputs: &str, force: &str, tolerance: &str| {

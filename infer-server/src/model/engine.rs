@@ -405,14 +405,9 @@ impl StepEngine {
             // SAFETY: `features` points at the feature tensor's `input_map.len()` floats, and
             // the reference's rows were checked to have exactly that many values when parsed.
             unsafe { ptr::copy_nonoverlapping(row.as_ptr(), self.features, self.input_map.len()) };
-            self.run_raw().map_err(|e| ModelError::RunFailed {
+            let got = self.run_step().map_err(|e| ModelError::RunFailed {
                 reason: format!("{e}: {}", self.last_error_message()),
             })?;
-            // SAFETY: `force` points at the one float of the preallocated force output.
-            let got = unsafe { *self.force };
-            if self.state.is_some() {
-                self.phase ^= 1;
-            }
             // a NaN answer is a mismatch too
             let within = (got - expected).abs() <= r.tolerance_n;
             if !within {
@@ -485,6 +480,13 @@ impl StepEngine {
                 *self.features.add(i) = v;
             }
         }
+        self.run_step()
+    }
+
+    /// Runs one step on the features already in the input tensor, returns the force and makes
+    /// the state just written the next step's input. Real-time path: no allocation, no copy.
+    #[inline]
+    fn run_step(&mut self) -> Result<f32, StepError> {
         self.run_raw()?;
         // SAFETY: `force` points at the one float of the preallocated force output.
         let force = unsafe { *self.force };

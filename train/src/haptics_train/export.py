@@ -139,7 +139,7 @@ def parity(
         # the framework's answer on a causal prefix is the prefix of its answer, so one call
         # finds the first force and gives the reference
         ref = predict(x[: min(len(x), _CONTACT_SEARCH_ROWS + stateful_limit)])
-        touched = np.flatnonzero(_contact(rec, ref))
+        touched = np.flatnonzero(contact_rows(rec, ref))
         first = int(touched[0]) if len(touched) else 0
         limit = min(len(ref), first + stateful_limit)
         ref = ref[:limit]
@@ -158,7 +158,7 @@ def parity(
     }
 
 
-def _contact(rec: Recording, ref: np.ndarray) -> np.ndarray:
+def contact_rows(rec: Recording, ref: np.ndarray) -> np.ndarray:
     """Rows of contact: a force of at least 0.01 N with the probe in the object (position > 0,
     when the recording has the position: a network answers a small force out of contact too,
     so the force alone would call the whole approach contact)."""

@@ -20,16 +20,10 @@ from collections.abc import Callable
 import numpy as np
 
 from .data import Dataset, training_arrays
+from .metrics import fmt_figure
 from .models import ForceModel, TrainConfig
 from .models.lawfree import LAWFREE_DEFAULT
 from .models.lawfree_net import NET_MAX_STEPS, fit_network_readout
-
-
-def _fmt(v: float | None) -> str:
-    if v is None:
-        return "-"
-    return f"{v:.4g}" if np.isfinite(v) else "diverged"
-
 
 #: How `lawfree`'s candidates are chosen (`choose_on_both`): its memory span decides what the
 #: rests and holds between the sliding rows look like, which the sliding score leaves out.
@@ -211,8 +205,8 @@ def try_network_readout(
     )
     s, e = score(cand)
     keep = keep_at_margin({"net": s, "m": sliding}, {"net": e, "m": every}, "m", "net")
-    print(f"[train] lawfree network readout: validation free-run RMSE {_fmt(s)} N (every row "
-          f"{_fmt(e)} N) against {_fmt(sliding)} N ({_fmt(every)} N): "
+    print(f"[train] lawfree network readout: validation free-run RMSE {fmt_figure(s)} N (every row "
+          f"{fmt_figure(e)} N) against {fmt_figure(sliding)} N ({fmt_figure(every)} N): "
           f"{'kept' if keep else 'not kept'}", flush=True)  # fmt: skip
     note = {"candidates_every_row": tried, "chosen": cand.network.describe(),  # type: ignore[attr-defined]
             "validation": s, "validation_every_row": e, "kept": keep,

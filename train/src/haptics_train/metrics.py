@@ -97,3 +97,11 @@ def pooled(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]) -> dic
     w = m["loop_work_true"]
     m["loop_work_error_pct"] = 100.0 * m["loop_work_error"] / abs(w) if w != 0 else float("nan")
     return m
+
+
+def fmt_figure(v: float | None) -> str:
+    """A figure (an RMSE, a percentage) as the training logs print it: 4 significant digits,
+    "-" when there is none, "diverged" when it is not finite."""
+    if v is None:
+        return "-"
+    return f"{v:.4g}" if np.isfinite(v) else "diverged"

@@ -47,6 +47,7 @@ from .lawfree_selection import (
     network_skipped,
     try_network_readout,
 )
+from .metrics import fmt_figure
 from .models import ForceModel, TrainConfig, fit_recordings, parse_spec
 from .models.lawfree_net import NET_MAX_STEPS
 from .reference import add_reference
@@ -191,7 +192,7 @@ class _Tried:
             where = "validation"
         self.sliding[label], self.every[label] = s, e
         print(f"[train] {self.spec} {self.parameter} {label}: {where} free-run RMSE "
-              f"{_fmt(s)} N (every row {_fmt(e)} N)", flush=True)  # fmt: skip
+              f"{fmt_figure(s)} N (every row {fmt_figure(e)} N)", flush=True)  # fmt: skip
 
     def chosen(self, label: str) -> tuple[object, ForceModel]:
         """(the value itself where the parameter is a hyper-parameter, else its label; the
@@ -342,11 +343,6 @@ def _save_results(folder: Path, results: dict) -> None:
     _results_path(folder).write_text(json.dumps(results, indent=1, default=float))
 
 
-def _fmt(v: float | None) -> str:
-    if v is None:
-        return "-"
-    return f"{v:.4g}" if np.isfinite(v) else "diverged"
-
 
 def evaluate_models(
     models: list[tuple[ForceModel, TrainConfig]],
@@ -402,8 +398,8 @@ def evaluate_models(
         tp = entry["test_pooled"]
         print(
             f"[evaluate] {model.name}: test (pooled over {len(dataset.test)}) free-run RMSE "
-            f"{_fmt(tp.get('closed_loop', {}).get('rmse'))} N, one-step RMSE "
-            f"{_fmt(tp['one_step']['rmse'])} N",
+            f"{fmt_figure(tp.get('closed_loop', {}).get('rmse'))} N, one-step RMSE "
+            f"{fmt_figure(tp['one_step']['rmse'])} N",
             flush=True,
         )
         _save_results(folder, results)
@@ -420,9 +416,9 @@ def evaluate_models(
             rec_path.write_text(json.dumps(doc, indent=1, default=float))
             top = doc["ranking"][0]
             print(f"[evaluate] recommended (validation free run): {doc['recommended']} "
-                  f"(sliding rows {_fmt(top['validation_sliding_rmse_n'])} N, all rows "
-                  f"{_fmt(top['validation_free_run_rmse_n'])} N; test "
-                  f"{_fmt(doc['free_run_rmse_n'])} N) -> {rec_path}", flush=True)  # fmt: skip
+                  f"(sliding rows {fmt_figure(top['validation_sliding_rmse_n'])} N, all rows "
+                  f"{fmt_figure(top['validation_free_run_rmse_n'])} N; test "
+                  f"{fmt_figure(doc['free_run_rmse_n'])} N) -> {rec_path}", flush=True)  # fmt: skip
             if fidelity is not None:
                 merge(fidelity, {"recommended": doc["recommended"],
                                  "free_run_rmse_n": doc["free_run_rmse_n"],
@@ -443,9 +439,9 @@ def comparison_table(results: dict, base: dict, names: list[str], split: str = "
         if not pool:
             continue
         c, o = pool.get("closed_loop", {}), pool["one_step"]
-        rows.append((n, _fmt(c.get("rmse")), _fmt(c.get("contact_rmse")), _fmt(c.get("max_abs")),
-                     _fmt(c.get("rmse_pct_range")), _fmt(c.get("loop_work_error_pct")),
-                     _fmt(o["rmse"])))  # fmt: skip
+        figures = (c.get("rmse"), c.get("contact_rmse"), c.get("max_abs"),
+                   c.get("rmse_pct_range"), c.get("loop_work_error_pct"), o["rmse"])  # fmt: skip
+        rows.append((n, *(fmt_figure(v) for v in figures)))
     w = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     lines = [f"[evaluate] {split}, pooled (N; baselines first):"]
     lines += ["  " + "  ".join(c.ljust(w[i]) for i, c in enumerate(r)) for r in rows]

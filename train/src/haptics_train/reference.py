@@ -27,6 +27,7 @@ import onnx
 
 from .closed_loop import OnnxStepper
 from .data import Recording
+from .export import contact_rows
 
 REFERENCE_KEY = "haptics.reference"
 
@@ -49,10 +50,7 @@ def reference_rows(rec: Recording, features: tuple[str, ...], steps: int = REFER
     where there are none), finite rows only."""
     x = rec.matrix(features).astype(np.float32)
     finite = np.isfinite(x).all(axis=1)
-    pressed = finite.copy()
-    if "position_x" in rec.columns:
-        pressed &= np.nan_to_num(rec.column("position_x")) > 0.0
-    pressed &= np.abs(np.nan_to_num(rec.target())) >= 0.01
+    pressed = finite & contact_rows(rec, rec.target())  # the parity check's rows of contact
     rows = np.flatnonzero(pressed if pressed.any() else finite)
     if not len(rows):
         raise ValueError(f"{rec.name}: no row with finite features for the reference steps")
