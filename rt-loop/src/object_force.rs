@@ -34,6 +34,9 @@ pub struct ObjectForceArgs {
     pub rate_hz: f64,
 }
 
+/// The largest |x_m| a motion may hold, m: past it the motion is in another unit.
+pub const MAX_PLAUSIBLE_X_M: f64 = 1.0;
+
 /// The force of a fresh object of `material` along the motion (`t_s`, `x_m`), one per sample.
 pub fn drive(material: &Material, t_s: &[f64], x_m: &[f64], rate_hz: f64) -> Result<Vec<f64>> {
     if !(rate_hz.is_finite() && rate_hz > 0.0) {
@@ -47,6 +50,17 @@ pub fn drive(material: &Material, t_s: &[f64], x_m: &[f64], rate_hz: f64) -> Res
     }
     if let Some(i) = (1..t_s.len()).find(|&i| t_s[i] <= t_s[i - 1]) {
         bail!("row {}: time {} does not increase", i + 2, t_s[i]);
+    }
+    // A motion in millimetres read as metres would drive the object 1000x too deep and write
+    // forces of meganewtons without a word: no bench travels a metre (the importer's limit,
+    // `importer.PLAUSIBLE_SI`, is the same).
+    if let Some(i) = (0..x_m.len()).find(|&i| x_m[i].abs() > MAX_PLAUSIBLE_X_M) {
+        bail!(
+            "row {}: position {} m is beyond {MAX_PLAUSIBLE_X_M} m, which no bench travels: \
+             `x_m` is in metres (a motion in mm must be divided by 1000)",
+            i + 2,
+            x_m[i]
+        );
     }
     let mut oracle = OracleModel::new(material, rate_hz, 1.0);
     oracle.begin_run();
@@ -136,6 +150,16 @@ mod tests {
             .map(|&t| depth_m * (1.0 - ((t - ramp) / ramp).abs()) - 0.001)
             .collect();
         (t, x)
+    }
+
+    /// A motion in millimetres is refused by name, not driven 1000x too deep.
+    #[test]
+    fn a_motion_in_millimetres_is_refused() {
+        let m = Material::repository("sponge");
+        let err = drive(&m, &[0.0, 0.1, 0.2], &[0.0, 5.0, 12.0], 10_000.0).unwrap_err();
+        let msg = format!("{err:#}");
+        assert!(msg.contains("row 3") && msg.contains("metres"), "{msg}");
+        assert!(drive(&m, &[0.0, 0.1], &[0.0, 0.012], 10_000.0).is_ok());
     }
 
     /// The driven force is the object's own, stepped at the bench's sub-step along the

@@ -83,14 +83,19 @@ def test_unknown_model_spec_is_a_clear_error(synth_root, tmp_path, capsys):
     assert "unknown feature set" in capsys.readouterr().err
 
 
-def test_step_by_step_commands(tmp_path):
-    root = write_dataset(tmp_path / "dataset", cycles=2)
+def test_step_by_step_commands(tmp_path, capsys):
+    root = write_dataset(tmp_path / "dataset", cycles=2)  # no validation recording
     models = tmp_path / "m"
     common = ["--dataset", str(root), "--models-dir", str(models), "--no-progress"]
     main(["train", *common, "--models", "sd_poly1,dnn_fb:six", "--dnn-epochs", "1",
           "--feedback-noise", "0.7"])  # fmt: skip
     assert (models / "dnn_fb_six.joblib").exists() and not (models / "results.json").exists()
+    capsys.readouterr()
     main(["evaluate", *common, "--names", "dnn_fb_six"])
+    # nothing is recommended without a validation recording, and evaluate says why
+    out = capsys.readouterr().out
+    assert "no model recommended: the dataset has no validation recording" in out, out
+    assert not (models / "recommendation.json").exists()
     res = json.loads((models / "results.json").read_text())
     assert (
         list(res) == ["dnn_fb_six"]

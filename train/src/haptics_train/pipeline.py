@@ -425,6 +425,14 @@ def evaluate_models(
                                  "free_run_true_rmse_n": doc["free_run_true_rmse_n"]})  # fmt: skip
         else:
             rec_path.unlink(missing_ok=True)
+            if not dataset.validation:
+                # said, not silent: a user's own dataset often has no validation recording, and
+                # without this line the missing recommendation.json is found only by its absence
+                print("[evaluate] no model recommended: the dataset has no validation recording "
+                      "(validation_*.parquet, or role = \"validation\" in a manifest), and the "
+                      "recommendation is chosen on validation only, never on the test recordings; "
+                      "record one, or serve a model by name (HAPTICS_MODEL=NAME)",
+                      flush=True)  # fmt: skip
         print(comparison_table(results, base, [m.name for m, _ in models]), flush=True)
     return results
 
