@@ -450,7 +450,7 @@ fn reference_steps_are_checked_at_load() {
     assert_eq!(err.code(), "bad_metadata", "{err}");
     let msg = err.to_string();
     assert!(
-        msg.contains("row 3 has 3 values; the model has 2 features"),
+        msg.contains("row 3 has 3 values; the graph has 2 features"),
         "{msg}"
     );
     assert!(

@@ -5,12 +5,14 @@
 //! fused operators, so an exported `structured` model (one `ai.haptics:StructuredStep` node)
 //! could be served but not used as a bench object.
 //!
-//! Three layers, each usable alone:
+//! Four parts, each usable alone:
 //! - [`runtime`]: find `libonnxruntime.so` (flag, `ORT_DYLIB_PATH`, `.ort/` above the
 //!   executable or the working directory), check its version, load it once per process;
 //! - [`session`]: a session built for a real-time step (the caller's thread only, nothing
 //!   spinning, every graph optimisation, memory patterns, the fused operators registered),
 //!   created one at a time in the process (ONNX Runtime's custom-op registry is unguarded);
+//! - [`reference`]: the reference steps an exported model carries (`haptics.reference`),
+//!   parsed and compared the one way both processes check a graph they open;
 //! - [`binding`]: inputs and outputs bound once ([`binding::Binding`]), so the per-step call is
 //!   `RunWithBinding` on preallocated tensors, and ONNX Runtime's statuses read or released.
 //!
@@ -18,6 +20,7 @@
 //! [`binding::release`], which allocate nothing and take no lock.
 
 pub mod binding;
+pub mod reference;
 pub mod runtime;
 pub mod session;
 

@@ -190,7 +190,8 @@ fn bad(name: &str) -> PathBuf {
 
 /// A missing or corrupt graph, a graph without the metadata naming its columns or with a
 /// column the bench cannot feed, a stray input, a state input without its output, a graph that
-/// answers NaN, a bad rate or an unknown key: each refused at load with one line that names
+/// answers NaN, reference steps that give other forces than at export, a bad rate or an
+/// unknown key: each refused at load with one line that names
 /// the file and what is wrong.
 #[test]
 fn bad_graphs_are_one_line_errors_at_load() {
@@ -228,6 +229,14 @@ fn bad_graphs_are_one_line_errors_at_load() {
             "no state output [\"h_out\"]",
         ),
         (bad("nan-always"), "10000", "", "(not finite)"),
+        // an export whose reference steps give another force here (one spoiled by 10 mN):
+        // this rt-loop would press another object than the one exported
+        (
+            bad("reference-spoiled"),
+            "10000",
+            "",
+            "reference step 7 of 32",
+        ),
         (bad("nan-deep"), "0", "", "onnx.rate_hz must be in"),
         (bad("nan-deep"), "10000", "colour = 1\n", "colour"),
     ];
@@ -429,8 +438,22 @@ fn a_fused_export_is_an_object_and_pushes_as_its_graph_does() {
             .unwrap_or_else(|e| panic!("{name}: {e}"))
             .0
     };
+    // both carry reference steps (`haptics.reference`), checked when the material file opened
+    // them: the load above would have refused either had a step differed
+    let fused_m = load("structured-fused");
+    match &fused_m.law {
+        rt_loop::object::material::LawParams::Onnx(p) => {
+            let r = p
+                .graph
+                .reference
+                .as_ref()
+                .expect("the fixture carries reference steps");
+            assert_eq!(r.force.len(), 32);
+        }
+        _ => panic!("an onnx object"),
+    }
     let knots = reference();
-    let fused = drive(&mut Object::new(&load("structured-fused")), &knots, 10);
+    let fused = drive(&mut Object::new(&fused_m), &knots, 10);
     let graph = drive(&mut Object::new(&load("structured-graph")), &knots, 10);
     let peak = fused.iter().copied().fold(0.0, f64::max);
     let worst = fused

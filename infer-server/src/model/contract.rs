@@ -35,15 +35,12 @@ pub const META_FEATURE_GAINS: &str = "haptics.feature_gains";
 /// the exporter's ONNX Runtime computed for each. infer-server steps them when it loads the
 /// model and refuses it when a force differs by more than the tolerance: a server whose
 /// ONNX Runtime or fused operators read the graph otherwise (a build older than the exporter's
-/// ignores attributes it does not know) would render another object.
-pub const META_REFERENCE: &str = "haptics.reference";
-
-/// Most reference steps a model may carry (`haptics.reference`); the exporter writes 32.
-pub const MAX_REFERENCE_STEPS: usize = 256;
-
-/// The largest tolerance a reference may declare, N: a check looser than this checks nothing
-/// a user would feel (the force sensor resolves about 1 mN).
-pub const MAX_REFERENCE_TOLERANCE_N: f32 = 1e-3;
+/// ignores attributes it does not know) would render another object. The format, its limits
+/// (at most `MAX_REFERENCE_STEPS` steps, a tolerance of at most `MAX_REFERENCE_TOLERANCE_N`)
+/// and the comparison are ort-host's (`reference.rs`), which rt-loop's ONNX objects share.
+pub use haptics_ort_host::reference::{
+    MAX_REFERENCE_STEPS, MAX_REFERENCE_TOLERANCE_N, META_REFERENCE,
+};
 
 /// How far a model's feature gains may be from the loop's (a fraction of them).
 pub const GAIN_TOLERANCE: f64 = 0.01;

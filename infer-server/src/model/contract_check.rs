@@ -10,9 +10,8 @@ use std::path::PathBuf;
 
 use super::contract::{
     checked_elements, FeatureSchema, ModelKind, FEATURE_NAMES, INPUT_C, INPUT_FEATURES, INPUT_H,
-    MAX_REFERENCE_STEPS, MAX_REFERENCE_TOLERANCE_N, META_FEATURES, META_FEATURE_GAINS, META_KIND,
-    META_PREVIOUS_FORCE, META_PROVENANCE, META_REFERENCE, META_STATE_SIZE, META_STEP_S, META_UNITS,
-    OUTPUT_C, OUTPUT_FORCE, OUTPUT_H,
+    META_FEATURES, META_FEATURE_GAINS, META_KIND, META_PREVIOUS_FORCE, META_PROVENANCE,
+    META_REFERENCE, META_STATE_SIZE, META_STEP_S, META_UNITS, OUTPUT_C, OUTPUT_FORCE, OUTPUT_H,
 };
 
 fn unknown_hint(name: &str) -> String {
@@ -125,64 +124,17 @@ pub struct Metadata {
     pub reference: Option<Reference>,
 }
 
-/// A model's reference steps (`haptics.reference`), checked when parsed: at least one and at
-/// most `MAX_REFERENCE_STEPS` rows, each of the model's feature count, every value finite, a
-/// tolerance in (0, `MAX_REFERENCE_TOLERANCE_N`].
-#[derive(Debug, Clone, PartialEq)]
-pub struct Reference {
-    /// Rows in the model's input order.
-    pub inputs: Vec<Vec<f32>>,
-    pub force: Vec<f32>,
-    pub tolerance_n: f32,
-}
+/// A model's reference steps (`haptics.reference`), checked when parsed (ort-host's
+/// `reference.rs`: the format both processes read).
+pub use haptics_ort_host::reference::Reference;
 
 /// Parses `haptics.reference` for a model of `n` features. The error's value is the entry's
 /// size, not its text (kilobytes of numbers).
 pub fn parse_reference(raw: &str, n: usize) -> Result<Reference, ModelError> {
-    #[derive(serde::Deserialize)]
-    struct Doc {
-        inputs: Vec<Vec<f32>>,
-        force: Vec<f32>,
-        tolerance_n: f32,
-    }
-    let bad = |reason: String| ModelError::BadMetadata {
+    haptics_ort_host::reference::parse(raw, n).map_err(|reason| ModelError::BadMetadata {
         key: META_REFERENCE.to_string(),
         value: format!("<{} bytes>", raw.len()),
         reason,
-    };
-    let doc: Doc = serde_json::from_str(raw).map_err(|e| {
-        bad(format!(
-            "not a JSON object {{\"inputs\": rows, \"force\": forces, \"tolerance_n\": N}}: {e}"
-        ))
-    })?;
-    let k = doc.force.len();
-    if k == 0 || k > MAX_REFERENCE_STEPS || doc.inputs.len() != k {
-        return Err(bad(format!(
-            "{} input rows for {k} forces (1 to {MAX_REFERENCE_STEPS} steps, a row per force)",
-            doc.inputs.len()
-        )));
-    }
-    if let Some((i, row)) = doc.inputs.iter().enumerate().find(|(_, r)| r.len() != n) {
-        return Err(bad(format!(
-            "row {i} has {} values; the model has {n} features",
-            row.len()
-        )));
-    }
-    let all = doc.inputs.iter().flatten().chain(doc.force.iter());
-    if all.copied().any(|v| !v.is_finite()) {
-        return Err(bad("a value is not finite".into()));
-    }
-    let sane = doc.tolerance_n > 0.0 && doc.tolerance_n <= MAX_REFERENCE_TOLERANCE_N;
-    if !sane {
-        return Err(bad(format!(
-            "tolerance_n {} is not in (0, {MAX_REFERENCE_TOLERANCE_N}] N",
-            doc.tolerance_n
-        )));
-    }
-    Ok(Reference {
-        inputs: doc.inputs,
-        force: doc.force,
-        tolerance_n: doc.tolerance_n,
     })
 }
 
@@ -485,6 +437,7 @@ pub fn check_declared(
 
 #[cfg(test)]
 mod tests {
+    use super::super::contract::MAX_REFERENCE_STEPS;
     use super::*;
 
     fn meta_with(step: Option<&str>) -> Result<Metadata, ModelError> {

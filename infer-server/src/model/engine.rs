@@ -399,31 +399,29 @@ impl StepEngine {
     /// tolerance from what its export computed: this engine would serve another model than
     /// the one trained. Leaves the state reset. At load only, off the hot path.
     fn check_reference(&mut self, r: &model::Reference) -> Result<(), ModelError> {
+        use haptics_ort_host::reference::{check, CheckError};
         self.reset();
-        let steps = r.force.len();
-        for (step, (row, &expected)) in r.inputs.iter().zip(&r.force).enumerate() {
-            // SAFETY: `features` points at the feature tensor's `input_map.len()` floats, and
-            // the reference's rows were checked to have exactly that many values when parsed.
-            unsafe { ptr::copy_nonoverlapping(row.as_ptr(), self.features, self.input_map.len()) };
-            let got = self.run_step().map_err(|e| ModelError::RunFailed {
+        let n = self.input_map.len();
+        let out = check(r, |row| {
+            // SAFETY: `features` points at the feature tensor's `n` floats, and the
+            // reference's rows were checked to have exactly that many values when parsed.
+            unsafe { ptr::copy_nonoverlapping(row.as_ptr(), self.features, n) };
+            self.run_step().map_err(|e| ModelError::RunFailed {
                 reason: format!("{e}: {}", self.last_error_message()),
-            })?;
-            // a NaN answer is a mismatch too
-            let within = (got - expected).abs() <= r.tolerance_n;
-            if !within {
-                self.reset();
-                return Err(ModelError::ReferenceMismatch {
-                    step,
-                    steps,
-                    input: row.clone(),
-                    expected,
-                    got,
-                    tolerance: r.tolerance_n,
-                });
-            }
-        }
+            })
+        });
         self.reset();
-        Ok(())
+        out.map_err(|e| match e {
+            CheckError::Step(e) => e,
+            CheckError::Mismatch(m) => ModelError::ReferenceMismatch {
+                step: m.step,
+                steps: m.steps,
+                input: m.input,
+                expected: m.expected,
+                got: m.got,
+                tolerance: m.tolerance,
+            },
+        })
     }
 
     /// Why this model may not answer within the loop's deadline on this machine, from its

@@ -202,7 +202,7 @@ pub const MAX_PROVENANCE_BYTES: usize = 64 << 10;
 pub const MAX_METADATA_VALUE_BYTES: usize = 4 << 10;
 /// Most bytes of `haptics.reference` (16 KiB: the exporter's 32 steps of nine features take
 /// about 5 KiB). Read once at load, never listed.
-pub const MAX_REFERENCE_BYTES: usize = 16 << 10;
+pub use haptics_ort_host::reference::MAX_REFERENCE_BYTES;
 
 /// Reads and checks the `haptics.*` metadata entries, each capped in size first.
 pub fn read_metadata(session: &Session) -> Result<Metadata, ModelError> {

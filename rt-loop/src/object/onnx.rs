@@ -25,6 +25,7 @@
 use std::ptr;
 use std::sync::Arc;
 
+use haptics_ort_host::reference::{check, CheckError};
 use haptics_ort_host::Binding;
 use ort::session::RunOptions;
 use ort::value::Tensor;
@@ -104,6 +105,23 @@ impl OnnxFile {
                         detail: format!("a step at x = {x} m, v = {v} m/s failed: {msg}"),
                     });
                 }
+            }
+        }
+        if let Some(r) = &graph.reference {
+            // a fresh copy: the reference is stepped from the zero state, as it was exported
+            let mut copy = OnnxObject::with_rate(graph.clone(), self.onnx.rate_hz)?;
+            let out = check(r, |row| {
+                copy.io
+                    .run_row(&graph, row)
+                    .map_err(|s| status(s).err().unwrap_or_default())
+            });
+            let detail = match out {
+                Ok(()) => None,
+                Err(CheckError::Mismatch(m)) => Some(m.to_string()),
+                Err(CheckError::Step(msg)) => Some(format!("a reference step failed: {msg}")),
+            };
+            if let Some(detail) = detail {
+                return Err(OnnxObjectError::Reference { path, detail });
             }
         }
         Ok(OnnxParams { file: self, graph })
@@ -194,6 +212,26 @@ impl Io {
                 } as f32;
             }
         }
+        self.run_bound(g)
+    }
+
+    /// One step on a whole `features` row as given (the reference steps' rows, in the graph's
+    /// column order); as [`Io::run`] otherwise. Off the real-time path (at load).
+    fn run_row(&mut self, g: &OnnxGraph, row: &[f32]) -> Result<f32, ort::sys::OrtStatusPtr> {
+        // the reference parser checked every row's width against the graph's
+        assert_eq!(
+            row.len(),
+            g.features.len(),
+            "a features row of another width"
+        );
+        // SAFETY: `features` points at the `features` tensor's `g.features.len()` floats.
+        unsafe { ptr::copy_nonoverlapping(row.as_ptr(), self.features, row.len()) };
+        self.run_bound(g)
+    }
+
+    /// Runs the bound graph on the features already written. REAL-TIME PATH (via `run`).
+    #[inline]
+    fn run_bound(&mut self, g: &OnnxGraph) -> Result<f32, ort::sys::OrtStatusPtr> {
         // SAFETY: the session is alive (the object holds its Arc); the binding holds this
         // copy's input and output values; `&mut self` means no other Run uses this binding.
         let s = unsafe {

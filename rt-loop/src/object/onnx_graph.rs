@@ -12,6 +12,7 @@
 use std::ffi::{c_char, CString};
 use std::path::{Path, PathBuf};
 
+use haptics_ort_host::reference::{self, Reference, META_REFERENCE};
 use ort::session::Session;
 use ort::value::{TensorElementType, ValueType};
 
@@ -53,6 +54,10 @@ pub enum OnnxObjectError {
     Contract { path: PathBuf, detail: String },
     #[error("{path}: {detail}")]
     Warmup { path: PathBuf, detail: String },
+    /// The graph's reference steps (`haptics.reference`) give other forces here than at its
+    /// export: this rt-loop would press another object than the one exported.
+    #[error("{path}: {detail}: this rt-loop's ONNX Runtime or fused operators read the graph otherwise than its exporter's did (a build older than the exporter's ignores the attributes it does not know; rebuild: `source scripts/env.sh && haptics_build`), or the graph was changed after its export (export it again)")]
+    Reference { path: PathBuf, detail: String },
 }
 
 /// One state pair: the tensor fed as `name_in` and read back from `name_out`.
@@ -76,6 +81,9 @@ pub struct OnnxGraph {
     pub features_shape: Vec<i64>,
     pub force_shape: Vec<i64>,
     pub state: Box<[StatePair]>,
+    /// Its reference steps (`haptics.reference`, which `haptics-train export` writes), checked
+    /// when the material file opens it (`OnnxFile::open`); `None` when it carries none.
+    pub reference: Option<Reference>,
     /// Input names (features, then the state inputs) and output names (force, then the state
     /// outputs), NUL-terminated for the C API, in the order the object binds them.
     pub(super) in_names: Box<[CString]>,
@@ -120,6 +128,7 @@ impl OnnxGraph {
         let features = read_features(&session).map_err(contract)?;
         let (features_shape, force_shape, state) =
             check_signature(&session, features.len()).map_err(contract)?;
+        let reference = read_reference(&session, features.len()).map_err(contract)?;
         let in_names = std::iter::once(INPUT_FEATURES)
             .chain(state.iter().map(|p| p.input.as_str()))
             .map(c_name)
@@ -135,6 +144,7 @@ impl OnnxGraph {
             features_shape,
             force_shape,
             state,
+            reference,
             in_names,
             out_names,
         })
@@ -181,6 +191,17 @@ fn read_features(session: &Session) -> Result<Box<[Feature]>, String> {
             )),
         })
         .collect()
+}
+
+/// `haptics.reference`, when present: parsed for `n` features (ort-host's format, the one
+/// infer-server reads).
+fn read_reference(session: &Session, n: usize) -> Result<Option<Reference>, String> {
+    let meta = session
+        .metadata()
+        .map_err(|e| format!("cannot read its metadata: {}", one_line(&e.to_string())))?;
+    meta.custom(META_REFERENCE)
+        .map(|raw| reference::parse(&raw, n).map_err(|why| format!("{META_REFERENCE}: {why}")))
+        .transpose()
 }
 
 /// A float32 tensor's declared shape, a dynamic dimension (-1) read as 1 (the bench feeds one

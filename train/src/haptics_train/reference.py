@@ -74,15 +74,37 @@ def reference_entry(m: onnx.ModelProto, rows: np.ndarray, source: str) -> dict:
     }
 
 
-def add_reference(m: onnx.ModelProto, rec: Recording, features: tuple[str, ...]) -> dict:
-    """Computes the reference steps of `m` on `rec` and writes them into its metadata
-    (replacing any); returns the entry."""
-    entry = reference_entry(m, reference_rows(rec, features), f"{rec.name}, rows in contact")
+def press_rows(features: tuple[str, ...], depth_m: float = 0.015, speed_m_s: float = 0.02,
+               steps: int = REFERENCE_STEPS) -> np.ndarray:  # fmt: skip
+    """`steps` rows (float32, in `features`' order) along a press from the surface to `depth_m`
+    and back at `speed_m_s`, evenly spaced: reference rows for a graph fed the kinematics
+    alone (`position_x`, `velocity`: a bench object's inputs, docs/laws/onnx.md) where no
+    recording gives rows."""
+    known = {"position_x", "velocity"}
+    if not features or not set(features) <= known:
+        raise ValueError(f"press rows feed {sorted(known)} only, not {list(features)}")
+    half = steps // 2
+    x = np.concatenate([np.linspace(0.0, depth_m, steps - half), np.linspace(depth_m, 0.0, half)])
+    v = np.where(np.arange(steps) < steps - half, speed_m_s, -speed_m_s)
+    cols = {"position_x": x, "velocity": v}
+    return np.stack([cols[f] for f in features], axis=1).astype(np.float32)
+
+
+def add_reference_rows(m: onnx.ModelProto, rows: np.ndarray, source: str) -> dict:
+    """Steps `rows` through `m` (`reference_entry`) and writes the entry into its metadata,
+    replacing any; returns the entry. For a graph of your own (an ONNX object: `press_rows`)."""
+    entry = reference_entry(m, rows, source)
     keep = [p for p in m.metadata_props if p.key != REFERENCE_KEY]
     del m.metadata_props[:]
     m.metadata_props.extend(keep)
     m.metadata_props.add(key=REFERENCE_KEY, value=json.dumps(entry, separators=(",", ":")))
     return entry
+
+
+def add_reference(m: onnx.ModelProto, rec: Recording, features: tuple[str, ...]) -> dict:
+    """Computes the reference steps of `m` on `rec` and writes them into its metadata
+    (replacing any); returns the entry."""
+    return add_reference_rows(m, reference_rows(rec, features), f"{rec.name}, rows in contact")
 
 
 def check_reference(m: onnx.ModelProto) -> str | None:
