@@ -25,6 +25,7 @@ pub fn model_json(m: &pb::ModelInfo) -> Value {
         "active_since_step": (m.state() == pb::ModelState::Active).then_some(m.active_since_step),
         "provenance": serde_json::from_str::<Value>(&m.provenance_json).unwrap_or(Value::Null),
         "cost": serde_json::from_str::<Value>(&m.cost_json).unwrap_or(Value::Null),
+        "reference_steps": m.reference_steps,
     })
 }
 
@@ -45,6 +46,18 @@ pub fn cost_cell(m: &pb::ModelInfo) -> String {
     }
 }
 
+/// Whether this server computed the model's reference steps as its export did: `32 steps`
+/// (every one agreed: it would have refused the model otherwise), `none` (loaded, but the
+/// model carries none: nothing was compared), `-` (not loaded).
+pub fn checked_cell(m: &pb::ModelInfo) -> String {
+    let loaded = matches!(m.state(), pb::ModelState::Loaded | pb::ModelState::Active);
+    match (loaded, m.reference_steps) {
+        (false, _) => "-".into(),
+        (true, 0) => "none".into(),
+        (true, n) => format!("{n} steps"),
+    }
+}
+
 pub fn models_table(models: &[pb::ModelInfo]) -> String {
     if models.is_empty() {
         return "no models in the model directory (load one with `hapticctl load --file PATH`)\n"
@@ -57,17 +70,18 @@ pub fn models_table(models: &[pb::ModelInfo]) -> String {
         .unwrap_or(4)
         .max(4);
     let mut out = format!(
-        "{:<width$}  {:<9}  {:<9}  {:>9}  {:<22}  FEATURES\n",
-        "NAME", "STATE", "KIND", "SIZE", "COST us p50/p99"
+        "{:<width$}  {:<9}  {:<9}  {:>9}  {:<22}  {:<9}  FEATURES\n",
+        "NAME", "STATE", "KIND", "SIZE", "COST us p50/p99", "REFERENCE"
     );
     for m in models {
         let mut line = format!(
-            "{:<width$}  {:<9}  {:<9}  {:>9}  {:<22}  {}",
+            "{:<width$}  {:<9}  {:<9}  {:>9}  {:<22}  {:<9}  {}",
             m.name,
             state_name(m),
             if m.kind.is_empty() { "-" } else { &m.kind },
             human_bytes(m.size_bytes),
             cost_cell(m),
+            checked_cell(m),
             if m.features.is_empty() {
                 "-".to_string()
             } else {
@@ -349,5 +363,31 @@ mod tests {
             model_json(&with_cost(both))["cost"]["export"]["p99_us"],
             9.0
         );
+    }
+
+    /// `REFERENCE`: the steps checked where the model is loaded; `none` where it carries none
+    /// (nothing compared, said so rather than left blank); `-` where it is not loaded.
+    #[test]
+    fn the_reference_cell_says_what_was_checked() {
+        let with = |state: pb::ModelState, steps: u32| pb::ModelInfo {
+            name: "m".into(),
+            state: state as i32,
+            reference_steps: steps,
+            ..Default::default()
+        };
+        assert_eq!(checked_cell(&with(pb::ModelState::Active, 32)), "32 steps");
+        assert_eq!(checked_cell(&with(pb::ModelState::Loaded, 0)), "none");
+        assert_eq!(checked_cell(&with(pb::ModelState::Available, 0)), "-");
+        assert_eq!(checked_cell(&with(pb::ModelState::Failed, 0)), "-");
+        assert_eq!(
+            model_json(&with(pb::ModelState::Active, 32))["reference_steps"],
+            32
+        );
+        let table = models_table(&[with(pb::ModelState::Active, 32)]);
+        assert!(
+            table.lines().next().unwrap().contains("REFERENCE"),
+            "{table}"
+        );
+        assert!(table.contains("32 steps"), "{table}");
     }
 }

@@ -448,6 +448,7 @@ async fn models_load_activate_swap_and_refusals_over_grpc() {
         "wrong_input",
         "nan_output",
         "needs_deformation",
+        "linear_reference",
     ];
     let dir = models_dir("swap", fixtures, &names);
     let segment = segment_name("swap");
@@ -477,6 +478,7 @@ async fn models_load_activate_swap_and_refusals_over_grpc() {
         [
             "corrupt.onnx",
             "linear.onnx",
+            "linear_reference.onnx",
             "nan_output.onnx",
             "needs_deformation.onnx",
             "tree.onnx",
@@ -488,9 +490,19 @@ async fn models_load_activate_swap_and_refusals_over_grpc() {
     assert_eq!(l.features, ["velocity", "position_x"]);
     assert_eq!(l.kind, "stateless");
     assert_eq!(l.units, "N");
+    assert_eq!(l.reference_steps, 0, "linear carries no reference steps");
     assert_eq!(
         model(&listed, "tree.onnx").state,
         pb::ModelState::Available as i32
+    );
+    // A model with reference steps: all 8 computed as at its export when it was loaded, and
+    // the listing says so (0 while it was only on disk).
+    assert_eq!(model(&listed, "linear_reference.onnx").reference_steps, 0);
+    let r = load(&mut c, "linear_reference.onnx").await.unwrap();
+    assert_eq!(r.reference_steps, 8);
+    assert_eq!(
+        model(&list(&mut c).await, "linear_reference.onnx").reference_steps,
+        8
     );
 
     // Load tree, then swap to it while the loop steps.

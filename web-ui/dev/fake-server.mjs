@@ -175,7 +175,8 @@ export class FakeBench {
 const SIX = vocab.THESIS_FEATURES.slice(0, 6);
 const MODELS = {
   rf6: { kind: "stateless", features: SIX, predict: (_x, _v, F, r) => F * 1.01 + 0.06 * r.n() },
-  lstm6: { kind: "stateful", features: SIX, predict: (_x, _v, F, r) => 0.93 * F + 0.15 + 0.08 * r.n() },
+  // carries reference steps (`haptics.reference`), which the server reports checked once loaded
+  lstm6: { kind: "stateful", features: SIX, referenceSteps: 32, predict: (_x, _v, F, r) => 0.93 * F + 0.15 + 0.08 * r.n() },
   spring_damper2: {
     kind: "stateless",
     features: SIX.slice(0, 2),
@@ -336,6 +337,7 @@ export async function startFakeServer(opts = {}) {
     ...(n === state.active ? { active_since_step: state.activeSince } : {}),
     provenance: null,
     cost: null,
+    reference_steps: ["loaded", "active"].includes(state.models[n]) ? (MODELS[n].referenceSteps ?? 0) : 0,
   });
   const json = (res, code, body) => {
     res.writeHead(code, { "Content-Type": "application/json", "Cache-Control": "no-store" });

@@ -675,6 +675,16 @@ function renderModels(force = false): void {
     if (m.error) state.title = m.error;
     const kind = document.createElement("td");
     kind.textContent = m.kind ?? "";
+    if (m.reference_steps) {
+      // the server computed the model's reference steps as its export did (it refuses a
+      // model where one differs): a mark, its meaning in the title
+      const mark = document.createElement("span");
+      mark.className = "checked";
+      mark.textContent = " ✓";
+      mark.title = `${m.reference_steps} reference steps computed on this server as at the model's export`;
+      mark.setAttribute("aria-label", mark.title);
+      kind.append(mark);
+    }
     const cost = document.createElement("td");
     cost.className = "cost";
     const c = m.cost;

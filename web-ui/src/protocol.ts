@@ -103,6 +103,9 @@ export interface ModelInfo {
   /** What one call costs, us: the export's measurement (on the exporting machine, the model's
    * `haptics.cost`) and this server's warm-up median (docs/model-contract.md, "Cost"). */
   cost?: ModelCost;
+  /** The reference steps (`haptics.reference`) the server computed as the model's export did
+   * when it loaded it (0: it carries none, or it is not loaded). */
+  reference_steps?: number;
 }
 
 export interface ModelCost {
@@ -192,6 +195,7 @@ export function normalizeModel(m: unknown): ModelInfo | null {
     size_bytes: typeof o.size_bytes === "number" ? o.size_bytes : undefined,
     model_id: typeof o.model_id === "number" ? o.model_id : undefined,
     cost: normalizeCost(o.cost ?? o.cost_json),
+    reference_steps: typeof o.reference_steps === "number" ? o.reference_steps : undefined,
   };
 }
 

@@ -119,6 +119,9 @@ describe("page against the fake server", () => {
     assert.equal(st.active_model.name, "lstm6", "the server reports the swap");
     await waitFor(async () => (await page.textContent('tr[data-model="lstm6"] td:nth-child(2)')) === "active", { what: "table shows lstm6 active" });
     assert.equal(await page.textContent("#f-model"), "lstm6 (stateful)");
+    // its reference steps, checked by the server at load, are marked beside its kind
+    await waitFor(async () => (await page.evaluate(() => document.querySelector('tr[data-model="lstm6"] .checked')?.title ?? ""))?.startsWith("32 reference steps"), { what: "lstm6 marked as checked" });
+    assert.equal(await page.$('tr[data-model="rf6"] .checked'), null, "a model without reference steps has no mark");
     assert.ok(server.state.requests.includes("POST /api/models/lstm6/load"), "an available model is loaded before activation");
   });
 

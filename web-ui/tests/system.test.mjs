@@ -271,6 +271,21 @@ describe("page against the real rt-loop and infer-server", () => {
     } else {
       console.log(`(hapticctl not built at ${bin("hapticctl")}: checked /api/status only)`);
     }
+    // A model carrying reference steps (the fixtures' linear_reference: 8), activated from the
+    // page: the real server checked them when it loaded it, and the page marks it so.
+    const withRef = list.find((m) => /^linear_reference(\.onnx)?$/.test(m.name));
+    if (!withRef) {
+      // the default models are the fixtures, which have it: missing only with HAPTICS_MODELS_DIR
+      assert.ok(process.env.CI !== "true", `no linear_reference model in ${ctx.models} (CI=true)`);
+      console.log(`(no linear_reference model in ${ctx.models}: the reference mark not checked)`);
+      return;
+    }
+    await page.click(`tr[data-model="${withRef.name}"] button`);
+    await waitFor(async () => (await getJson(`${ctx.url}/api/status`)).active_model?.name === withRef.name, { timeoutMs: 10000, what: `${withRef.name} active on the server` });
+    const listed = await getJson(`${ctx.url}/api/models`);
+    assert.equal((Array.isArray(listed) ? listed : listed.models).find((m) => m.name === withRef.name)?.reference_steps, 8);
+    await page.click("#models-refresh");
+    await waitFor(async () => (await page.evaluate((n) => document.querySelector(`tr[data-model="${n}"] .checked`)?.title ?? "", withRef.name)).startsWith("8 reference steps"), { what: "the page marks its reference steps checked" });
   });
 
   it("pause freezes the plots while data keeps arriving", async () => {

@@ -100,6 +100,9 @@ pub struct ModelInfo {
     /// What one call costs (`{"export": .., "warmup": ..}`, docs/model-contract.md); empty
     /// when not loaded.
     pub cost_json: String,
+    /// The reference steps (`haptics.reference`) checked at load, all of which agreed; 0 when
+    /// it carries none or is not loaded.
+    pub reference_steps: u32,
 }
 
 impl ModelInfo {
@@ -117,6 +120,7 @@ impl ModelInfo {
             model_id: 0,
             active_since_step: None,
             cost_json: String::new(),
+            reference_steps: 0,
         }
     }
 }

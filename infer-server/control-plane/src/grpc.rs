@@ -242,6 +242,7 @@ pub fn model_to_pb(m: &ModelInfo) -> pb::ModelInfo {
         model_id: m.model_id,
         active_since_step: m.active_since_step.unwrap_or(0),
         cost_json: m.cost_json.clone(),
+        reference_steps: m.reference_steps,
     }
 }
 

@@ -243,6 +243,7 @@ impl Registry {
             m.units = i.units.clone();
             m.provenance_json = i.provenance.to_string();
             m.cost_json = i.cost.to_string();
+            m.reference_steps = i.reference_steps.unwrap_or(0) as u32;
         }
         if e.state == ModelState::Active {
             m.active_since_step = self.server.effective_step(e.generation).or(e.since_step);

@@ -208,6 +208,7 @@ impl SimBackend {
                     model_id: id,
                     active_since_step: None,
                     cost_json: String::new(),
+                    reference_steps: 0,
                 };
                 s.models.insert(
                     name,

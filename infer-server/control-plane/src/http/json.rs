@@ -182,6 +182,8 @@ pub struct ModelJson {
     pub provenance: serde_json::Value,
     /// What one call costs: `{"export": .., "warmup": ..}` (null when not loaded).
     pub cost: serde_json::Value,
+    /// The reference steps checked at load, all agreeing (0: none carried, or not loaded).
+    pub reference_steps: u32,
 }
 
 impl From<&ModelInfo> for ModelJson {
@@ -203,6 +205,7 @@ impl From<&ModelInfo> for ModelJson {
                     .unwrap_or_else(|_| serde_json::Value::String(m.provenance_json.clone()))
             },
             cost: serde_json::from_str(&m.cost_json).unwrap_or(serde_json::Value::Null),
+            reference_steps: m.reference_steps,
         }
     }
 }
