@@ -1,7 +1,8 @@
 #!/usr/bin/env node
 // Writes docs/web-ui.png: the whole page after a few seconds of ramp cycles.
 //   node bench/screenshot.mjs                   # from dev/fake-server.mjs (synthetic sponge)
-//   node bench/screenshot.mjs --url http://127.0.0.1:8080   # from a running infer-server
+//   node bench/screenshot.mjs --url 'http://127.0.0.1:8080/#token=...'   # from a running
+//        infer-server: the page's address as scripts/up.sh prints it, token included
 // tests/system.test.mjs writes the same file from the real processes when they run.
 import { dirname, join } from "node:path";
 import { fileURLToPath } from "node:url";
@@ -15,7 +16,8 @@ const server = url ? null : await startFakeServer({ port: 0, demo: true });
 url ??= server.url;
 const b = await openBrowser({ width: 1440, height: 1000 });
 try {
-  await b.page.goto(url + "/");
+  // the address as printed carries the token in its fragment: an appended "/" would spoil it
+  await b.page.goto(new URL(url).pathname === "/" && !url.endsWith("/") && !url.includes("#") ? url + "/" : url);
   await waitFor(async () => (await hook.counts(b.page)).buckets > 100, { what: "data" });
   await sleep(12000);
   await b.page.screenshot({ path: out, fullPage: true });
