@@ -9,7 +9,9 @@
 //!   locks, real-time thread set-up, shutdown);
 //! - the concept on top: `segment` (a named segment of channels with liveness, validation and
 //!   recovery: `segment::channel`, what a segment carries, described by the layer above;
-//!   `segment::header`, its header and layout; [`Protocol`], how the layer above says which
+//!   `segment::header`, its header and layout; `segment::{name, config, shared, check, info}`,
+//!   its name, what a creator asks for, the mapping every endpoint holds, the checks of its
+//!   memory and what a header says; [`Protocol`], how the layer above says which
 //!   message types travel where and builds its endpoints).
 //!
 //! One segment per loop instance (`/haptics-<instance>`, mode 0600) holds a validated header

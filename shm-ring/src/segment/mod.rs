@@ -11,94 +11,52 @@
 //! segment's own descriptor, and that crate neither exposes the descriptor nor lets the
 //! creator decide when a stale segment is unlinked (it unlinks on the owner's drop).
 //!
+//! The files: `name` (the segment's name and its lock file), `config` (what a creator asks
+//! for), `header` and `channel` (the memory's layout and what each ring carries), `shared`
+//! (the mapping and liveness descriptor every endpoint holds), `check` (the header validated
+//! at attach, the live audit), `info` (what a header says), `error`; this file creates,
+//! attaches and maps a segment, and holds [`Link`] (what every endpoint of a side shares:
+//! liveness, the audit, recreate). None of them imports this file, so no module imports one
+//! that imports it back (docs/shm-ring.md).
+//!
 //! Locks (see `os`): the loop holds an instance lock file `/dev/shm/.shm-ring.<name>.lock`
 //! (serialises creators, so a replaced segment can never be unlinked by a second creator) and
 //! byte 0 of the segment; the server holds byte 1. "Peer alive" = the peer's byte is locked.
 
 pub(crate) mod channel;
+mod check;
+mod config;
 pub(crate) mod error;
 pub(crate) mod header;
+mod info;
+mod name;
+mod shared;
+
+use self::check::audit;
+pub(crate) use self::check::validate;
+pub use self::check::Corruption;
+pub use self::config::{Config, MAX_CAPACITY};
+use self::info::{info_of, info_with_liveness, peek_creator_pid};
+pub use self::info::{SegmentInfo, StaleSegment};
+pub use self::name::SegmentName;
+use self::shared::{Shared, LOOP_LOCK_BYTE, SERVER_LOCK_BYTE};
 
 use std::marker::PhantomData;
 use std::os::fd::OwnedFd;
-use std::path::PathBuf;
-use std::ptr::NonNull;
-use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use self::channel::{ChannelKind, ChannelSpec, Lossless, MessageShape, Overwrite, Role, CHANNELS};
 use self::error::Error;
-use self::header::{Header, Layout, LAYOUT_VERSION, MAGIC, MAX_SCHEMA_NAMES, SLOT_ALIGN};
+use self::header::{Header, Layout, MAGIC};
 use crate::fixed_str::FixedStr;
 use crate::os::{self, Mapping};
-use crate::ring::mem::{slot_words, CorruptSink, RingControl, RingMem};
+use crate::ring::mem::{CorruptSink, RingMem};
 use crate::ring::message::Message;
 use crate::ring::overwrite::{OverwriteConsumer, OverwriteProducer};
-use crate::ring::spsc::{Consumer, PeerProbe, Producer};
+use crate::ring::spsc::{Consumer, Producer};
 use crate::status_block::STATUS_WORDS;
-
-const LOOP_LOCK_BYTE: u64 = 0;
-const SERVER_LOCK_BYTE: u64 = 1;
-/// Largest ring capacity accepted (slots), to keep a typo from mapping gigabytes.
-pub const MAX_CAPACITY: usize = 1 << 20;
-
-/// A validated POSIX shared-memory name: `/` then 1..=200 of `[A-Za-z0-9._-]`.
-#[derive(Debug, Clone, PartialEq, Eq, Hash)]
-pub struct SegmentName(String);
-
-impl SegmentName {
-    /// The segment of loop instance `instance`: `/haptics-<instance>`.
-    pub fn for_instance(instance: &str) -> Result<SegmentName, Error> {
-        SegmentName::new(&format!("/haptics-{instance}"))
-    }
-
-    /// An explicit name (must start with `/`).
-    pub fn new(name: &str) -> Result<SegmentName, Error> {
-        let bad = |reason| {
-            Err(Error::InvalidName {
-                name: name.to_owned(),
-                reason,
-            })
-        };
-        let Some(rest) = name.strip_prefix('/') else {
-            return bad("must start with `/`");
-        };
-        if rest.is_empty() || rest.len() > 200 {
-            return bad("must have 1 to 200 characters after `/`");
-        }
-        if !rest
-            .bytes()
-            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'_' | b'-'))
-        {
-            return bad("only letters, digits, `.`, `_` and `-` are allowed after `/`");
-        }
-        if rest.starts_with('.') {
-            return bad("must not start with `.` after `/`");
-        }
-        Ok(SegmentName(name.to_owned()))
-    }
-
-    pub fn as_str(&self) -> &str {
-        &self.0
-    }
-
-    /// The creator's instance lock file (a dot file, so it never collides with a segment).
-    pub fn lock_path(&self) -> PathBuf {
-        let dir = if std::path::Path::new("/dev/shm").is_dir() {
-            PathBuf::from("/dev/shm")
-        } else {
-            std::env::temp_dir()
-        };
-        dir.join(format!(".shm-ring.{}.lock", &self.0[1..]))
-    }
-}
-
-impl std::fmt::Display for SegmentName {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.0)
-    }
-}
 
 /// What a segment carries: its channels (in header order) and the endpoints each side holds.
 /// The layer above implements it (haptics-proto's `layout::Haptics`); the segment only reads
@@ -122,229 +80,6 @@ pub trait Protocol: Sized + 'static {
 /// The shapes of `P`'s channels, in header order.
 pub(crate) fn shapes<P: Protocol>() -> [MessageShape; CHANNELS] {
     P::CHANNELS.map(|c| c.shape)
-}
-
-/// What the creator puts in a new segment.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct Config {
-    /// The schema: names of the values the first channel's messages carry, in order (at most
-    /// [`MAX_SCHEMA_NAMES`]; haptics-proto's `layout::config()` puts the feature names here).
-    pub feature_names: Vec<String>,
-    /// Slots per ring, in the protocol's channel order; each a power of two in 2..=2^20, or 0
-    /// for the channel's [`ChannelSpec::default_capacity`]. `Default`: all 0.
-    pub capacities: [usize; CHANNELS],
-}
-
-impl Config {
-    /// The capacities to use: 0 replaced by the protocol's default.
-    fn resolved_capacities(&self, specs: &[ChannelSpec; CHANNELS]) -> [usize; CHANNELS] {
-        std::array::from_fn(|i| match self.capacities[i] {
-            0 => specs[i].default_capacity,
-            n => n,
-        })
-    }
-
-    fn validate(&self, specs: &[ChannelSpec; CHANNELS]) -> Result<Vec<FixedStr>, Error> {
-        for (spec, cap) in specs.iter().zip(self.resolved_capacities(specs)) {
-            if !cap.is_power_of_two() || !(2..=MAX_CAPACITY).contains(&cap) {
-                return Err(Error::InvalidConfig(format!(
-                    "{} capacity {cap} must be a power of two in 2..={MAX_CAPACITY}",
-                    spec.name
-                )));
-            }
-        }
-        if self.feature_names.len() > MAX_SCHEMA_NAMES {
-            return Err(Error::InvalidConfig(format!(
-                "{} feature names, at most {MAX_SCHEMA_NAMES} fit the schema",
-                self.feature_names.len()
-            )));
-        }
-        let mut names = Vec::with_capacity(self.feature_names.len());
-        for (i, name) in self.feature_names.iter().enumerate() {
-            if name.is_empty() {
-                return Err(Error::InvalidConfig(format!("feature name #{i} is empty")));
-            }
-            if self.feature_names[..i].contains(name) {
-                return Err(Error::InvalidConfig(format!(
-                    "feature name `{name}` appears twice"
-                )));
-            }
-            names.push(
-                FixedStr::new(name)
-                    .map_err(|e| Error::InvalidConfig(format!("feature name: {e}")))?,
-            );
-        }
-        Ok(names)
-    }
-}
-
-/// What the header says about a segment.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct SegmentInfo {
-    pub name: String,
-    pub layout_version: u64,
-    pub total_size: u64,
-    pub creator_pid: u32,
-    pub creator_start_ticks: u64,
-    pub created_unix_ns: u64,
-    pub server_pid: u32,
-    pub server_attachments: u64,
-    pub feature_names: Vec<String>,
-    /// Capacities, in the protocol's channel order.
-    pub capacities: [usize; CHANNELS],
-    /// Byte offsets of each channel's control block (head, tail, signals) and slot array,
-    /// in the same order (for diagnostics and the corruption tests).
-    pub control_offsets: [u64; CHANNELS],
-    pub slots_offsets: [u64; CHANNELS],
-    /// Whether the loop holds its liveness lock (filled by [`Segment::inspect`]; `info()` on a
-    /// handle reports its own side as alive and asks for the peer).
-    pub loop_alive: bool,
-    /// Whether a server holds its liveness lock (as above).
-    pub server_alive: bool,
-}
-
-impl SegmentInfo {
-    /// Whether the creator process (pid plus start time, so a reused pid does not count)
-    /// still runs. Diagnostic only: liveness proper is the lock (`Link::peer_alive`).
-    pub fn creator_process_alive(&self) -> bool {
-        os::process_alive(self.creator_pid, self.creator_start_ticks)
-    }
-}
-
-/// A stale segment that `create` found and replaced.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct StaleSegment {
-    pub creator_pid: u32,
-}
-
-/// What a segment's memory was found to hold that the protocol forbids (see [`Link::audit`]).
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum Corruption {
-    #[error("header field `{field}` holds {found}, the segment was made with {expected}")]
-    Header {
-        field: &'static str,
-        found: u64,
-        expected: u64,
-    },
-    #[error("the header's feature schema no longer matches the segment's")]
-    Schema,
-    #[error("{channel} ring indices impossible: head {head}, tail {tail}, capacity {capacity}")]
-    Indices {
-        channel: &'static str,
-        head: u64,
-        tail: u64,
-        capacity: u64,
-    },
-}
-
-/// The mapping plus the descriptor whose OFD locks carry liveness. Shared (via `Arc`) by every
-/// endpoint of one handle, so the memory stays mapped until the last endpoint is dropped.
-///
-/// Everything this process needs to know about the segment's shape (capacities, offsets,
-/// schema, creator) is a private copy made when the segment was created or validated; the
-/// header is only read again by [`Link::audit`], to compare.
-pub(crate) struct Shared {
-    mapping: Mapping,
-    fd: OwnedFd,
-    name: SegmentName,
-    role: Role,
-    layout: Layout,
-    /// The protocol's channels, in order (what the header was checked against).
-    specs: [ChannelSpec; CHANNELS],
-    /// Which channels' ends this handle has given out (bit per channel): one producer and one
-    /// consumer per ring in all, each on its writer's or reader's side.
-    taken: AtomicU32,
-    schema: Vec<String>,
-    creator_pid: u64,
-    /// Corruption found by this process's endpoints and audits (process-private).
-    corrupt: CorruptSink,
-    /// Set by [`Link::recreate`]: a newer segment owns the name, so dropping this one must
-    /// neither unlink the name nor remove the lock file.
-    superseded: AtomicBool,
-    /// The creator's instance lock; kept open (locked) for the loop's lifetime.
-    _instance_lock: Option<std::fs::File>,
-}
-
-impl Shared {
-    pub(crate) fn header(&self) -> &Header {
-        // SAFETY: the mapping is at least `size_of::<Header>()` bytes (checked before this
-        // struct is built), page-aligned, and only accessed through the header's atomics.
-        unsafe { self.mapping.base().cast::<Header>().as_ref() }
-    }
-
-    fn ring(self: &Arc<Self>, i: usize) -> RingMem {
-        let base = self.mapping.base().as_ptr();
-        // The private, validated copy: never the header's word, which another process can
-        // rewrite at any time (a capacity of 0 there would make the mask u64::MAX).
-        let capacity = self.layout.capacities[i];
-        let payload = self.specs[i].shape.words;
-        // SAFETY: capacities and offsets are this process's `Layout::compute` result (checked
-        // against the header and the file size when attaching; the mapping is `layout.total`
-        // bytes, so every ring lies inside it); control blocks are aligned to
-        // RingControl::ALIGN and slots to SLOT_ALIGN; the memory is only used through atomics
-        // and stays mapped while the `Arc<Shared>` owner passed along lives.
-        unsafe {
-            let ctrl = NonNull::new_unchecked(base.add(self.layout.control_offsets[i]))
-                .cast::<RingControl>();
-            let slots =
-                NonNull::new_unchecked(base.add(self.layout.slots_offsets[i])).cast::<AtomicU64>();
-            RingMem::foreign(
-                ctrl,
-                slots,
-                capacity,
-                payload,
-                Arc::clone(&self.corrupt),
-                self.clone(),
-            )
-        }
-    }
-
-    fn probe(self: &Arc<Self>) -> PeerProbe {
-        let shared = Arc::clone(self);
-        Some(Arc::new(move || shared.peer_alive()))
-    }
-
-    fn peer_byte(&self) -> u64 {
-        match self.role {
-            Role::Loop => SERVER_LOCK_BYTE,
-            Role::Server => LOOP_LOCK_BYTE,
-        }
-    }
-
-    /// Whether the other side's process holds its liveness lock on this segment.
-    /// One `fcntl` syscall: call it from the slow path, not every real-time step.
-    pub(crate) fn peer_alive(&self) -> bool {
-        // An error here (it cannot happen on a valid fd) reads as "not alive": the safe side.
-        os::byte_is_locked(&self.fd, self.peer_byte()).unwrap_or(false)
-    }
-
-    fn own_heartbeat(&self) -> &AtomicU64 {
-        match self.role {
-            Role::Loop => &self.header().loop_heartbeat.0,
-            Role::Server => &self.header().server_heartbeat.0,
-        }
-    }
-
-    fn peer_heartbeat(&self) -> &AtomicU64 {
-        match self.role {
-            Role::Loop => &self.header().server_heartbeat.0,
-            Role::Server => &self.header().loop_heartbeat.0,
-        }
-    }
-}
-
-impl Drop for Shared {
-    fn drop(&mut self) {
-        // A clean loop exit removes its segment; it still holds the instance lock here, so the
-        // name cannot belong to anyone else. A server that stays mapped keeps its memory and
-        // sees the loop's lock released.
-        if self.role == Role::Loop && !self.superseded.load(Ordering::Acquire) {
-            let _ = os::shm_unlink(self.name.as_str());
-            // Removing the lock file while still holding its lock is safe because
-            // `lock_instance` re-checks, after locking, that the path still names its file.
-            let _ = std::fs::remove_file(self.name.lock_path());
-        }
-    }
 }
 
 /// A mapped segment carrying protocol `P`'s messages, as created by the loop or attached by
@@ -737,262 +472,6 @@ fn lock_instance(name: &SegmentName) -> Result<std::fs::File, Error> {
             _ => continue,
         }
     }
-}
-
-/// Checks everything in the header against this build; returns the layout and schema to use
-/// (private copies: nothing is read from the header again to place or size a ring).
-pub(crate) fn validate(
-    header: &Header,
-    name: &SegmentName,
-    file_size: u64,
-    specs: &[ChannelSpec; CHANNELS],
-) -> Result<(Layout, Vec<String>), Error> {
-    let r = Ordering::Relaxed;
-    let name_s = || name.to_string();
-    let magic = header.magic.load(r);
-    if magic != MAGIC {
-        return Err(Error::BadMagic {
-            name: name_s(),
-            found: magic,
-        });
-    }
-    let version = header.layout_version.load(r);
-    if version != LAYOUT_VERSION {
-        return Err(Error::VersionMismatch {
-            name: name_s(),
-            found: version,
-            expected: LAYOUT_VERSION,
-        });
-    }
-    let mismatch = |what: String, found: u64, expected: u64| -> Result<(), Error> {
-        if found == expected {
-            Ok(())
-        } else {
-            Err(Error::LayoutMismatch {
-                name: name_s(),
-                what,
-                found,
-                expected,
-            })
-        }
-    };
-    mismatch(
-        "header size".into(),
-        header.header_size.load(r),
-        std::mem::size_of::<Header>() as u64,
-    )?;
-    mismatch(
-        "ring control size".into(),
-        header.control_size.load(r),
-        RingControl::SIZE as u64,
-    )?;
-    mismatch(
-        "ring control alignment".into(),
-        header.control_align.load(r),
-        RingControl::ALIGN as u64,
-    )?;
-    let capacities = header.capacities();
-    for (i, spec) in specs.iter().enumerate() {
-        let desc = &header.channels[i];
-        let (words, id) = (spec.shape.words, spec.shape.layout_id);
-        let ch = spec.name;
-        mismatch(
-            format!("{ch} message layout id"),
-            desc.layout_id.load(r),
-            id,
-        )?;
-        mismatch(
-            format!("{ch} payload words"),
-            desc.payload_words.load(r),
-            words as u64,
-        )?;
-        mismatch(
-            format!("{ch} slot bytes"),
-            desc.slot_bytes.load(r),
-            slot_words(words) as u64 * 8,
-        )?;
-        mismatch(
-            format!("{ch} slot alignment"),
-            desc.slot_align.load(r),
-            SLOT_ALIGN as u64,
-        )?;
-        let cap = capacities[i];
-        if !cap.is_power_of_two() || !(2..=MAX_CAPACITY).contains(&cap) {
-            return Err(Error::LayoutMismatch {
-                name: name_s(),
-                what: format!("{ch} capacity (not a power of two in 2..={MAX_CAPACITY})"),
-                found: cap as u64,
-                expected: 0,
-            });
-        }
-    }
-    let layout = Layout::compute(capacities, &specs.map(|c| c.shape));
-    for (i, spec) in specs.iter().enumerate() {
-        let desc = &header.channels[i];
-        let ch = spec.name;
-        mismatch(
-            format!("{ch} control offset"),
-            desc.control_offset.load(r),
-            layout.control_offsets[i] as u64,
-        )?;
-        mismatch(
-            format!("{ch} slots offset"),
-            desc.slots_offset.load(r),
-            layout.slots_offsets[i] as u64,
-        )?;
-    }
-    mismatch(
-        "total size".into(),
-        header.total_size.load(r),
-        layout.total as u64,
-    )?;
-    mismatch("file size".into(), file_size, layout.total as u64)?;
-    let Some(schema) = header.schema() else {
-        return Err(Error::LayoutMismatch {
-            name: name_s(),
-            what: "feature schema (bad length or names)".into(),
-            found: header.schema_len.load(r),
-            expected: MAX_SCHEMA_NAMES as u64,
-        });
-    };
-    Ok((layout, schema))
-}
-
-/// Compares the header's fixed fields with this process's private copies and checks each
-/// ring's shared indices (see [`Link::audit`]).
-fn audit(shared: &Shared) -> Result<(), Corruption> {
-    let r = Ordering::Relaxed;
-    let h = shared.header();
-    let layout = &shared.layout;
-    let field = |field: &'static str, cell: &AtomicU64, expected: u64| {
-        let found = cell.load(r);
-        if found == expected {
-            Ok(())
-        } else {
-            Err(Corruption::Header {
-                field,
-                found,
-                expected,
-            })
-        }
-    };
-    field("magic", &h.magic, MAGIC)?;
-    field("layout_version", &h.layout_version, LAYOUT_VERSION)?;
-    field(
-        "header_size",
-        &h.header_size,
-        std::mem::size_of::<Header>() as u64,
-    )?;
-    field("control_size", &h.control_size, RingControl::SIZE as u64)?;
-    field("control_align", &h.control_align, RingControl::ALIGN as u64)?;
-    field("total_size", &h.total_size, layout.total as u64)?;
-    field("creator_pid", &h.creator_pid, shared.creator_pid)?;
-    for (i, spec) in shared.specs.iter().enumerate() {
-        let d = &h.channels[i];
-        let (words, id) = (spec.shape.words, spec.shape.layout_id);
-        field("capacity", &d.capacity, layout.capacities[i] as u64)?;
-        field("payload_words", &d.payload_words, words as u64)?;
-        field("slot_bytes", &d.slot_bytes, slot_words(words) as u64 * 8)?;
-        field("slot_align", &d.slot_align, SLOT_ALIGN as u64)?;
-        field("layout_id", &d.layout_id, id)?;
-        field(
-            "control_offset",
-            &d.control_offset,
-            layout.control_offsets[i] as u64,
-        )?;
-        field(
-            "slots_offset",
-            &d.slots_offset,
-            layout.slots_offsets[i] as u64,
-        )?;
-    }
-    if h.schema().as_ref() != Some(&shared.schema) {
-        return Err(Corruption::Schema);
-    }
-    for (i, spec) in shared.specs.iter().enumerate() {
-        let capacity = layout.capacities[i] as u64;
-        // SAFETY: as in `Shared::ring`: the private layout places the control block inside
-        // the mapping, aligned, and it is only accessed through atomics.
-        let ctrl = unsafe {
-            shared
-                .mapping
-                .base()
-                .add(layout.control_offsets[i])
-                .cast::<RingControl>()
-                .as_ref()
-        };
-        // Both indices only grow, so reading tail, head, tail again bounds what they were
-        // at the moment head was read, with no false alarm from a racing push or pop:
-        // head <= tail then <= t2, and head >= tail then - capacity >= t1 - capacity.
-        let t1 = ctrl.tail.0.load(Ordering::Acquire);
-        let head = ctrl.head.0.load(Ordering::Acquire);
-        let t2 = ctrl.tail.0.load(Ordering::Acquire);
-        let ok = if spec.kind == ChannelKind::Overwrite {
-            // The overwrite ring's consumer may be any number of laps behind, never ahead.
-            head <= t2
-        } else {
-            head <= t2 && head.checked_add(capacity).is_some_and(|max| t1 <= max)
-        };
-        if !ok {
-            return Err(Corruption::Indices {
-                channel: spec.name,
-                head,
-                tail: t2,
-                capacity,
-            });
-        }
-    }
-    Ok(())
-}
-
-fn info_of(header: &Header, name: &SegmentName) -> SegmentInfo {
-    let r = Ordering::Relaxed;
-    SegmentInfo {
-        name: name.to_string(),
-        layout_version: header.layout_version.load(r),
-        total_size: header.total_size.load(r),
-        creator_pid: header.creator_pid.load(r) as u32,
-        creator_start_ticks: header.creator_start_ticks.load(r),
-        created_unix_ns: header.created_unix_ns.load(r),
-        server_pid: header.server_pid.load(r) as u32,
-        server_attachments: header.server_attachments.load(Ordering::Acquire),
-        feature_names: header.schema().unwrap_or_default(),
-        capacities: header.capacities(),
-        control_offsets: header.channels.each_ref().map(|d| d.control_offset.load(r)),
-        slots_offsets: header.channels.each_ref().map(|d| d.slots_offset.load(r)),
-        loop_alive: false,
-        server_alive: false,
-    }
-}
-
-/// `info_of` plus liveness as seen from a handle of `role`; the shape (capacities, schema)
-/// is this process's validated copy, not what the header says now.
-fn info_with_liveness(shared: &Shared) -> SegmentInfo {
-    let mut info = info_of(shared.header(), &shared.name);
-    info.capacities = shared.layout.capacities;
-    info.control_offsets = shared.layout.control_offsets.map(|o| o as u64);
-    info.slots_offsets = shared.layout.slots_offsets.map(|o| o as u64);
-    info.feature_names = shared.schema.clone();
-    let peer = shared.peer_alive();
-    match shared.role {
-        Role::Loop => (info.loop_alive, info.server_alive) = (true, peer),
-        Role::Server => (info.loop_alive, info.server_alive) = (peer, true),
-    }
-    info
-}
-
-/// Best effort: the pid recorded in an existing segment's header, for error messages.
-fn peek_creator_pid(name: &SegmentName) -> Option<u32> {
-    let fd = os::shm_open(name.as_str(), false).ok()?;
-    let stat = os::fstat(&fd).ok()?;
-    if stat.size < std::mem::size_of::<Header>() as u64 {
-        return None;
-    }
-    let mapping = Mapping::map(&fd, std::mem::size_of::<Header>()).ok()?;
-    // SAFETY: mapped at least a header; atomics only.
-    let header = unsafe { mapping.base().cast::<Header>().as_ref() };
-    (header.magic.load(Ordering::Acquire) == MAGIC)
-        .then(|| header.creator_pid.load(Ordering::Relaxed) as u32)
 }
 
 /// Liveness and identity shared by all endpoints of one side. Cheap to clone.
