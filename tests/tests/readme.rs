@@ -230,6 +230,11 @@ fn samples(out: &str) -> usize {
 /// What each README command must show besides exiting 0, by a part of the command.
 fn check_output(cmd: &str, out: &str, dir: &Path, models: &[(String, Vec<&'static str>)]) {
     if cmd.contains("hapticctl models") {
+        // the columns the README's comment names: state, cost, reference steps checked
+        let head = out.lines().next().unwrap_or("");
+        for col in ["STATE", "COST", "REFERENCE"] {
+            assert!(head.contains(col), "{cmd}: no {col} column\n{out}");
+        }
         for (name, _) in models {
             assert!(out.contains(name.as_str()), "{cmd}: no {name}\n{out}");
         }
