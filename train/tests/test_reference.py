@@ -16,6 +16,7 @@ from haptics_train.reference import (
     add_reference_rows,
     check_reference,
     press_rows,
+    write_entry,
 )
 
 
@@ -51,6 +52,5 @@ def test_added_rows_check_and_a_spoiled_force_is_found() -> None:
     assert [p.key for p in m.metadata_props].count(REFERENCE_KEY) == 1  # replaced, not added
     doc = json.loads(next(p.value for p in m.metadata_props if p.key == REFERENCE_KEY))
     doc["force"][2] += 0.01
-    del m.metadata_props[:]
-    m.metadata_props.add(key=REFERENCE_KEY, value=json.dumps(doc))
+    write_entry(m, doc)
     assert "step 2 of 4" in (check_reference(m) or "")

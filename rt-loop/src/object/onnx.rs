@@ -115,12 +115,11 @@ impl OnnxFile {
                     .run_row(&graph, row)
                     .map_err(|s| status(s).err().unwrap_or_default())
             });
-            let detail = match out {
-                Ok(()) => None,
-                Err(CheckError::Mismatch(m)) => Some(m.to_string()),
-                Err(CheckError::Step(msg)) => Some(format!("a reference step failed: {msg}")),
-            };
-            if let Some(detail) = detail {
+            if let Err(e) = out {
+                let detail = match e {
+                    CheckError::Mismatch(m) => m.to_string(),
+                    CheckError::Step(msg) => format!("a reference step failed: {msg}"),
+                };
                 return Err(OnnxObjectError::Reference { path, detail });
             }
         }

@@ -94,11 +94,16 @@ def add_reference_rows(m: onnx.ModelProto, rows: np.ndarray, source: str) -> dic
     """Steps `rows` through `m` (`reference_entry`) and writes the entry into its metadata,
     replacing any; returns the entry. For a graph of your own (an ONNX object: `press_rows`)."""
     entry = reference_entry(m, rows, source)
+    write_entry(m, entry)
+    return entry
+
+
+def write_entry(m: onnx.ModelProto, entry: dict) -> None:
+    """Writes `entry` as `m`'s `haptics.reference`, replacing any (one entry per model)."""
     keep = [p for p in m.metadata_props if p.key != REFERENCE_KEY]
     del m.metadata_props[:]
     m.metadata_props.extend(keep)
     m.metadata_props.add(key=REFERENCE_KEY, value=json.dumps(entry, separators=(",", ":")))
-    return entry
 
 
 def add_reference(m: onnx.ModelProto, rec: Recording, features: tuple[str, ...]) -> dict:
