@@ -8,7 +8,8 @@
 //! Input: a CSV with columns `t_s` (s, increasing) and `x_m` (m, into the object). Output: the
 //! same rows with `force_n` (N) appended. Between two input samples the position is
 //! interpolated linearly at every control period; each row's force is the one of the period at
-//! its time. Off the real-time path (a command over files).
+//! its time. Off the real-time path (a command over files). Errors name the file's line (the
+//! header is line 1, the first sample line 2), which is what an editor shows.
 
 use crate::features::Features;
 use crate::object::material::Material;
@@ -46,17 +47,17 @@ pub fn drive(material: &Material, t_s: &[f64], x_m: &[f64], rate_hz: f64) -> Res
         bail!("the motion needs as many times as positions, at least one");
     }
     if let Some(i) = (0..t_s.len()).find(|&i| !t_s[i].is_finite() || !x_m[i].is_finite()) {
-        bail!("row {}: time and position must be finite numbers", i + 2);
+        bail!("line {}: time and position must be finite numbers", i + 2);
     }
     if let Some(i) = (1..t_s.len()).find(|&i| t_s[i] <= t_s[i - 1]) {
-        bail!("row {}: time {} does not increase", i + 2, t_s[i]);
+        bail!("line {}: time {} does not increase", i + 2, t_s[i]);
     }
     // A motion in millimetres read as metres would drive the object 1000x too deep and write
     // forces of meganewtons without a word: no bench travels a metre (the importer's limit,
     // `importer.PLAUSIBLE_SI`, is the same).
     if let Some(i) = (0..x_m.len()).find(|&i| x_m[i].abs() > MAX_PLAUSIBLE_X_M) {
         bail!(
-            "row {}: position {} m is beyond {MAX_PLAUSIBLE_X_M} m, which no bench travels: \
+            "line {}: position {} m is beyond {MAX_PLAUSIBLE_X_M} m, which no bench travels: \
              `x_m` is in metres (a motion in mm must be divided by 1000)",
             i + 2,
             x_m[i]
@@ -86,7 +87,7 @@ pub fn drive(material: &Material, t_s: &[f64], x_m: &[f64], rate_hz: f64) -> Res
             feats.position_x = x;
             force = oracle
                 .predict(k, &feats)
-                .with_context(|| format!("the object failed at t = {tk} s (row {})", i + 2))?;
+                .with_context(|| format!("the object failed at t = {tk} s (line {})", i + 2))?;
             k += 1;
         }
         out.push(force);
@@ -106,11 +107,11 @@ fn read_motion(path: &Path) -> Result<(Vec<f64>, Vec<f64>)> {
     let (ti, xi) = (col("t_s")?, col("x_m")?);
     let (mut t, mut x) = (Vec::new(), Vec::new());
     for (n, rec) in r.records().enumerate() {
-        let rec = rec.with_context(|| format!("{}: row {}", path.display(), n + 2))?;
+        let rec = rec.with_context(|| format!("{}: line {}", path.display(), n + 2))?;
         let num = |c: usize| -> Result<f64> {
             let s = rec.get(c).unwrap_or("").trim();
             s.parse().with_context(|| {
-                format!("{}: row {}: `{s}` is not a number", path.display(), n + 2)
+                format!("{}: line {}: `{s}` is not a number", path.display(), n + 2)
             })
         };
         t.push(num(ti)?);
@@ -158,7 +159,7 @@ mod tests {
         let m = Material::repository("sponge");
         let err = drive(&m, &[0.0, 0.1, 0.2], &[0.0, 5.0, 12.0], 10_000.0).unwrap_err();
         let msg = format!("{err:#}");
-        assert!(msg.contains("row 3") && msg.contains("metres"), "{msg}");
+        assert!(msg.contains("line 3") && msg.contains("metres"), "{msg}");
         assert!(drive(&m, &[0.0, 0.1], &[0.0, 0.012], 10_000.0).is_ok());
     }
 

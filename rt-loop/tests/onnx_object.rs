@@ -98,6 +98,18 @@ fn hunt_crossley_matches_its_python_reference() {
     }
     let m = hunt_crossley();
     assert_eq!(m.law.name(), "onnx");
+    // the example carries 32 steps its float64 law computed, checked when the file opened
+    match &m.law {
+        rt_loop::object::material::LawParams::Onnx(p) => {
+            let r = p
+                .graph
+                .reference
+                .as_ref()
+                .expect("the example carries steps");
+            assert_eq!(r.force.len(), 32);
+        }
+        _ => panic!("an onnx object"),
+    }
     let knots = reference();
     let peak = knots.iter().map(|k| k.2).fold(0.0, f64::max);
     assert!(peak > 8.0, "the programme presses: {peak}");

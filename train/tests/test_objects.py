@@ -4,6 +4,7 @@ what the script writes (so rt-loop's tests compare against the current law)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +12,7 @@ import onnx
 import onnxruntime as ort
 
 from haptics_train.objects import hunt_crossley as hc
+from haptics_train.reference import REFERENCE_KEY, REFERENCE_STEPS, check_reference
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -41,4 +43,7 @@ def test_the_committed_graph_and_reference_are_current(tmp_path: Path) -> None:
     assert ref.read_text() == committed_ref
     meta = {e.key: e.value for e in committed.metadata_props}
     assert meta["haptics.features"] == "position_x,velocity"
+    # 32 steps of the float64 law, which this machine's ONNX Runtime computes within tolerance
+    assert len(json.loads(meta[REFERENCE_KEY])["force"]) == REFERENCE_STEPS
+    assert check_reference(committed) is None
     assert meta["haptics.kind"] == "stateful" and meta["haptics.units"] == "N"

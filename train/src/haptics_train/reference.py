@@ -65,6 +65,12 @@ def reference_entry(m: onnx.ModelProto, rows: np.ndarray, source: str) -> dict:
     force = [stepper.step(r) for r in rows]
     if not all(np.isfinite(force)):
         raise ValueError("the exported model answers a non-finite force on its reference rows")
+    return entry_of(rows, force, source)
+
+
+def entry_of(rows: np.ndarray, force: list[float], source: str) -> dict:
+    """The `haptics.reference` object for `rows` (the model's inputs, one step each from the
+    zero state) and the `force` computed for each: rows and forces as float32."""
     return {
         # float32 values written with 9 significant digits read back bit for bit
         "inputs": [[float(f"{v:.9g}") for v in r] for r in rows.astype(np.float32)],

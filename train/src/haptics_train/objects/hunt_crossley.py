@@ -42,6 +42,7 @@ import numpy as np
 import onnx
 
 from haptics_train.models.onnx_graph import Graph, stateful_model
+from haptics_train.reference import entry_of, press_rows, write_entry
 
 #: how often the bench steps the graph (the material file's `rate_hz`): once per control period
 RATE_HZ = 10_000.0
@@ -115,8 +116,23 @@ def build(p: HuntCrossley, rate_hz: float = RATE_HZ) -> onnx.ModelProto:
         "haptics.provenance": json.dumps(provenance, sort_keys=True),
     }.items():
         m.metadata_props.append(onnx.StringStringEntryProto(key=key, value=value))
+    write_entry(m, law_reference(p, rate_hz))
     onnx.checker.check_model(m)
     return m
+
+
+def law_reference(p: HuntCrossley, rate_hz: float = RATE_HZ) -> dict:
+    """The graph's reference steps (`haptics.reference`, docs/model-contract.md): a press to
+    15 mm and back (`reference.press_rows`), one row per step from the zero state, with the
+    force the law computes in float64. Why the law and not ONNX Runtime: the entry then binds
+    the graph to the law it stands for on whatever machine opens it (rt-loop and infer-server
+    check it at load), and the committed file does not depend on the last bit of this machine's
+    `Sinh`; the graph is within 2e-6 N of the law, far inside the tolerance."""
+    rows = press_rows(("position_x", "velocity"))
+    state = np.zeros(STATE)
+    force = [step(p, state, float(x), float(v), 1.0 / rate_hz) for x, v in rows.astype(float)]
+    return entry_of(rows, force, "the law in float64 (haptics_train.objects.hunt_crossley), "
+                    "a press to 15 mm and back")
 
 
 def programme_knots() -> tuple[np.ndarray, np.ndarray]:
