@@ -97,19 +97,25 @@ def test_a_slow_validation_test_is_scored_not_dropped():
 
 
 def test_felt_force_counts_where_measured():
-    # b renders badly in the loop: the larger of its two errors ranks it behind a
+    # b leads offline and renders badly in the loop: the felt force decides
     assert recommendation(RESULTS, ["v"], felt={"b": 1.5, "a": 0.45})["recommended"] == "a"
 
 
-def test_the_felt_force_is_weighed_against_the_best_felt_not_in_newtons():
-    # a is 1.25x b offline but 3.2x closer in the loop: it holds both better. In newtons the
-    # larger of the two was a's free run (0.5 > b's 0.48) and the felt force decided nothing.
+def test_the_felt_force_decides_alone_where_measured():
+    # a is 3.2x closer in the loop, b 1.25x closer offline: the felt force alone scores both
+    # (the larger of the two multiples, the rule until 2026-11-30, served the model that felt
+    # further on every object where the two rules disagreed: fidelity's docstring)
     doc = recommendation(RESULTS, ["v"], felt={"a": 0.15, "b": 0.48})
     assert doc["recommended"] == "a"
-    scores = {r["model"]: r["score"] for r in doc["ranking"]}
-    assert scores["a"] == 0.5 / 0.4 and scores["b"] == 0.48 / 0.15, scores
+    by = {r["model"]: r for r in doc["ranking"]}
+    assert by["a"]["score"] == 1.0 and by["b"]["score"] == 0.48 / 0.15, by
+    # both multiples are reported for what the study's report quotes
+    assert by["a"]["validation_multiple"] == 0.5 / 0.4 and by["b"]["validation_multiple"] == 1.0
     # without a felt force a model is scored offline alone; a diverged one ranks last
-    assert scores["persistent"] == 2.0 / 0.4 and scores["runaway"] == float("inf")
+    assert by["persistent"]["score"] == 2.0 / 0.4 and by["runaway"]["score"] == float("inf")
+    # a diverged validation free run ranks last even where its felt force is the best
+    doc = recommendation(RESULTS, ["v"], felt={"runaway": 0.01, "a": 0.15, "b": 0.48})
+    assert doc["recommended"] == "a" and doc["ranking"][-1]["model"] == "runaway"
 
 
 def test_no_recommendation_without_validation():

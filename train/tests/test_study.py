@@ -344,17 +344,17 @@ def test_recommendation_section_names_what_is_served_and_how_it_felt() -> None:
                                       "closed_loop": {"rmse": 0.4}}}  # fmt: skip
 
     results = {"lawfree": entry(0.1), "structured": entry(0.265), "sd_poly2": entry(0.9)}
-    ranking_felt = {"lawfree": 0.28, "structured": 0.165, "sd_poly2": 0.99}
+    ranking_felt = {"lawfree": 0.16, "structured": 0.168, "sd_poly2": 0.96}
     rec = recommendation(results, ["validation_5.0"], ranking_felt)
     assert rec is not None and rec["recommended"] == "lawfree"
-    for e in rec["ranking"]:  # the score is the larger of the two multiples it reports
-        assert e["score"] == max(e["validation_multiple"], e["felt_multiple"])
+    for e in rec["ranking"]:  # the score is the felt multiple of the two it reports
+        assert e["score"] == e["felt_multiple"]
     rows = [_row(ORACLE, 0.006, False), _row("sd_poly2", 1.249, False),
             _row("lawfree", 0.294, True), _row("structured", 0.137, True)]  # fmt: skip
     text = "\n".join(recommendation_section(rec, rows, {"rank_hand": {"press_s": 1.3,
                                             "hold_s": 0.5, "release_s": 0.8}}))  # fmt: skip
-    assert "| `lawfree` | 0.100 | 1.00x | 0.280 | 1.70x | 1.70 | 0.294 |" in text, text
-    assert "| `structured` | 0.265 | 2.65x | 0.165 | 1.00x | 2.65 | 0.137 |" in text, text
+    assert "| `lawfree` | 0.100 | 1.00x | 0.160 | 1.00x | 1.00 | 0.294 |" in text, text
+    assert "| `structured` | 0.265 | 2.65x | 0.168 | 1.05x | 1.05 | 0.137 |" in text, text
     assert "press 1.3 s, hold 0.5 s, release 0.8 s" in text
     assert (
         "- Recommended: `lawfree`, felt 0.294 N on these runs; 49.00x the oracle's 0.006 N "
@@ -363,8 +363,8 @@ def test_recommendation_section_names_what_is_served_and_how_it_felt() -> None:
     ), text
     assert (
         "- `structured` felt closer on these runs: 0.137 N, 2.15x closer than `lawfree`. The "
-        "ranking put `lawfree` first: score 1.70 (validation 1.00x, ranking runs 1.70x) "
-        "against `structured`'s 2.65 (2.65x, 1.00x)." in text
+        "ranking put `lawfree` first: score 1.00 (validation 1.00x, ranking runs 1.00x) "
+        "against `structured`'s 1.05 (2.65x, 1.05x)." in text
     ), text
     # the recommended model is also the closest here: said, and no other model is named
     rows[3] = _row("structured", 0.5, True)

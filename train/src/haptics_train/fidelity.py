@@ -4,19 +4,29 @@ out-of-distribution scoring and the study agree on the rule and the keys (issue 
 The rule: models are ranked by their free-run (closed-loop) RMSE pooled over the validation
 recordings, never by one-step, on the rows where the probe is pressed and slides (`sliding`,
 evaluate.py says why: the all-row score's floor is the bench's stick friction, 0.4 N, which
-ranked by noise; where a results file has no sliding score, all rows); where the study has
-measured a model's felt force (on runs of their own, not the headline's), each error as a
-multiple of the best model's on it, and the larger of the two (a model must hold both offline
-and in the loop). The test recordings play no part.
+ranked by noise; where a results file has no sliding score, all rows). Where the study has
+measured a model's felt force (on runs of their own, not the headline's), that felt force
+decides, as a multiple of the best measured model's; a model without one is scored by its
+validation multiple, and a model whose validation free run diverged ranks last whatever it felt.
+The test recordings play no part.
+
+Why the felt force alone where it is measured (2026-11-30; docs/laws.md, "The felt force
+decides where it is measured"): until then the score was the larger of the two multiples, so
+that a model held both offline and in the loop. On every object where the two rules disagreed,
+the larger-of-two rule served the model that felt further from the object, on the headline as
+on the ranking runs: the gel, a Mullins-softening and a stiff Hunt-Crossley object, then, tested
+once with the rule written down beforehand, two of five fresh objects (a second gel 0.488 N
+where the felt rule's pick felt 0.128 N; a second Hunt-Crossley 0.167 against 0.105 N), and
+never the other way. The validation free run is scored against the RFOB, which holds the
+bench's stick and the observer's lag; the felt force against the object itself, which is what a
+user gets. Off the simulator (a real rig, imported data) there is no felt force and the rule is
+the validation free run, as before.
 
 Why multiples and not newtons: the two errors have different floors. The free run is scored
 against the recorded RFOB estimate, which holds the bench's friction, its noise and a 3 % gain
 no model of the object can follow (about 0.4 N on the simulated objects); the felt force against
-the object itself, whose floor (the oracle) is 0.005-0.03 N. Compared in newtons, the larger of
-the two was nearly always the free run, and the felt force, which is what a user gets, decided
-nothing: on the poroelastic gel `lawfree` was recommended (free run 0.419 N, felt 0.480 N) over
-`structured` (0.501 N, felt 0.154 N: 3.1x closer to the object in the loop, 1.2x further from the
-RFOB offline).
+the object itself, whose floor (the oracle) is 0.005-0.03 N. A model without a felt force is
+compared with the others by the multiple of its own score.
 """
 
 from __future__ import annotations
@@ -59,11 +69,11 @@ def validation_score(entry: dict) -> float | None:
 
 
 def rank(results: dict, felt: dict[str, float] | None = None) -> list[dict]:
-    """Models with a validation free-run RMSE (`validation_score`), best first: score = that
-    RMSE as a multiple of the best model's (`validation_multiple`), or the larger of it and the
-    measured felt-force RMSE (`felt`, name -> N) as a multiple of the best measured one
-    (`felt_multiple`, None where not measured), where there is one; a non-finite score (a
-    diverged free run) ranks last."""
+    """Models with a validation free-run RMSE (`validation_score`), best first: each scored by
+    its measured felt-force RMSE (`felt`, name -> N) as a multiple of the best measured one
+    (`felt_multiple`), or where it has none by its validation RMSE as a multiple of the best
+    model's (`validation_multiple`, reported for every model); a non-finite validation score
+    (a diverged free run) ranks last, felt or not."""
     felt = felt or {}
     rows = []
     for name, entry in results.items():
@@ -74,17 +84,19 @@ def rank(results: dict, felt: dict[str, float] | None = None) -> list[dict]:
             continue
         rows.append((name, v, _finite(felt.get(name))))
     v_best = min((v for _, v, _ in rows if math.isfinite(v) and v > 0), default=math.nan)
-    f_best = min((f for _, _, f in rows if f is not None and f > 0), default=math.nan)
+    # the best felt force among the models that hold offline (a diverged one sets no scale)
+    f_best = min((f for _, v, f in rows if f is not None and f > 0 and math.isfinite(v)),
+                 default=math.nan)  # fmt: skip
     out = []
     for name, v, f in rows:
         v_mult = v / v_best if math.isfinite(v) and math.isfinite(v_best) else math.inf
         f_mult = f / f_best if f is not None and math.isfinite(f_best) else None
-        score = v_mult if f_mult is None else max(v_mult, f_mult)
+        score = v_mult if f_mult is None or not math.isfinite(v_mult) else f_mult
         out.append({"model": name, "validation_free_run_rmse_n": pooled_rmse(results[name],
                     "validation"), "validation_sliding_rmse_n": pooled_rmse(results[name],
                     "validation", "sliding"), "felt_rmse_n": f,
-                    # the two multiples the score is the larger of (the study's report
-                    # quotes them, so it cannot drift from the rule)
+                    # both multiples (the study's report quotes them, so it cannot drift
+                    # from the rule); the score is the felt one where there is one
                     "validation_multiple": v_mult, "felt_multiple": f_mult,
                     "score": score})  # fmt: skip
     return sorted(out, key=lambda r: r["score"])
@@ -101,8 +113,8 @@ def recommendation(results: dict, validation: list[str], felt: dict[str, float] 
     return {
         "recommended": best,
         "metric": "free-run RMSE pooled over the validation recordings' rows where the probe "
-        "is pressed and slides (all rows where not scored); with a measured felt force, the "
-        "larger of the two, each as a multiple of the best model's",
+        "is pressed and slides (all rows where not scored); where the study measured a felt "
+        "force, that felt force; each as a multiple of the best model's",
         "validation": validation,
         "free_run_rmse_n": pooled_rmse(results[best], "test"),
         # the rendered force against the simulated object's own (None off the simulator)

@@ -488,8 +488,9 @@ def recommendation_section(rec: dict | None, rows: list[Row], setup: dict) -> li
         "Chosen without these runs: each model's free run on the validation recordings (the "
         "rows where the probe is pressed and slides) and its felt force on the ranking runs "
         f"(another hand programme and seed{programme}), each as a multiple of the best "
-        "model's; the larger of the two is the score (`fidelity.rank`). The last column is the "
-        "felt force on the runs above, scored once.\n"
+        "model's; the ranking runs' multiple is the score where it was measured, the "
+        "validation's where not (`fidelity.rank`). The last column is the felt force on the "
+        "runs above, scored once.\n"
     )
     L.append(
         "| model | validation, sliding (N) | x best | ranking runs, felt (N) | x best | score "

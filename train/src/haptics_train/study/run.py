@@ -219,7 +219,8 @@ def run_study(
     doc["recommendation"] = felt_doc
     (out_dir / "results.json").write_text(json.dumps(doc, indent=1))
     if felt_doc is not None:
-        say(f"recommended (validation free run and felt force): {felt_doc['recommended']}")
+        say(f"recommended (the ranking runs' felt force; validation where not measured): "
+            f"{felt_doc['recommended']}")  # fmt: skip
         if fidelity is not None:
             keys = ("recommended", "free_run_rmse_n", "free_run_true_rmse_n")
             merge(fidelity, {k: felt_doc.get(k) for k in keys})
