@@ -77,9 +77,9 @@ def main(argv: list[str]) -> int:
         "in N; fast: the same presses 2.5x faster; free run: the model's free-run RMSE on the "
         "held-out test recording (2.1 N/s ramps) against the recorded RFOB force, over every "
         "row and over the rows where the probe is pressed and slides (`sliding`: the rows "
-        "whose friction a model can know; evaluate.py). The recommendation is chosen on the "
-        "validation recording's sliding rows and re-ranked with the felt force of the study's "
-        "ranking runs (another hand and seed), never on these.\n"),
+        "whose friction a model can know; evaluate.py). The recommendation is the model that "
+        "felt closest on the study's ranking runs (another hand and seed; `fidelity.rank`), "
+        "never on these; the validation recording's sliding rows rank a model without them.\n"),
         ("The laws and their sources: docs/laws.md; an object whose law is an ONNX graph "
          "(`law = \"onnx\"`) and how to write one: [onnx.md](onnx.md).\n"),
         ("| law | model | felt | fast | free run | free run, sliding | validation free run "
