@@ -42,6 +42,21 @@ fn runtime() -> bool {
     }
 }
 
+/// How many reference steps (`haptics.reference`) an ONNX material's graph carries; they were
+/// checked when the material file opened it. Panics for another law or a graph without steps.
+fn reference_steps(m: &Material) -> usize {
+    match &m.law {
+        rt_loop::object::material::LawParams::Onnx(p) => p
+            .graph
+            .reference
+            .as_ref()
+            .expect("the graph carries reference steps")
+            .force
+            .len(),
+        other => panic!("an onnx object, not {}", other.name()),
+    }
+}
+
 fn hunt_crossley() -> Material {
     Material::load(&repo("materials/hunt-crossley.toml"))
         .unwrap()
@@ -99,17 +114,7 @@ fn hunt_crossley_matches_its_python_reference() {
     let m = hunt_crossley();
     assert_eq!(m.law.name(), "onnx");
     // the example carries 32 steps its float64 law computed, checked when the file opened
-    match &m.law {
-        rt_loop::object::material::LawParams::Onnx(p) => {
-            let r = p
-                .graph
-                .reference
-                .as_ref()
-                .expect("the example carries steps");
-            assert_eq!(r.force.len(), 32);
-        }
-        _ => panic!("an onnx object"),
-    }
+    assert_eq!(reference_steps(&m), 32);
     let knots = reference();
     let peak = knots.iter().map(|k| k.2).fold(0.0, f64::max);
     assert!(peak > 8.0, "the programme presses: {peak}");
@@ -453,17 +458,7 @@ fn a_fused_export_is_an_object_and_pushes_as_its_graph_does() {
     // both carry reference steps (`haptics.reference`), checked when the material file opened
     // them: the load above would have refused either had a step differed
     let fused_m = load("structured-fused");
-    match &fused_m.law {
-        rt_loop::object::material::LawParams::Onnx(p) => {
-            let r = p
-                .graph
-                .reference
-                .as_ref()
-                .expect("the fixture carries reference steps");
-            assert_eq!(r.force.len(), 32);
-        }
-        _ => panic!("an onnx object"),
-    }
+    assert_eq!(reference_steps(&fused_m), 32);
     let knots = reference();
     let fused = drive(&mut Object::new(&fused_m), &knots, 10);
     let graph = drive(&mut Object::new(&load("structured-graph")), &knots, 10);
