@@ -9,7 +9,11 @@
 #     idle      nothing else running
 #     page      the page open in headless Chromium (web-ui/bench/page-cpu.mjs --hold)
 #     hog       stress-ng on a CPU that is not the loop's (nor the inference thread's, when there is a third)
-#     swap      100 hot swaps (hapticctl swap, two copies of the model alternately, SWAP_GAP_S apart)
+#     swap      100 hot swaps (hapticctl swap, two copies of the model alternately, SWAP_GAP_S apart),
+#               each followed SWAP_GAP_S later by a control call that swaps nothing (hapticctl
+#               status, the same kind of client): misses near swaps, near the control calls and
+#               away from both (scripts/swap-windows.py), so that what a swap adds is told apart
+#               from what any call costs on this host
 #     idle:TUNED, page:TUNED  idle and page again with infer-server on another wait profile
 #               (TUNED_PROFILE, default dedicated: the inference thread spins on a core of its own,
 #               the best tuning on a machine with a core to spare; `none` skips them): the
@@ -24,7 +28,7 @@
 #
 # Usage: scripts/bench-loaded.sh            (a few minutes; builds what it needs)
 # Env:   BENCH_SECONDS (per condition, default 20), FLOOR_SECONDS (default 20), SWAPS (100),
-#        SWAP_GAP_S (the pause after each swap, default 0.15), BENCH_DIR (default target/bench-loaded), HAPTICS_MODEL (default: the model
+#        SWAP_GAP_S (the pause after each swap and each control call, default 0.15), BENCH_DIR (default target/bench-loaded), HAPTICS_MODEL (default: the model
 #        models/recommendation.json recommends, else rf_six), FAMILIES_DIR (default
 #        target/bench-models/families: the page:FAMILY rows; none when it is missing or empty),
 #        FAMILY_SECONDS (default 10), TUNED_PROFILE (dedicated|period|shared|none),
@@ -257,6 +261,7 @@ run_loop swap realtime 1000 &
 loop=$!
 sleep 2
 : >"$work/swaps.jsonl"
+: >"$work/controls.jsonl"
 for i in $(seq 1 "$swaps"); do
   if [ $((i % 2)) = 1 ]; then name="${model}_b"; else name="$model"; fi
   if ! "$bin/hapticctl" swap --addr "http://$grpc" --instance "$instance" --json "$name" >>"$work/swaps.jsonl"; then
@@ -267,6 +272,11 @@ for i in $(seq 1 "$swaps"); do
   # misses further away, so swaps must leave gaps longer than 100 ms (with 0.05 s here, as
   # before, swaps 63 ms apart left no step between them further than 50 ms from one, and the
   # only "away" steps were the 0.2 s before the first).
+  sleep "$swap_gap"
+  # The control: the same kind of client process and a gRPC call, no swap. Its answer carries
+  # the loop's step (loop.step), where the figures centre its window.
+  "$bin/hapticctl" status --addr "http://$grpc" --instance "$instance" --json >>"$work/controls.jsonl" ||
+    echo "bench-loaded: control call $i failed (the swap figures use the others)" >&2
   sleep "$swap_gap"
 done
 sleep 0.5
@@ -312,8 +322,14 @@ import os
 import sys
 from pathlib import Path
 
+import importlib.util
+
 import numpy as np
 import pyarrow.parquet as pq
+
+_spec = importlib.util.spec_from_file_location("swap_windows", "scripts/swap-windows.py")
+swap_windows = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(swap_windows)
 
 work = Path(sys.argv[1])
 n_swaps = int(sys.argv[2])
@@ -385,25 +401,19 @@ for name in ["idle", *(["page"] if page_on else []), "hog", "swap", *tuned_rows,
         for line in (work / "swaps.jsonl").read_text().splitlines():
             if line.strip():
                 eff.append(int(json.loads(line)["effective_step"]))
-        # Sequence numbers count from 1 per run, one per sent step.
-        change = np.array(sorted(e - 1 for e in eff if 0 < e - 1 < len(recorded)), dtype=np.int64)
-        near = np.zeros(len(recorded), dtype=bool)
-        window = 500  # 50 ms at 10 kHz
-        for c in change:
-            near[max(0, c - window): c + window + 1] = True
-        first = max(0, int(change[0]) - 4 * window) if len(change) else 0
-        miss = rec["fallback"] != 0
-        near_s, away_s = near[first:], ~near[first:]
-        m = miss[first:]
-        around = m[near_s].sum() / max(1, near_s.sum())
-        away = m[away_s].sum() / max(1, away_s.sum())
+        ctl = []
+        for line in (work / "controls.jsonl").read_text().splitlines():
+            if line.strip():
+                ctl.append(int((json.loads(line).get("loop") or {}).get("step", 0)))
+        # Sequence numbers count from 1 per run, one per sent step (the status's step likewise).
+        change = [e - 1 for e in eff if 0 < e - 1 < len(recorded)]
+        control = [c - 1 for c in ctl if 0 < c - 1 < len(recorded)]
+        # 50 ms at 10 kHz either side; the run's start left out up to 200 ms before the first
+        sw_fig = swap_windows.swap_windows(rec["fallback"] != 0, change, control, window=500, lead=2000)
+        row.update(sw_fig)
         row["swaps_done"] = len(eff)
         row["swaps_in_run"] = len(change)
-        row["miss_near"] = around
-        row["miss_away"] = away
-        row["steps_near"] = int(near_s.sum())
-        row["steps_away"] = int(away_s.sum())
-        row["swap_miss_ratio"] = (around / away) if away > 0 else (0.0 if around == 0 else math.inf)
+        row["controls_in_run"] = len(control)
     rows[name] = row
 
 def page_cpu_of(name: str) -> float | None:
@@ -437,7 +447,8 @@ for name, r in rows.items():
                       f(r["on_time"]), f(r["late_one"]), f(r["held"]), f(r["fallback"]), f(r["late_fraction"], 5),
                       f(r["max_step_n"], 4), f(r["felt_vs_lockstep"], 4), f(r["felt_vs_shadow"], 4)]))
 sw = rows["swap"]
-print(f"swaps: {sw['swaps_done']} done, {sw['swaps_in_run']} inside the run; lost steps {sw['lost']}; misses per step within 50 ms of a swap {sw['miss_near']:.2e} ({sw['steps_near']} steps), away {sw['miss_away']:.2e} ({sw['steps_away']} steps)")
+print(f"swaps: {sw['swaps_done']} done, {sw['swaps_in_run']} inside the run; lost steps {sw['lost']}; misses per step within 50 ms of a swap {sw['miss_near']:.2e} ({sw['misses_near']} in {sw['steps_near']} steps), of a control call that swaps nothing {sw['miss_control']:.2e} ({sw['misses_control']} in {sw['steps_control']}; {sw['controls_in_run']} calls), away from both {sw['miss_away']:.2e} ({sw['misses_away']} in {sw['steps_away']})")
+print(f"swap miss ratio {sw['swap_miss_ratio']:.2f} (near a swap over away); control call's {sw['swap_control_ratio']:.2f}; swap over control {sw['swap_over_control']:.2f} (what the swap adds beyond any call)")
 if page_cpu is not None:
     print(f"page: headless Chromium used {page_cpu:.3f} CPU-s per s")
 if page_cpu_tuned is not None:
@@ -459,6 +470,10 @@ out = {
     if page_on and rows["page"]["lock_vs_shadow_same_span"] > 0 else None,
     "swap_lost_steps": sw["lost"],
     "swap_miss_ratio": sw["swap_miss_ratio"] if math.isfinite(sw["swap_miss_ratio"]) else None,
+    # the same near a control call that swaps nothing, and the swap's over the control's
+    # (scripts/swap-windows.py): the host's share of swap_miss_ratio told apart from the swap's
+    "swap_control_ratio": sw["swap_control_ratio"] if math.isfinite(sw["swap_control_ratio"]) else None,
+    "swap_over_control": sw["swap_over_control"] if math.isfinite(sw["swap_over_control"]) else None,
     "model": served,
     "idle_late_fraction": rows["idle"]["late_fraction"],
     "family_page_late_fraction": {f: rows[f"page_{f}"]["late_fraction"] for f in families},

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from pathlib import Path
+from types import ModuleType
 from typing import NoReturn
 
 import pytest
@@ -24,6 +26,16 @@ def missing(why: str) -> NoReturn:
     if os.environ.get("CI") == "true":
         pytest.fail(f"{why} (CI=true: a test that cannot run fails)", pytrace=False)
     pytest.skip(why)
+
+
+def script_module(file: str) -> ModuleType:
+    """A Python file of scripts/ (named with hyphens, so not importable by name) as a module."""
+    path = REPO / "scripts" / file
+    spec = importlib.util.spec_from_file_location(path.stem.replace("-", "_"), path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
 def binary(name: str, env: str) -> Path | None:

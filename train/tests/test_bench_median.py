@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 import sys
@@ -10,16 +9,13 @@ from pathlib import Path
 from types import ModuleType
 
 import pytest
+from conftest import script_module
 
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "bench-median.py"
 
 
 def _module() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("bench_median", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return script_module("bench-median.py")
 
 
 def _run_output(obj: dict) -> str:
