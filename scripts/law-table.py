@@ -78,7 +78,8 @@ def main(argv: list[str]) -> int:
         "held-out test recording (2.1 N/s ramps) against the recorded RFOB force, over every "
         "row and over the rows where the probe is pressed and slides (`sliding`: the rows "
         "whose friction a model can know; evaluate.py). The recommendation is the model that "
-        "felt closest on the study's ranking runs (another hand and seed; `fidelity.rank`), "
+        "felt closest on the study's ranking runs (two other hand programmes, each with its own "
+        "seed; the geometric mean over both; `fidelity.rank`), "
         "never on these; the validation recording's sliding rows rank a model without them.\n"),
         ("The laws and their sources: docs/laws.md; an object whose law is an ONNX graph "
          "(`law = \"onnx\"`) and how to write one: [onnx.md](onnx.md).\n"),

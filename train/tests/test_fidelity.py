@@ -208,7 +208,45 @@ def test_study_reranks_with_the_felt_force(tmp_path):
     (tmp_path / "recommendation.json").write_text(
         json.dumps(recommendation(RESULTS, ["validation_5.0"]))
     )
-    doc = rerank_by_felt(tmp_path, RESULTS, [row("b", 1.5), row("a", 0.45), row("oracle", 0.02)])
+    doc = rerank_by_felt(
+        tmp_path, RESULTS, [[row("b", 1.5), row("a", 0.45), row("oracle", 0.02)]]
+    )
     assert doc["recommended"] == "a"
     assert json.loads((tmp_path / "recommendation.json").read_text())["recommended"] == "a"
-    assert rerank_by_felt(tmp_path / "none", RESULTS, []) is None  # no pipeline recommendation
+    assert rerank_by_felt(tmp_path / "none", RESULTS, [[]]) is None  # no pipeline recommendation
+
+
+def test_two_ranking_programmes_rank_by_the_geometric_mean(tmp_path):
+    """With two ranking programmes a model's felt force is the geometric mean of its two (each
+    kept in its entry): a model ahead on one programme only loses to one ahead on both by
+    more; a model that fell back on one programme has no felt force and is ranked by
+    validation, as with one programme."""
+    import math
+    from types import SimpleNamespace
+
+    from haptics_train.study.run import rerank_by_felt
+
+    def row(name: str, felt: float, ok: bool = True) -> SimpleNamespace:
+        return SimpleNamespace(name=name, repro={"rmse": felt, "coverage": 1.0 if ok else 0.5},
+                               run=SimpleNamespace(ok=True))  # fmt: skip
+
+    (tmp_path / "recommendation.json").write_text(
+        json.dumps(recommendation(RESULTS, ["validation_5.0"]))
+    )
+    # "b" is ahead on the first programme (0.40 against 0.45), "a" on the second by more
+    first = [row("a", 0.45), row("b", 0.40)]
+    second = [row("a", 0.30), row("b", 0.60)]
+    doc = rerank_by_felt(tmp_path, RESULTS, [first, second])
+    by = {e["model"]: e for e in doc["ranking"]}
+    assert doc["recommended"] == "a"
+    assert by["a"]["felt_rmse_n"] == pytest.approx(math.sqrt(0.45 * 0.30))
+    assert by["b"]["felt_rmse_n"] == pytest.approx(math.sqrt(0.40 * 0.60))
+    assert by["a"]["felt_by_programme_n"] == [0.45, 0.30]
+    # the first programme alone would have picked "b": the rule differs from one programme
+    assert rerank_by_felt(tmp_path, RESULTS, [first])["recommended"] == "b"
+    # "a" not rankable on the second programme (it covered half the run): no felt force, so
+    # its validation multiple scores it
+    doc = rerank_by_felt(tmp_path, RESULTS, [first, [row("a", 0.30, ok=False), row("b", 0.60)]])
+    by = {e["model"]: e for e in doc["ranking"]}
+    assert by["a"]["felt_rmse_n"] is None and by["a"]["felt_by_programme_n"] is None
+    assert by["a"]["score"] == by["a"]["validation_multiple"]

@@ -366,6 +366,20 @@ def test_recommendation_section_names_what_is_served_and_how_it_felt() -> None:
         "ranking put `lawfree` first: score 1.00 (validation 1.00x, ranking runs 1.00x) "
         "against `structured`'s 1.05 (2.65x, 1.05x)." in text
     ), text
+    # two ranking programmes: both described, each model's two figures beside their mean
+    for e in rec["ranking"]:
+        e["felt_by_programme_n"] = [e["felt_rmse_n"] * 0.8, e["felt_rmse_n"] / 0.8]
+    two = {"rank_hand": {"press_s": 1.3, "hold_s": 0.5, "release_s": 0.8},
+           "rank2_hand": {"press_s": 0.7, "hold_s": 1.0, "release_s": 1.2}}  # fmt: skip
+    text = "\n".join(recommendation_section(rec, rows, two))
+    assert (
+        "the ranking runs (2 other hand programmes, each with its own seed: press 1.3 s, hold "
+        "0.5 s, release 0.8 s; press 0.7 s, hold 1.0 s, release 1.2 s; the geometric mean of a "
+        "model's felt force over them)" in text
+    ), text
+    assert "| `lawfree` | 0.100 | 1.00x | 0.160 (0.128 / 0.200) | 1.00x | 1.00 | 0.294 |" in text
+    for e in rec["ranking"]:
+        del e["felt_by_programme_n"]
     # the recommended model is also the closest here: said, and no other model is named
     rows[3] = _row("structured", 0.5, True)
     text = "\n".join(recommendation_section(rec, rows, {}))

@@ -114,7 +114,8 @@ def recommendation(results: dict, validation: list[str], felt: dict[str, float] 
         "recommended": best,
         "metric": "free-run RMSE pooled over the validation recordings' rows where the probe "
         "is pressed and slides (all rows where not scored); where the study measured a felt "
-        "force, that felt force; each as a multiple of the best model's",
+        "force, that felt force (the geometric mean over its ranking programmes); each as a "
+        "multiple of the best model's",
         "validation": validation,
         "free_run_rmse_n": pooled_rmse(results[best], "test"),
         # the rendered force against the simulated object's own (None off the simulator)

@@ -31,6 +31,16 @@ STUDY_HAND = {
 RANK_HAND = {**STUDY_HAND, "depth_m": 0.024, "depth_step_m": 0.004, "press_s": 1.3,
              "release_s": 0.8}  # fmt: skip
 RANK_SEED_OFFSET = 10
+#: The second ranking programme (2026-11-30): presses faster than the headline's where
+#: RANK_HAND's are slower, longer holds, deeper set-points, and its own seed, so that the two
+#: bracket the headline's hand without being it. A model's ranking felt force is the geometric
+#: mean over both (`study.run.rerank_by_felt`). Why: one programme misled the choice on an
+#: object where it and the headline disagreed by 52 %, and a test written down before its runs,
+#: on six objects nobody had studied, found the two-programme rule's pick closer on the headline
+#: where the rules differed (docs/laws.md, "Two ranking programmes").
+RANK2_HAND = {**STUDY_HAND, "depth_m": 0.030, "depth_step_m": 0.002, "press_s": 0.7,
+              "hold_s": 1.0, "release_s": 1.2, "rest_s": 0.8}  # fmt: skip
+RANK2_SEED_OFFSET = 20
 
 #: The sensitivity run: the same depths, pressed and released 2.5 times faster.
 FAST_HAND = {**STUDY_HAND, "press_s": 0.4, "release_s": 0.4}

@@ -480,17 +480,29 @@ def recommendation_section(rec: dict | None, rows: list[Row], setup: dict) -> li
             "validation recording), so none is reported here; the tables below rank these runs "
             "only.\n"
         ]
-    rh = setup.get("rank_hand") or {}
-    programme = ""
-    if {"press_s", "hold_s", "release_s"} <= rh.keys():
-        programme = f": press {rh['press_s']} s, hold {rh['hold_s']} s, release {rh['release_s']} s"
+    hands = [h for h in (setup.get("rank_hand"), setup.get("rank2_hand")) if h]
+    described = [
+        f"press {h['press_s']} s, hold {h['hold_s']} s, release {h['release_s']} s"
+        for h in hands
+        if {"press_s", "hold_s", "release_s"} <= h.keys()
+    ]
+    n = max(len(hands), max((len(e.get("felt_by_programme_n") or []) for e in ranking), default=0))
+    if n > 1:
+        runs = (
+            f"the ranking runs ({n} other hand programmes, each with its own seed"
+            + (f": {'; '.join(described)}" if described else "")
+            + "; the geometric mean of a model's felt force over them)"
+        )
+    else:
+        runs = "the ranking runs (another hand programme and seed" + (
+            f": {described[0]})" if described else ")"
+        )
     L.append(
         "Chosen without these runs: each model's free run on the validation recordings (the "
-        "rows where the probe is pressed and slides) and its felt force on the ranking runs "
-        f"(another hand programme and seed{programme}), each as a multiple of the best "
-        "model's; the ranking runs' multiple is the score where it was measured, the "
-        "validation's where not (`fidelity.rank`). The last column is the felt force on the "
-        "runs above, scored once.\n"
+        f"rows where the probe is pressed and slides) and its felt force on {runs}, each as a "
+        "multiple of the best model's; the ranking runs' multiple is the score where it was "
+        "measured, the validation's where not (`fidelity.rank`). The last column is the felt "
+        "force on the runs above, scored once.\n"
     )
     L.append(
         "| model | validation, sliding (N) | x best | ranking runs, felt (N) | x best | score "
@@ -502,9 +514,13 @@ def recommendation_section(rec: dict | None, rows: list[Row], setup: dict) -> li
         if v is None:
             v = e.get("validation_free_run_rmse_n")
         here = felt_rmse(named_row(rows, e["model"]))
+        each = e.get("felt_by_programme_n") or []
+        felt = fmt(e.get("felt_rmse_n"))
+        if len(each) > 1:
+            felt += " (" + " / ".join(fmt(f) for f in each) + ")"
         L.append(
             f"| `{e['model']}` | {fmt(v)} | {_times(e.get('validation_multiple'))} | "
-            f"{fmt(e.get('felt_rmse_n'))} | {_times(e.get('felt_multiple'))} | "
+            f"{felt} | {_times(e.get('felt_multiple'))} | "
             f"{fmt(e.get('score'), 2)} | {fmt(here if math.isfinite(here) else None)} |"
         )
     L.append("")

@@ -6,6 +6,7 @@ re-rank the recommendation; then the scores, figures and report."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import time
@@ -24,6 +25,8 @@ from .protocol import (
     FAST_HAND,
     LONG_HAND,
     ORACLE,
+    RANK2_HAND,
+    RANK2_SEED_OFFSET,
     RANK_HAND,
     RANK_SEED_OFFSET,
     SPRING_DAMPERS,
@@ -108,8 +111,9 @@ def run_study(
     # every hand pressed no harder than the bench renders (hand.py): the standard set-points,
     # or all of them scaled by one factor searched on the reference alone
     hand_fit = fit_hand(tools, work, STUDY_HAND, seed, common, clock, say)
-    hand, fast_hand, rank_hand, long_hand = (
-        scaled_hand(h, hand_fit["factor"]) for h in (STUDY_HAND, FAST_HAND, RANK_HAND, LONG_HAND)
+    hand, fast_hand, rank_hand, rank2_hand, long_hand = (
+        scaled_hand(h, hand_fit["factor"])
+        for h in (STUDY_HAND, FAST_HAND, RANK_HAND, RANK2_HAND, LONG_HAND)
     )
     settings: dict[str, tuple[Run, list[Row]]] = {}
     settings["off"] = _reproduce_all(
@@ -172,17 +176,20 @@ def run_study(
     )
 
     results = load_results(models_dir)
-    # The re-rank's felt force comes from runs of their own (another hand programme and seed):
-    # the headline runs above are scored once and choose nothing. Done before the report, which
-    # says what was recommended and how it felt on the headline runs.
+    # The re-rank's felt force comes from runs of their own (two other hand programmes, each
+    # with its own seed): the headline runs above are scored once and choose nothing. Done
+    # before the report, which says what was recommended and how it felt on the headline runs.
     rank_files = [f for f in study_models(models_dir, names) if f.stem in results]
     felt_doc = None
     if rank_files and load_recommendation(models_dir) is not None:
-        _, rank_rows = _reproduce_all(
-            tools, rank_files, work, "rank_", rank_hand, seed + RANK_SEED_OFFSET, False, say,
-            common, clock,
-        )  # fmt: skip
-        felt_doc = rerank_by_felt(models_dir, results, rank_rows)
+        programmes = []
+        for tag, rh, offset in (("rank_", rank_hand, RANK_SEED_OFFSET),
+                                ("rank2_", rank2_hand, RANK2_SEED_OFFSET)):  # fmt: skip
+            _, rank_rows = _reproduce_all(
+                tools, rank_files, work, tag, rh, seed + offset, False, say, common, clock
+            )
+            programmes.append(rank_rows)
+        felt_doc = rerank_by_felt(models_dir, results, programmes)
     total = time.perf_counter() - t_start
     write_plots(out_dir, ref, rows, rec, rep_s)
     setup = {
@@ -193,6 +200,7 @@ def run_study(
         "hand": hand,
         "fast_hand": fast_hand,
         "rank_hand": rank_hand,
+        "rank2_hand": rank2_hand,
         "long_hand": long_hand,
         "hand_fit": hand_fit,
     }
@@ -219,7 +227,8 @@ def run_study(
     doc["recommendation"] = felt_doc
     (out_dir / "results.json").write_text(json.dumps(doc, indent=1))
     if felt_doc is not None:
-        say(f"recommended (the ranking runs' felt force; validation where not measured): "
+        say(f"recommended (the ranking runs' felt force, the geometric mean of the two "
+            f"programmes; validation where not measured): "
             f"{felt_doc['recommended']}")  # fmt: skip
         if fidelity is not None:
             keys = ("recommended", "free_run_rmse_n", "free_run_true_rmse_n")
@@ -320,17 +329,40 @@ def _reproduce_all(
     return ref, rows
 
 
-def rerank_by_felt(models_dir: Path, results: dict, rows: list[Row]) -> dict | None:
-    """The pipeline's recommendation ranked again with the felt force of `rows` (the ranking
-    runs: another hand programme and seed than the headline's, without friction compensation,
-    the models of `models_dir`), written back to its recommendation.json; None when the
-    pipeline recommended nothing (no validation run)."""
+def ranking_felt(programmes: list[list[Row]], results: dict) -> dict[str, list[float]]:
+    """Each model's felt force on every ranking programme (name -> one RMSE per programme, in
+    order), for the models of `results` rankable in every one: a model that fell back or failed
+    on one programme has no felt force, and is ranked by validation, as with one programme."""
+    out: dict[str, list[float]] = {}
+    for name in results:
+        felt = []
+        for rows in programmes:
+            row = next((r for r in rows if r.name == name), None)
+            f = felt_rmse(row) if row is not None and rankable(row) else math.nan
+            felt.append(f)
+        if felt and all(math.isfinite(f) and f > 0 for f in felt):
+            out[name] = felt
+    return out
+
+
+def rerank_by_felt(models_dir: Path, results: dict, programmes: list[list[Row]]) -> dict | None:
+    """The pipeline's recommendation ranked again with the felt force of the ranking runs
+    (`programmes`: one list of rows per hand programme, each another programme and seed than
+    the headline's, without friction compensation, the models of `models_dir`), written back to
+    its recommendation.json; None when the pipeline recommended nothing (no validation run).
+
+    A model's felt force is the geometric mean over the programmes (scale-free: a programme
+    whose forces are larger weighs no more), each programme's value kept beside it in its
+    ranking entry (`felt_by_programme_n`)."""
     prior = load_recommendation(models_dir)
     if prior is None:
         return None
-    felt = {r.name: felt_rmse(r) for r in rows if r.name in results and rankable(r)}
+    each = ranking_felt(programmes, results)
+    felt = {k: math.exp(sum(math.log(f) for f in v) / len(v)) for k, v in each.items()}
     doc = recommendation(results, list(prior.get("validation") or []), felt)
     if doc is not None:
+        for e in doc["ranking"]:
+            e["felt_by_programme_n"] = each.get(e["model"])
         (models_dir / RECOMMENDATION_FILE).write_text(json.dumps(doc, indent=1) + "\n")
     return doc
 
