@@ -318,11 +318,10 @@ fi
 """Reads the runs' summaries and recordings; prints the table and the JSON line."""
 import json
 import math
+import importlib.util
 import os
 import sys
 from pathlib import Path
-
-import importlib.util
 
 import numpy as np
 import pyarrow.parquet as pq

@@ -486,7 +486,7 @@ def recommendation_section(rec: dict | None, rows: list[Row], setup: dict) -> li
         for h in hands
         if {"press_s", "hold_s", "release_s"} <= h.keys()
     ]
-    n = max(len(hands), max((len(e.get("felt_by_programme_n") or []) for e in ranking), default=0))
+    n = len(hands)
     if n > 1:
         runs = (
             f"the ranking runs ({n} other hand programmes, each with its own seed"

@@ -9,6 +9,7 @@ import json
 import math
 import os
 import shutil
+import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -335,11 +336,8 @@ def ranking_felt(programmes: list[list[Row]], results: dict) -> dict[str, list[f
     on one programme has no felt force, and is ranked by validation, as with one programme."""
     out: dict[str, list[float]] = {}
     for name in results:
-        felt = []
-        for rows in programmes:
-            row = next((r for r in rows if r.name == name), None)
-            f = felt_rmse(row) if row is not None and rankable(row) else math.nan
-            felt.append(f)
+        # felt_rmse is NaN for a missing or unrankable run
+        felt = [felt_rmse(next((r for r in rows if r.name == name), None)) for rows in programmes]
         if felt and all(math.isfinite(f) and f > 0 for f in felt):
             out[name] = felt
     return out
@@ -358,7 +356,7 @@ def rerank_by_felt(models_dir: Path, results: dict, programmes: list[list[Row]])
     if prior is None:
         return None
     each = ranking_felt(programmes, results)
-    felt = {k: math.exp(sum(math.log(f) for f in v) / len(v)) for k, v in each.items()}
+    felt = {k: statistics.geometric_mean(v) for k, v in each.items()}
     doc = recommendation(results, list(prior.get("validation") or []), felt)
     if doc is not None:
         for e in doc["ranking"]:
