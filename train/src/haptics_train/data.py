@@ -215,6 +215,23 @@ class SequenceInfo:
     #: the rate of the loop that recorded it (rt-loop's `rate_hz`), Hz; NaN where unknown
     #: (imported data): a model whose state steps in time is served once per step of this loop
     loop_rate_hz: float = float("nan")
+    #: how long the probe must have slid one way before a row counts for the models that fit
+    #: the bench's friction (models/contact_rows.py, `settled`), s: three time constants of the
+    #: velocity filter of an rt-loop recording (its `g_v`); 0 where unknown (imported data)
+    settle_s: float = 0.0
+
+
+def settle_s(rec: Recording) -> float:
+    """Three time constants of the velocity filter `rec`'s kinematics were estimated with
+    (rt-loop's `g_v`, rad/s: 0.1 s at the default 30 rad/s), for a recording of rt-loop's; 0
+    for an import (its velocity is the testing machine's, and no bench's friction sticks in
+    its force). Why three: after a reversal the recorded velocity lags the probe's by about
+    1/g_v, so for that long its sign is not the friction's (contact_rows.py)."""
+    run = rec.meta.get("haptics.run")
+    if not isinstance(run, dict) or run.get("filters"):
+        return 0.0
+    g = ((run.get("config") or {}).get("params") or {}).get("g_v")
+    return 3.0 / float(g) if isinstance(g, int | float) and g > 0 else 0.0
 
 
 def to_sequences(
@@ -236,6 +253,7 @@ def to_sequences(
             row_step=r.row_step,
             contact_off_n=contact_thresholds(r)[1],
             loop_rate_hz=loop_rate_hz(r),
+            settle_s=settle_s(r),
         )
         for r in recs
     ]

@@ -15,6 +15,15 @@ bench, 0.9 + 0.25 N). That stretch of a release decides where the probe comes to
 object's force falls under the friction), so where the hand meets it on the next press; unfitted,
 the rendered sponge rested the probe 0.3 mm further out than the real one and the hand felt
 +0.4 N for 50 ms at each re-contact (docs/laws.md).
+
+A row also counts only once the probe has slid one way for a while (`settled`: the
+recording's `settle_s`, three time constants of rt-loop's velocity filter, 0.1 s by default).
+Through a reversal the bench sticks, and the RFOB holds whatever friction the controller
+leaves, while the recorded velocity, filtered, still has the sign of the motion before: the
+friction the fit assumes (in the direction of that sign) is then wrong by up to twice its
+size. Those rows taught `lawfree` a Bouc-Wen object 0.23 N off under a hand and `structured`
+the sponge 0.08 N off; without them, 0.16 and 0.07 N (docs/laws.md, "Rows after a
+reversal"). Imported tests (a load cell, no bench) have `settle_s` 0 and keep every row.
 """
 
 from __future__ import annotations
@@ -33,10 +42,13 @@ def sliding_rows(
     thin = []
     for xv, yy, i in zip(seqs, targets, info, strict=True):
         k = max(1, i.stride)
-        thin.append((xv[::k, 0], xv[::k, 1], yy[::k], i.contact_off_n, k))
-    friction = free_air_friction([(x, v, t) for x, v, t, _, _ in thin], min_speed)
-    return friction, [(x, v, t, fitted_rows(x, v, t, off, friction, min_speed), k)
-                      for x, v, t, off, k in thin]  # fmt: skip
+        # the settling time in the thinned rows (at least one: the row itself)
+        n = max(1, round(i.settle_s * i.sample_rate_hz / k))
+        thin.append((xv[::k, 0], xv[::k, 1], yy[::k], i.contact_off_n, k, n))
+    friction = free_air_friction([(x, v, t) for x, v, t, *_ in thin], min_speed)
+    return friction, [(x, v, t, fitted_rows(x, v, t, off, friction, min_speed)
+                       & settled(v, min_speed, n), k)
+                      for x, v, t, off, k, n in thin]  # fmt: skip
 
 
 def free_air_friction(
@@ -59,3 +71,13 @@ def fitted_rows(
     force, `t - friction_n sign(v)`, above `contact_off_n`."""
     slide = np.abs(v) > min_speed
     return slide & ((x <= 0) | (t - friction_n * np.sign(v) > contact_off_n))
+
+
+def settled(v: np.ndarray, min_speed: float, rows: int) -> np.ndarray:
+    """The rows where the probe has slid one way (|v| above `min_speed`, one sign) for the
+    last `rows` rows, this one included (module docstring)."""
+    s = np.sign(v) * (np.abs(v) > min_speed)
+    i = np.arange(len(s))
+    # where each run of one sign starts: a row that differs from the one before
+    start = np.maximum.accumulate(np.where(np.r_[True, s[1:] != s[:-1]], i, 0))
+    return (s != 0) & (i - start + 1 >= rows)
