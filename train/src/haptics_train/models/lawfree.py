@@ -53,8 +53,9 @@ the object's own force (F_object), these two choices took the object's error fro
 to 0.34-0.49 N and the friction the fit identifies from 1.24-2.05 N to 1.08-1.30 N (the
 simulated bench's is about 1 N). The readout
 and the bench's friction (Dahl states of x, the Coulomb part of what `structured` identifies)
-are fitted together by bounded ridge least squares on the rows where the probe slides, in
-contact and out of it: out of contact the target is the friction alone, which is what tells
+are fitted together by bounded ridge least squares on the rows where the probe slides (on an
+rt-loop recording, once it has slid one way for 0.1 s: contact_rows.py), in contact and out
+of it: out of contact the target is the friction alone, which is what tells
 the friction from a hysteresis of the object (inside the object they look alike). The
 friction is fitted because the recorded target (the RFOB estimate) holds it; rendering it
 would count the bench's friction twice, so the graph renders the object only.

@@ -54,7 +54,9 @@ What is fitted and what is a grid (issue 23: no number is read off a material fi
 The target the bench records (the RFOB estimate) is the object's force plus the bench's own
 friction; the friction is fitted as its own term on the rows where the probe slides (|v| above
 `fit_min_speed_mps`: when it sticks, the friction is any value the force controller leaves,
-which kinematics cannot tell), in contact and out of it, both ways: out of contact the target
+which kinematics cannot tell; on an rt-loop recording, only once it has slid one way for 0.1 s,
+since through a reversal the filtered velocity still has the old sign: contact_rows.py), in
+contact and out of it, both ways: out of contact the target
 is the friction alone (record-dataset.sh's free-air sweeps), which is what tells it from the
 object's hysteresis and damping, the same columns inside the object. (Until 2026-11-27 the
 rows out of contact counted only where their target exceeded the contact threshold, i.e.
