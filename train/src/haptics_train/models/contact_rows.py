@@ -46,8 +46,7 @@ def sliding_rows(
         n = max(1, round(i.settle_s * i.sample_rate_hz / k))
         thin.append((xv[::k, 0], xv[::k, 1], yy[::k], i.contact_off_n, k, n))
     friction = free_air_friction([(x, v, t) for x, v, t, *_ in thin], min_speed)
-    return friction, [(x, v, t, fitted_rows(x, v, t, off, friction, min_speed)
-                       & settled(v, min_speed, n), k)
+    return friction, [(x, v, t, fitted_rows(x, v, t, off, friction, min_speed, n), k)
                       for x, v, t, off, k, n in thin]  # fmt: skip
 
 
@@ -65,11 +64,12 @@ def free_air_friction(
 
 def fitted_rows(
     x: np.ndarray, v: np.ndarray, t: np.ndarray, contact_off_n: float, friction_n: float,
-    min_speed: float,
+    min_speed: float, settle_rows: int = 1,
 ) -> np.ndarray:  # fmt: skip
-    """The rows to fit (module docstring): sliding, and out of contact or with the object's
-    force, `t - friction_n sign(v)`, above `contact_off_n`."""
-    slide = np.abs(v) > min_speed
+    """The rows to fit (module docstring): sliding one way for the last `settle_rows` rows
+    ([`settled`]; 1: sliding), and out of contact or with the object's force,
+    `t - friction_n sign(v)`, above `contact_off_n`."""
+    slide = settled(v, min_speed, settle_rows)
     return slide & ((x <= 0) | (t - friction_n * np.sign(v) > contact_off_n))
 
 
