@@ -4,8 +4,9 @@
 //!
 //! Contract (docs/model-contract.md, stateful): inputs `features` [1, n] (x is feature 0),
 //! `h_in`, `c_in` [1, 1, H]; outputs `force` [1, 1], `h_out`, `c_out` [1, 1, H], with
-//! H = K + M + 3: `h` carries [q_1..q_K Maxwell branches, u_1..u_M Dahl states, set, largest
-//! depth, previous e] as the multi-node graph's; `c` carries the equilibrium force at the
+//! H = K + M + 3: `h` carries [q_1..q_K Maxwell branches (those of fixed time, then the
+//! depth-scaled ones, whose time grows with the compression), u_1..u_M Dahl states, set,
+//! largest depth, previous e] as the multi-node graph's; `c` carries the equilibrium force at the
 //! previous e in its first element, as the graph's, and then the low parts of the states that
 //! integrate over millions of steps (below).
 //!
@@ -64,8 +65,15 @@ pub struct StructuredParams {
     /// (weight, 1 / yield length) per plateau tanh(e / y)
     plateaus: Vec<(f64, f64)>,
     poles: Vec<Pole>,
+    /// (weight, 1 / D, exponent p) per indentation power (e / D)^p
+    powers: Vec<(f64, f64, f64)>,
     /// (decay exp(-dt / tau), gain g) per Maxwell branch
     branches: Vec<(f64, f64)>,
+    /// (-dt D / tau_k, gain g) per depth-scaled branch: its decay at compression e is
+    /// exp(-dt D / tau_k / max(e, `depth_floor_m`)), and it is emptied out of contact
+    depth_branches: Vec<(f64, f64)>,
+    /// the compression under which a depth-scaled branch's time stops shrinking, m
+    depth_floor_m: f64,
     /// (-1 / length, gain h) per Dahl hysteresis state
     hysteresis: Vec<(f64, f64)>,
     set: Option<SetLaw>,
@@ -118,6 +126,30 @@ impl StepModel for StructuredParams {
             .map(|(&t, &g)| ((-dt / t).exp(), g))
             .collect();
 
+        // the indentation elements: absent on a model fitted without them
+        let exps = r.list("power_exponents")?;
+        let a_power = r.list("a_power")?;
+        r.paired("a_power", &a_power, "power_exponents", &exps)?;
+        let depth_taus = r.positive_list("depth_taus_s")?;
+        let depth_gains = r.list("depth_gains")?;
+        r.paired("depth_gains", &depth_gains, "depth_taus_s", &depth_taus)?;
+        let (depth, floor) = if exps.is_empty() && depth_taus.is_empty() {
+            (1.0, 0.0)
+        } else {
+            let floor = r.positive("depth_floor")?;
+            (r.positive("depth_scale_m")?, floor)
+        };
+        let powers = a_power
+            .iter()
+            .zip(&exps)
+            .map(|(&a, &p)| (a, 1.0 / depth, p))
+            .collect();
+        let depth_branches = depth_taus
+            .iter()
+            .zip(&depth_gains)
+            .map(|(&t, &g)| (-dt * depth / t, g))
+            .collect();
+
         let lengths = r.positive_list("hysteresis_m")?;
         let hg = r.list("hysteresis_gains")?;
         r.paired("hysteresis_gains", &hg, "hysteresis_m", &lengths)?;
@@ -159,14 +191,17 @@ impl StepModel for StructuredParams {
         Ok(Self {
             plateaus,
             poles,
+            powers,
             branches,
+            depth_branches,
+            depth_floor_m: floor * depth,
             hysteresis,
             set,
         })
     }
 
     fn state_size(&self) -> usize {
-        self.branches.len() + self.hysteresis.len() + 3
+        self.branches.len() + self.depth_branches.len() + self.hysteresis.len() + 3
     }
 
     /// Reads x (features[0]), `h_in`, `c_in`; writes the next state. Allocates nothing.
@@ -194,6 +229,9 @@ impl StructuredParams {
             let pow = p.neg_n_int.map_or_else(|| u.powf(p.neg_n), |n| u.powi(n));
             f += p.a * (pow - 1.0) + p.lin * (ec - p.cap).max(0.0);
         }
+        for &(a, inv_d, p) in &self.powers {
+            f += a * (ec * inv_d).powf(p);
+        }
         f
     }
 
@@ -207,7 +245,9 @@ impl StructuredParams {
         h_out: &mut [f32],
         c_out: &mut [f32],
     ) -> f32 {
-        let (nk, nm) = (self.branches.len(), self.hysteresis.len());
+        // nk: every branch, of fixed time and depth-scaled (their states side by side)
+        let nk = self.branches.len() + self.depth_branches.len();
+        let nm = self.hysteresis.len();
         let x = f64::from(x);
         // c = [F_eq, F_eq low, set low, q low.., e low] (module doc: float-float state)
         let s = f64::from(h_in[nk + nm]) + f64::from(c_in[C_SET_LO]);
@@ -240,6 +280,19 @@ impl StructuredParams {
             let q = decay * q_prev + dfeq;
             (h_out[i], c_out[C_Q_LO + i]) = split(q);
             f += g * q;
+        }
+        if !self.depth_branches.is_empty() {
+            // one division for every depth-scaled branch: exp(k / max(e, floor)), k = -dt D / tau
+            let inv = 1.0 / ec.max(self.depth_floor_m);
+            let first = self.branches.len();
+            for (j, &(k, g)) in self.depth_branches.iter().enumerate() {
+                let i = first + j;
+                let r_prev = f64::from(h_in[i]) + f64::from(c_in[C_Q_LO + i]);
+                // emptied out of contact (the multi-node graph's product with `contact`)
+                let r = ((k * inv).exp() * r_prev + dfeq) * contact;
+                (h_out[i], c_out[C_Q_LO + i]) = split(r);
+                f += g * r;
+            }
         }
         let de = ec - e_prev.max(0.0);
         let sg = if de > 0.0 {
@@ -344,20 +397,32 @@ mod tests {
         StructuredParams::from_attrs(&m).unwrap()
     }
 
-    #[test]
-    fn a_step_matches_the_model_written_out_by_hand() {
-        let p = StructuredParams::from_attrs(&simple()).unwrap();
-        assert_eq!(p.state_size(), 5);
-        let xs: Vec<f32> = (0..400).map(|n| 0.004 * (n as f32 * 0.01).sin()).collect();
-        let got = run(&p, &xs);
-        // the same model, independently: f = fe + 0.3 q + 0.1 fe u, 0 out of contact
-        let (d, mut q, mut u, mut fe_prev, mut e_prev) =
-            ((-1e-3f64 / 0.5).exp(), 0.0, 0.0, 0.0, 0.0f64);
-        for (&x, &g) in xs.iter().zip(&got) {
+    /// Checks the kernel's forces `got` along `xs` against `simple()`'s model written out by
+    /// hand with the equilibrium `fe_of`: f = fe + 0.3 q + 0.1 fe u, 0 out of contact, plus
+    /// `depth`'s branch (tau at D, D, gain) when given, its time tau max(e / D, 1e-3).
+    fn check_by_hand(
+        xs: &[f32],
+        got: &[f32],
+        fe_of: impl Fn(f64) -> f64,
+        depth: Option<(f64, f64, f64)>,
+    ) {
+        let (d, mut q, mut r, mut u, mut fe_prev, mut e_prev) =
+            ((-1e-3f64 / 0.5).exp(), 0.0, 0.0, 0.0, 0.0, 0.0f64);
+        for (&x, &g) in xs.iter().zip(got) {
             let e = f64::from(x);
             let ec = e.max(0.0);
-            let fe = 2.0 * (ec / 0.01).tanh();
+            let fe = fe_of(ec);
             q = d * q + fe - fe_prev;
+            let mut relaxing = 0.3 * q;
+            if let Some((tau, depth_m, gain)) = depth {
+                let t = tau * (ec / depth_m).max(1e-3);
+                r = if ec > 0.0 {
+                    (-1e-3 / t).exp() * r + fe - fe_prev
+                } else {
+                    0.0
+                };
+                relaxing += gain * r;
+            }
             fe_prev = fe;
             let de = ec - e_prev.max(0.0);
             e_prev = e;
@@ -368,13 +433,67 @@ mod tests {
                 u = a * u + (1.0 - a) * de.signum();
             }
             let want = if ec > 0.0 {
-                (fe + 0.3 * q + 0.1 * fe * u).max(0.0)
+                (fe + relaxing + 0.1 * fe * u).max(0.0)
             } else {
                 0.0
             };
             assert!((f64::from(g) - want).abs() < 1e-5, "x {x}: {g} vs {want}");
         }
+    }
+
+    #[test]
+    fn a_step_matches_the_model_written_out_by_hand() {
+        let p = StructuredParams::from_attrs(&simple()).unwrap();
+        assert_eq!(p.state_size(), 5);
+        let xs: Vec<f32> = (0..400).map(|n| 0.004 * (n as f32 * 0.01).sin()).collect();
+        let got = run(&p, &xs);
+        // the same model, independently: f = fe + 0.3 q + 0.1 fe u, 0 out of contact
+        check_by_hand(&xs, &got, |ec| 2.0 * (ec / 0.01).tanh(), None);
         assert!(got.iter().any(|&f| f > 0.5) && got.contains(&0.0));
+    }
+
+    /// `simple()` with the indentation elements: a Hertz power 1.5 (weight 3, D 20 mm) and one
+    /// depth-scaled branch (tau 1 s at D, gain 0.4).
+    fn indentation() -> Map {
+        let mut m = simple();
+        for (k, v) in [
+            ("depth_scale_m", vec![0.02]),
+            ("depth_floor", vec![1e-3]),
+            ("power_exponents", vec![1.5]),
+            ("a_power", vec![3.0]),
+            ("depth_taus_s", vec![1.0]),
+            ("depth_gains", vec![0.4]),
+        ] {
+            m = with(m, k, v);
+        }
+        m
+    }
+
+    #[test]
+    fn a_depth_scaled_branch_relaxes_slower_the_deeper_and_empties_out_of_contact() {
+        let p = StructuredParams::from_attrs(&indentation()).unwrap();
+        assert_eq!(p.state_size(), 6); // q, r, u, set, largest depth, e
+        let xs: Vec<f32> = (0..600).map(|n| 0.01 * (n as f32 * 0.012).sin()).collect();
+        let got = run(&p, &xs);
+        // the same model, independently: f = fe + 0.3 q + 0.4 r + 0.1 fe u
+        let fe = |ec: f64| 2.0 * (ec / 0.01).tanh() + 3.0 * (ec / 0.02).powf(1.5);
+        check_by_hand(&xs, &got, fe, Some((1.0, 0.02, 0.4)));
+        // held after a step, the branch decays with the time of its depth: over 100 ms it
+        // keeps exp(-0.1 / 0.8) = 0.88 of the step at 16 mm (tau 0.8 s), exp(-1) = 0.37 at 2 mm
+        let held = |depth: f32| {
+            let (_, hs, cs) = run_state(&p, &[vec![0.0; 1], vec![depth; 101]].concat());
+            f64::from(hs[1]) + f64::from(cs[4])
+        };
+        let (fe16, fe2) = (
+            2.0 * (1.6f64).tanh() + 3.0 * 0.8f64.powf(1.5),
+            2.0 * (0.2f64).tanh() + 3.0 * 0.1f64.powf(1.5),
+        );
+        let (deep, shallow) = (held(0.016) / fe16, held(0.002) / fe2);
+        assert!((deep - (-0.125f64).exp()).abs() < 1e-3, "{deep}");
+        assert!((shallow - (-1.0f64).exp()).abs() < 1e-3, "{shallow}");
+        // a model without the elements is the model before them
+        let plain = StructuredParams::from_attrs(&simple()).unwrap();
+        assert!(plain.powers.is_empty() && plain.depth_branches.is_empty());
     }
 
     #[test]

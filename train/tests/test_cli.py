@@ -331,4 +331,4 @@ def test_lawfree_readout_is_chosen_on_validation(tmp_path):
     assert only_span == ("readout", [(sl, {"taus_s": st}) for sl, st in spans])
     all_set = {"lawfree": {"memory_at_surface": True, "ridge": 1e-3, "taus_s": [0.1, 1.0]}}
     assert _candidates("lawfree", all_set, None, ds) is None
-    assert _candidates("structured", None, None, ds) is None
+    assert _candidates("prony", None, None, ds) is None  # structured: test_structured.py

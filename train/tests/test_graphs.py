@@ -57,10 +57,14 @@ def train_x() -> np.ndarray:
     return presses([0.01, 0.02, 0.015, 0.025], 2.0)
 
 
-@pytest.mark.parametrize("set_max_m,every_column", [(0.0, False), (0.0025, False), (0.0025, True)])
-def test_structured_graph_matches_predict(train_x, set_max_m, every_column, fused_ops):
+@pytest.mark.parametrize("set_max_m,every_column,indentation", [
+    (0.0, False, False), (0.0025, False, False), (0.0025, True, False), (0.0025, True, True)])
+def test_structured_graph_matches_predict(train_x, set_max_m, every_column, indentation,
+                                          fused_ops):  # fmt: skip
     """The fused node (the default export) and the multi-node graph each match `predict`
-    within 1e-4 N, and each other, stepped through ONNX Runtime."""
+    within 1e-4 N, and each other, stepped through ONNX Runtime; with the indentation
+    elements too (powers of the depth, branches whose time follows it, emptied out of
+    contact: the presses below leave the object between each)."""
     small = {"yield_frac": [0.1, 0.2], "densification_frac": [1.1, 1.6],
              "densification_exponents": [1.0, 2.0, 3.0], "taus_s": [0.1, 1.0],
              "hysteresis_frac": [0.04, 0.16], "friction_lengths_m": [2e-5],
@@ -68,15 +72,20 @@ def test_structured_graph_matches_predict(train_x, set_max_m, every_column, fuse
              # not 0.5: the second press peaks at exactly half the first's depth, a tie that
              # float32 and float64 break apart (a step of set growth more or less)
              "set_loaded_fraction": [0.6]}  # fmt: skip
+    if indentation:
+        small |= {"power_exponents": [1.0, 1.5, 2.0], "depth_taus_s": [0.03, 1.0]}
     m = make_model("structured", hyper=small)
     m.fit([train_x], [foam(train_x)], info=[info(len(train_x))])
     m.set_max_m_ = set_max_m  # the set law's path, whatever the fit chose
-    if every_column:  # every plateau and pole weighted: each exponent's path, the linear part
+    if every_column:  # every plateau, pole and power weighted: each exponent's path
         m.a_ = m.a_ + 1e-3
+    if indentation:  # every branch weighted, the depth-scaled ones (the last two) the most
+        m.g_ = m.g_ + np.array([1e-3, 1e-3, 0.2, 0.3])
+        assert len(m.a_) == 2 + 6 + 3 and m.state_size == 4 + 2 + 3
     prov = provenance(m, CFG, None, None)
     fused, graph = to_contract_onnx(m, prov), to_contract_onnx(m, prov, fused=False)
     assert [(n.domain, n.op_type) for n in fused.graph.node] == [("ai.haptics", "StructuredStep")]
-    check_graph(graph, 60)
+    check_graph(graph, 70 if indentation else 60)  # the indentation elements: 9 nodes more
     X = presses([0.02, 0.01, 0.03, 0.005], 2.0)
     ref = served(m, X)
     assert ref.max() > 1.0  # in contact, deep enough for the densification

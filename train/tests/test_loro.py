@@ -90,8 +90,10 @@ def test_report_computes_class_notes_and_goals() -> None:
     assert "2.50x (meets the 2x goal)" in q
     for law in LAWS:
         notes = class_notes(["sd_poly2", "structured", "lawfree"], law)
-        assert notes["no_class_shared"] == (law in ("bouc-wen", "gel", "hunt-crossley"))
+        assert notes["no_class_shared"] == (law in ("bouc-wen", "hunt-crossley"))
     assert class_notes(["structured"], "foam")["shares"] == ["structured"]
+    # with the indentation elements `structured` contains the poroelastic gel
+    assert class_notes(["structured"], "gel")["shares"] == ["structured"]
     reports = {}
     for law, rec in (("qlv", 0.5), ("bouc-wen", 0.25)):
         out = _fake_run(law, rec, 0.6)

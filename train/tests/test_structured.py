@@ -202,3 +202,58 @@ def test_releases_near_the_surface_are_fitted(fitted):
     band = (x > 0) & (v < 0) & (obj < FRICTION_N + 0.05)
     assert band.sum() > 50
     assert np.sqrt(np.mean((served - obj)[band] ** 2)) < 0.02
+
+
+def test_the_indentation_elements_fit_a_contact_whose_relaxation_follows_its_size():
+    """A poroelastic-like object (a sphere's Hertz force, relaxing with a time that grows with
+    the depth, as a gel's a^2 / D: structured.py, "Two indentation elements"): with the
+    indentation elements the model renders a press it was not fitted on at least 5x closer
+    than with the foam's basis alone, and weights the depth-scaled branches."""
+    depth = 0.025
+
+    def gel(x: np.ndarray) -> np.ndarray:
+        e = np.maximum(x, 0.0)
+        feq = 12.0 * (e / depth) ** 1.5
+        df = np.diff(feq, prepend=0.0)
+        q, out = 0.0, np.zeros_like(x)
+        for n in range(len(x)):
+            if e[n] <= 0.0:
+                q = 0.0  # re-swollen out of contact
+                continue
+            q = np.exp(-1 / RATE / (1.5 * max(e[n] / depth, 1e-3))) * q + 0.4 * df[n]
+            out[n] = max(feq[n] + q, 0.0)
+        return out
+
+    x, v = presses([0.008, 0.025, 0.015, 0.02], 2.0)
+    y = gel(x) + FRICTION_N * np.tanh(v / 1e-4)
+    X = [np.column_stack([x, v])]
+    foam_only = make_model("structured", hyper=SMALL)
+    foam_only.fit(X, [y], info=[info(len(x))])
+    from haptics_train.models.structured import INDENTATION
+
+    shaped = make_model("structured", hyper={**SMALL, **INDENTATION})
+    shaped.fit(X, [y], info=[info(len(x))])
+    nk = len(SMALL["taus_s"])
+    assert shaped.g_[nk:].sum() > 0.1, shaped.g_  # the depth-scaled branches carry the relaxation
+    x2, v2 = presses([0.012, 0.022], 1.5)  # depths and a rate it was not fitted on
+    obj = gel(x2)
+    X2 = np.column_stack([x2, v2])
+    err = {k: float(np.sqrt(np.mean((m.predict_served(X2) - obj) ** 2)))
+           for k, m in (("foam", foam_only), ("indentation", shaped))}  # fmt: skip
+    assert err["indentation"] < 0.2 * err["foam"], err  # 0.034 against 0.816 N when written
+
+
+def test_train_chooses_structureds_basis_on_validation_unless_told():
+    """`haptics-train train` tries the foam's basis and the indentation elements and keeps
+    the closer on validation; with no validation recording, or when the user sets either
+    element, it fits what it is given."""
+    from haptics_train.data import Dataset
+    from haptics_train.models.structured import INDENTATION
+    from haptics_train.pipeline import _candidates
+
+    with_val = Dataset(train=[], test=[], validation=[object()])  # type: ignore[list-item]
+    assert _candidates("structured", None, None, with_val) == (
+        "basis", [("foam", {}), ("indentation", INDENTATION)])
+    assert _candidates("structured", None, None, Dataset(train=[], test=[])) is None
+    told = {"structured": {"depth_taus_s": [1.0]}}
+    assert _candidates("structured", told, None, with_val) is None

@@ -62,8 +62,12 @@ MODEL_CLASSES: dict[str, ModelClass] = {
         near=(("qlv", "same cubic spring and Prony kernel; its branches are driven by v, the "
                       "law's by dF_e(x)/dt"),)),
     "structured": ModelClass(
-        "foam-shaped: tanh/pole equilibrium, Maxwell branches on dF_eq, Dahl, compression set",
-        shares=frozenset({"foam"}),
+        "foam-shaped: tanh/pole equilibrium, Maxwell branches on dF_eq, Dahl, compression set; "
+        "where validation chooses them, indentation powers (e/D)^p and branches whose time "
+        "grows with the depth (structured.py, INDENTATION)",
+        # the gel: its Hertz force is a power 1.5, its relaxation time a^2 / D grows with the
+        # depth, its relaxation function a sum of exponentials in the grid's span
+        shares=frozenset({"foam", "gel"}),
         near=(("qlv", "same branches on dF_eq/dt; the cubic spring only approximated by the "
                       "tanh/pole basis"),)),
     "lawfree": ModelClass("assumes no law: fading-memory filters + play operators, a readout "

@@ -8,9 +8,14 @@ object has. This model has each element of a viscoelastic foam:
 
     e(t)   = x(t) - set(t)                              compression past the permanent set
     F_eq   = sum_j a_j phi_j(e)                         equilibrium: tanh plateaus + poles
+                                                        (+ indentation powers (e/D)^p)
     q_i(t) = d_i q_i(t - dt) + dF_eq(t)                 Maxwell branch i, d_i = exp(-dt / tau_i)
+    r_k(t) = d_k(e) r_k(t - dt) + dF_eq(t)              depth-scaled branch k (when chosen),
+                                                        d_k(e) = exp(-dt / (tau_k e / D)),
+                                                        emptied out of contact
     u_m(t) = Dahl state of the compression path (length L_m, in [-1, 1], 0 out of contact)
-    object = max(0, F_eq + sum_i g_i q_i + sum_m h_m F_eq u_m)   (0 out of contact)
+    object = max(0, F_eq + sum_i g_i q_i + sum_k g_k r_k + sum_m h_m F_eq u_m)
+                                                        (0 out of contact)
     bench  = sum_l c_l z_l + b v                        Dahl friction on x (length L_l), viscous
 
 What is fitted and what is a grid (issue 23: no number is read off a material file):
@@ -37,6 +42,21 @@ What is fitted and what is a grid (issue 23: no number is read off a material fi
   - hysteresis Dahl lengths `hysteresis_frac` (0.01..0.3 D), the bench's friction lengths
     `friction_lengths_m` (20-500 um: a few encoder counts to a fraction of a mm; the bench's,
     not the object's).
+- Two indentation elements, empty in the defaults and tried as one candidate basis,
+  `INDENTATION`, which `haptics-train train` keeps where the validation recording's free run
+  is closer with it (pipeline.py, `_candidates`; docs/laws.md, "Indentation shapes"):
+  - powers (e/D)^p, p in `power_exponents` 1, 1.5, 2: the force of an indenter on an elastic
+    half-space grows as the depth to the power 1 (flat punch), 1.5 (sphere, Hertz) or 2
+    (cone) (Sneddon 1965, Int. J. Eng. Sci. 3:47). Every plateau and pole above starts
+    linearly, so none has the sphere's zero slope at first contact;
+  - branches whose relaxation time grows with the compression, tau_k e / D, tau_k in
+    `depth_taus_s` 0.03..30 s (at the depth scale D) half a decade apart, emptied out of
+    contact: in a poroelastic material (gels, soft tissue, open-cell sponges full of fluid)
+    the solvent flows over the contact's size, so the relaxation time is a^2 / D_p, and under
+    a sphere a^2 = R e (Hu, Zhao, Vlassak & Suo 2010, Appl. Phys. Lett. 96:121904); a
+    viscoelastic material's does not depend on the depth (the branches above).
+  With them `structured` shares its class with the bench's `poroelastic` law (docs/laws.md's
+  class notes); the grids are the literature's shapes, none of the gel's constants.
 - Fitted on the training rows, one coordinate at a time, bracketed by generic grids:
   the compression-set law, target = s_max (largest depth / D)^k (s_max = `set_frac` x D,
   0..0.3 D; k in 1..3), grown with time constant `set_tau_grow_s` (0.3..30 s) while loaded
@@ -72,15 +92,15 @@ rendering it as well would count it twice (issue 11).
 
 The state steps once per row at the training period `dt` when fitted, and at the loop's period
 `serve_dt_` when exported (`haptics.step_s`), like `prony`. Exported as a stateful
-model: `h_in`/`h_out` carry [q_1..q_K, u_1..u_M, set, largest depth, previous e]; `c_in`/`c_out`
-carry the equilibrium force at the previous e in their first element (the graph is built by
-hand: structured_graph.py).
+model: `h_in`/`h_out` carry [q_1..q_K (fixed times, then depth-scaled), u_1..u_M, set, largest
+depth, previous e]; `c_in`/`c_out` carry the equilibrium force at the previous e in their
+first element (the graph is built by hand: structured_graph.py).
 
 Sequences layout (`models.base`): `fit(X, y, info)`, X one [n_i, 2] array (x, v) per recording,
 rows in time order. Fitted attributes: `dt_`, `depth_scale_m_`, `basis_` (the resolved basis in
 metres and seconds: what the graph and `predict` step), `set_law_`, `set_max_m_`, `a_`
-(equilibrium), `g_` (branches), `h_` (hysteresis), `c_` (friction), `b_` (viscous),
-`train_info_`.
+(equilibrium: plateaus, poles, powers), `g_` (branches: fixed times, then depth-scaled), `h_`
+(hysteresis), `c_` (friction), `b_` (viscous), `train_info_`.
 """
 
 from __future__ import annotations
@@ -89,6 +109,7 @@ import math
 
 import numpy as np
 import onnx
+from scipy.linalg import solve_banded
 from scipy.optimize import nnls
 from scipy.signal import lfilter
 from threadpoolctl import threadpool_limits
@@ -97,7 +118,7 @@ from ..data import SequenceInfo
 from ..features import KINEMATICS
 from .base import ForceModel, check_sequences, serve_dt, step_dt
 from .contact_rows import sliding_rows
-from .structured_graph import structured_fused, structured_graph
+from .structured_graph import DEPTH_FLOOR, structured_fused, structured_graph
 
 #: The grids (see the module docstring for each range and why). Lengths are fractions of the
 #: training data's depth scale D; times in seconds.
@@ -108,6 +129,9 @@ STRUCTURED_DEFAULT: dict = {
     "taus_s": [0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0],
     "hysteresis_frac": [0.01, 0.05, 0.3],
     "friction_lengths_m": [2e-5, 1e-4, 5e-4],
+    # the indentation elements: none by default; `INDENTATION` is the candidate that has them
+    "power_exponents": [],
+    "depth_taus_s": [],
     # the compression-set law: each a grid, chosen by the training fit
     "set_frac": [0.0, 0.02, 0.05, 0.1, 0.2, 0.3],
     "set_exponent": [1.0, 2.0, 3.0],
@@ -121,6 +145,13 @@ STRUCTURED_DEFAULT: dict = {
     "set_refine": 2,
     "fit_min_speed_mps": 1e-4,
     "iterations": 2,
+}
+
+#: The indentation elements (module docstring): the candidate basis `haptics-train train`
+#: tries beside the default one and keeps where the validation recording is closer with it.
+INDENTATION: dict = {
+    "power_exponents": [1.0, 1.5, 2.0],
+    "depth_taus_s": [0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0],
 }
 
 #: The set law's grids, in the order the coordinate search visits them.
@@ -185,14 +216,47 @@ def permanent_set(x: np.ndarray, dt: float, max_m: float, h: dict) -> np.ndarray
 def equilibrium_basis(e: np.ndarray, h: dict) -> np.ndarray:
     """[n, J] the equilibrium's basis at compression e (0 at e <= 0, each rising with e):
     tanh(e / y) plateaus and (1 - e/d)^-n - 1 poles, continued linearly past 0.95 d. `h` is the
-    resolved basis (`basis_`: lengths in m, one exponent per pole)."""
+    resolved basis (`basis_`: lengths in m, one exponent per pole), then the indentation
+    powers (e / D)^p where it has them."""
     e = np.maximum(e, 0.0)
     cols = [np.tanh(e / y) for y in h["yield_m"]]
     for d, n in zip(h["densification_m"], h["densification_exponent"], strict=True):
         cap = 0.95 * d
         u = 1.0 - np.minimum(e, cap) / d
         cols.append(u**-n - 1.0 + n / d * u ** (-n - 1) * np.maximum(e - cap, 0.0))
+    cols += [(e / h["depth_scale_m"]) ** p for p in h.get("power_exponents", [])]
     return np.column_stack(cols)
+
+
+def equilibrium_size(h: dict) -> int:
+    """The number of equilibrium columns (plateaus, poles, powers) of the resolved basis `h`."""
+    return len(h["yield_m"]) + len(h["densification_m"]) + len(h.get("power_exponents", []))
+
+
+def branch_count(h: dict) -> int:
+    """The number of relaxation branches (fixed times, then depth-scaled) of the basis `h`."""
+    return len(h["taus_s"]) + len(h.get("depth_taus_s", []))
+
+
+def depth_decays(e: np.ndarray, dt: float, h: dict) -> np.ndarray:
+    """[n, K'] the per-row decays of the depth-scaled branches, exp(-dt / (tau_k max(e/D,
+    `DEPTH_FLOOR`))), 0 out of contact (e <= 0: emptied)."""
+    taus = np.asarray(h.get("depth_taus_s", []), dtype=float)
+    scale = np.maximum(e / h["depth_scale_m"], DEPTH_FLOOR)
+    d = np.exp(-dt / (taus[None, :] * scale[:, None]))
+    return np.where((e > 0.0)[:, None], d, 0.0)
+
+
+def varying_filter(u: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """q_n = d_n q_(n-1) + u_n from q = 0, for per-row decays d in [0, 1): the lower
+    bidiagonal system (I - diag(d_1.., -1)) q = u, solved by LAPACK's banded solver in one
+    pass (a Python loop over the rows took 4 s a fit; no pivoting happens, |d| < 1)."""
+    if len(u) == 0:
+        return u.copy()
+    ab = np.ones((2, len(u)))
+    ab[1, :-1] = -d[1:]
+    ab[1, -1] = 0.0
+    return solve_banded((1, 0), ab, u, check_finite=False)
 
 
 def _object_columns(
@@ -205,6 +269,7 @@ def _object_columns(
     basis = equilibrium_basis(e, h)
     taus = np.asarray(h["taus_s"], dtype=float)
     decay = np.exp(-dt / taus)
+    dd = depth_decays(e, dt, h)
     # Every column is 0 where the probe is out of the object (e <= 0), as the served force
     # is: a branch's state still decays there after a release, and the fit, which counts the
     # rows out of contact (the bench's friction alone), must not credit it with a force the
@@ -212,10 +277,17 @@ def _object_columns(
     inside = (e > 0.0)[:, None]
     if a is None:
         br = [lfilter([t * (1 - d)], [1.0, -d], v) for t, d in zip(taus, decay, strict=True)]
+        # a depth-scaled branch driven by v likewise, at its time of the row
+        tk = np.asarray(h.get("depth_taus_s", []), dtype=float)[None, :] * np.maximum(
+            e / h.get("depth_scale_m", 1.0), DEPTH_FLOOR)[:, None]
+        drive = tk * (1.0 - dd) * (v * inside[:, 0])[:, None]
+        br += [varying_filter(drive[:, k], dd[:, k]) for k in range(dd.shape[1])]
         return np.column_stack([basis, *br]) * inside, e
     feq = basis @ a
     dfeq = np.diff(feq, prepend=0.0)
     br = [lfilter([1.0], [1.0, -d], dfeq) for d in decay]
+    # emptied out of contact: driven only inside, and its decay 0 there
+    br += [varying_filter(dfeq * inside[:, 0], dd[:, k]) for k in range(dd.shape[1])]
     out = ~inside[:, 0]
     ep = np.maximum(e, 0.0)
     hy = [feq * dahl(ep, L, out) for L in h["hysteresis_lengths_m"]]
@@ -244,6 +316,9 @@ def resolve_basis(h: dict, depth: float) -> dict:
         "taus_s": [float(t) for t in h["taus_s"]],
         "hysteresis_lengths_m": [float(f) * depth for f in h["hysteresis_frac"]],
         "friction_lengths_m": [float(f) for f in h["friction_lengths_m"]],
+        "depth_scale_m": float(depth),
+        "power_exponents": [float(p) for p in h.get("power_exponents", [])],
+        "depth_taus_s": [float(t) for t in h.get("depth_taus_s", [])],
     }
 
 
@@ -316,7 +391,9 @@ class StructuredModel(ForceModel):
 
     @property
     def state_size(self) -> int:
-        return len(self.hyper["taus_s"]) + len(self.hyper["hysteresis_frac"]) + 3
+        h = self.hyper
+        return (len(h["taus_s"]) + len(h.get("depth_taus_s", [])) + len(h["hysteresis_frac"])
+                + 3)  # fmt: skip
 
     def fit(
         self, X: list[np.ndarray], y: list[np.ndarray], info: list[SequenceInfo]
@@ -394,7 +471,7 @@ class StructuredModel(ForceModel):
         self.set_law_ = dict(law)
         self.set_max_m_ = float(law["set_frac"]) * depth
         fit = self._fit(rows, self.set_max_m_, self.basis_, int(h["iterations"]))
-        coef, nb, nk = fit["coef"], fit["nb"], len(self.basis_["taus_s"])
+        coef, nb, nk = fit["coef"], fit["nb"], branch_count(self.basis_)
         nm = len(self.basis_["hysteresis_lengths_m"])
         self.a_ = coef[:nb]
         self.g_ = coef[nb : nb + nk]
@@ -434,7 +511,7 @@ class StructuredModel(ForceModel):
 
     def _fit_pass(self, rows: list, set_m: float, a: np.ndarray | None, b: dict) -> dict:
         mats, ys = [], []
-        nb = len(b["yield_m"]) + len(b["densification_m"])
+        nb = equilibrium_size(b)
         for x, v, t, keep, dt, bench in rows:
             obj, _ = _object_columns(x, dt, set_m, a, v, b)
             mats.append(np.column_stack([obj, bench])[keep])

@@ -51,19 +51,31 @@ from .onnx_graph import Graph, floats_attr, fused_stateful_model, row, stateful_
 if TYPE_CHECKING:
     from .structured import StructuredModel
 
+#: The compression (a fraction of the depth scale D) under which a depth-scaled branch's time
+#: stops shrinking: at first contact e / D is 0, and a time of 0 would empty the branch every
+#: step (structured.py `depth_decays`, the kernel's `depth_floor_m`).
+DEPTH_FLOOR = 1e-3
+
+
+def _weights(m: StructuredModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fitted equilibrium weights `a_` split: (plateaus, poles, indentation powers)."""
+    b = m.basis_
+    a = np.asarray(m.a_, dtype=np.float64)
+    j1, j2 = len(b["yield_m"]), len(b["yield_m"]) + len(b["densification_m"])
+    return a[:j1], a[j1:j2], a[j2:]
+
 
 def _equilibrium(g: Graph, ec: str, m: StructuredModel) -> str:
     """F_eq at the clamped compression `ec` [1, 1, 1] (the basis of `equilibrium_basis` times
     the fitted `a_`), zero-weight columns left out."""
     b = m.basis_
-    a = np.asarray(m.a_, dtype=np.float64)
-    j1 = len(b["yield_m"])
-    a_t, a_d = a[:j1], a[j1:]
+    a_t, a_d, a_p = _weights(m)
     yld = np.asarray(b["yield_m"], dtype=np.float64)
     dens = np.asarray(b["densification_m"], dtype=np.float64)
     dexp = np.asarray(b["densification_exponent"], dtype=np.float64)
-    kt, kd = a_t != 0.0, a_d != 0.0
-    if not (kt.any() or kd.any()):
+    pw = np.asarray(b.get("power_exponents", []), dtype=np.float64)
+    kt, kd, kp = a_t != 0.0, a_d != 0.0, a_p != 0.0
+    if not (kt.any() or kd.any() or kp.any()):
         kt[0] = True  # an all-zero equilibrium: one column of weight 0 keeps the graph whole
     cols, w = [], []
     if kt.any():
@@ -76,6 +88,10 @@ def _equilibrium(g: Graph, ec: str, m: StructuredModel) -> str:
         cols.append(g.op("Pow", u, g.const(row(-n))))
         cols.append(g.op("Relu", g.op("Sub", ec, g.const(row(0.95 * d)))))
         w += [ad, ad * n / d * 20.0 ** (n + 1.0)]
+    if kp.any():  # the indentation powers (e / D)^p
+        en = g.op("Mul", ec, g.const(1.0 / float(b["depth_scale_m"])))
+        cols.append(g.op("Pow", en, g.const(row(pw[kp]))))
+        w.append(a_p[kp])
     basis = cols[0] if len(cols) == 1 else g.op("Concat", *cols, axis=2)
     fe = g.op("MatMul", basis, g.const(np.concatenate(w).reshape(-1, 1)))
     if kd.any():
@@ -85,19 +101,24 @@ def _equilibrium(g: Graph, ec: str, m: StructuredModel) -> str:
 
 def structured_graph(m: StructuredModel) -> onnx.ModelProto:
     b = m.basis_
-    gk = np.asarray(m.g_, dtype=np.float64)
-    hw = np.asarray(m.h_, dtype=np.float64)
     taus = np.asarray(b["taus_s"], dtype=np.float64)
+    dtaus = np.asarray(b.get("depth_taus_s", []), dtype=np.float64)
+    nk, nd = len(taus), len(dtaus)
+    gk = np.asarray(m.g_, dtype=np.float64)  # [fixed times, depth-scaled]
+    hw = np.asarray(m.h_, dtype=np.float64)
     hl = np.asarray(b["hysteresis_lengths_m"], dtype=np.float64)
-    nk, nm = len(gk), len(hw)
+    nm = len(hw)
     dt = served_dt(m)
-    state = nk + nm + 3
+    state = nk + nd + nm + 3
     first = row(np.eye(1, state))  # [1, 0, ..., 0]
 
     g = Graph("structured")
     # x by a MatMul: cheaper in ONNX Runtime than a Slice, Gather or Split (measured)
     x = g.op("MatMul", "features", g.const(np.eye(len(m.features), 1)), hint="x")  # [1, 1]
-    q, u, s, md, e_prev = g.split("h_in", [nk, nm, 1, 1, 1], axis=2, hint="st")
+    if nd:
+        q, qd, u, s, md, e_prev = g.split("h_in", [nk, nd, nm, 1, 1, 1], axis=2, hint="st")
+    else:
+        q, u, s, md, e_prev = g.split("h_in", [nk, nm, 1, 1, 1], axis=2, hint="st")
     md2 = g.op("Max", md, x, hint="md")  # [1, 1, 1]
 
     set_m = float(m.set_max_m_)
@@ -129,6 +150,14 @@ def structured_graph(m: StructuredModel) -> onnx.ModelProto:
     c_out = g.op("Mul", fe, g.const(first))
     decay = np.exp(-dt / taus)
     q2 = g.op("Add", g.op("Mul", q, g.const(row(decay))), dfeq, hint="q")
+    if nd:
+        # depth-scaled: qd' = (exp(-(dt D / tau_k) / max(e, floor D)) qd + dF_eq) in contact,
+        # else 0 (emptied; structured.py `depth_decays`)
+        depth = float(b["depth_scale_m"])
+        inv = g.op("Reciprocal", g.op("Max", ec, g.const(DEPTH_FLOOR * depth)))
+        dd = g.op("Exp", g.op("Mul", inv, g.const(row(-dt * depth / dtaus))))
+        qd2 = g.op("Mul", g.op("Add", g.op("Mul", dd, qd), dfeq), contact, hint="qd")
+        q2 = g.op("Concat", q2, qd2, axis=2)
 
     de = g.op("Sub", ec, g.op("Relu", e_prev))
     att = g.op("Exp", g.op("Mul", g.op("Abs", de), g.const(row(-1.0 / hl))))
@@ -148,12 +177,11 @@ def structured_fused(m: StructuredModel) -> onnx.ModelProto:
     fused-ops/src/structured.rs `from_attrs`). Columns whose fitted weight is exactly 0 are
     left out (they add exactly 0), as in the multi-node graph."""
     b = m.basis_
-    a = np.asarray(m.a_, dtype=np.float64)
-    j1 = len(b["yield_m"])
-    a_t, a_d = a[:j1], a[j1:]
-    kt, kd = a_t != 0.0, a_d != 0.0
-    nk, nm = len(m.g_), len(m.h_)
-    state = nk + nm + 3
+    a_t, a_d, a_p = _weights(m)
+    kt, kd, kp = a_t != 0.0, a_d != 0.0, a_p != 0.0
+    nk, nm = len(b["taus_s"]), len(m.h_)
+    dtaus = list(b.get("depth_taus_s", []))
+    state = len(m.g_) + nm + 3
     attrs = [
         helper.make_attribute("dt_s", served_dt(m)),
         floats_attr("yield_m", np.asarray(b["yield_m"])[kt]),
@@ -162,11 +190,20 @@ def structured_fused(m: StructuredModel) -> onnx.ModelProto:
         floats_attr("densification_exponent", np.asarray(b["densification_exponent"])[kd]),
         floats_attr("a_densification", a_d[kd]),
         floats_attr("taus_s", b["taus_s"]),
-        floats_attr("branch_gains", m.g_),
+        floats_attr("branch_gains", m.g_[:nk]),
         floats_attr("hysteresis_m", b["hysteresis_lengths_m"]),
         floats_attr("hysteresis_gains", m.h_),
         helper.make_attribute("set_max_m", float(m.set_max_m_)),
     ]
+    if kp.any() or dtaus:  # the indentation elements (absent: none, as before them)
+        attrs += [
+            helper.make_attribute("depth_scale_m", float(b["depth_scale_m"])),
+            helper.make_attribute("depth_floor", DEPTH_FLOOR),
+            floats_attr("power_exponents", np.asarray(b["power_exponents"])[kp]),
+            floats_attr("a_power", a_p[kp]),
+            floats_attr("depth_taus_s", dtaus),
+            floats_attr("depth_gains", m.g_[nk:]),
+        ]
     if float(m.set_max_m_) > 0.0:
         attrs += [helper.make_attribute(k, float(b[k])) for k in (
             "set_reference_m", "set_exponent", "set_tau_grow_s", "set_tau_recover_s",
