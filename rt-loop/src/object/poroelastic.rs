@@ -1,7 +1,8 @@
 //! A poroelastic gel under a spherical indenter (`law = "poroelastic"`): the force relaxes as
 //! the solvent flows out of the contact zone, and the relaxation time grows with the square of
 //! the contact radius, so a deep press relaxes slower than a shallow one. No foam element has
-//! a time constant that depends on the depth.
+//! a time constant that depends on the depth; train's `structured` has such branches among its
+//! indentation elements, where validation chooses them (docs/laws.md, "Indentation shapes").
 //!
 //! Source: Y. Hu, X. Zhao, J. J. Vlassak, Z. Suo, "Using indentation to characterize the
 //! poroelasticity of gels", Appl. Phys. Lett. 96:121904, 2010. For a spherical indenter of
