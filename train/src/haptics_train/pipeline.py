@@ -162,7 +162,7 @@ def _candidates(
         return ("readout", options) if options else None
     if algo == "structured" and not set(INDENTATION) & set((hyper or {}).get(algo, {})):
         # the foam's basis, or with the indentation elements (structured.py): on the bench's
-        # foams they fitted no closer on validation, on the gel and Bouc-Wen 10-55 % closer
+        # foams they fitted no closer on validation, on Bouc-Wen 8 % and the gel 54 % closer
         # (docs/laws.md, "Indentation shapes")
         return "basis", [("foam", {}), ("indentation", dict(INDENTATION))]
     return None

@@ -238,13 +238,19 @@ def branch_count(h: dict) -> int:
     return len(h["taus_s"]) + len(h.get("depth_taus_s", []))
 
 
-def depth_decays(e: np.ndarray, dt: float, h: dict) -> np.ndarray:
-    """[n, K'] the per-row decays of the depth-scaled branches, exp(-dt / (tau_k max(e/D,
-    `DEPTH_FLOOR`))), 0 out of contact (e <= 0: emptied)."""
+def depth_times(e: np.ndarray, h: dict) -> np.ndarray:
+    """[n, K'] the depth-scaled branches' time at each row, tau_k max(e/D, `DEPTH_FLOOR`); [n, 0]
+    for a basis without them (one resolved before them has no `depth_scale_m` either)."""
     taus = np.asarray(h.get("depth_taus_s", []), dtype=float)
-    scale = np.maximum(e / h["depth_scale_m"], DEPTH_FLOOR)
-    d = np.exp(-dt / (taus[None, :] * scale[:, None]))
-    return np.where((e > 0.0)[:, None], d, 0.0)
+    if len(taus) == 0:
+        return np.empty((len(e), 0))
+    return taus[None, :] * np.maximum(e / h["depth_scale_m"], DEPTH_FLOOR)[:, None]
+
+
+def depth_decays(times: np.ndarray, e: np.ndarray, dt: float) -> np.ndarray:
+    """[n, K'] the per-row decays exp(-dt / time) of the depth-scaled branches at their
+    `depth_times`, 0 out of contact (e <= 0: emptied)."""
+    return np.where((e > 0.0)[:, None], np.exp(-dt / times), 0.0)
 
 
 def varying_filter(u: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -269,7 +275,8 @@ def _object_columns(
     basis = equilibrium_basis(e, h)
     taus = np.asarray(h["taus_s"], dtype=float)
     decay = np.exp(-dt / taus)
-    dd = depth_decays(e, dt, h)
+    tk = depth_times(e, h)
+    dd = depth_decays(tk, e, dt)
     # Every column is 0 where the probe is out of the object (e <= 0), as the served force
     # is: a branch's state still decays there after a release, and the fit, which counts the
     # rows out of contact (the bench's friction alone), must not credit it with a force the
@@ -278,8 +285,6 @@ def _object_columns(
     if a is None:
         br = [lfilter([t * (1 - d)], [1.0, -d], v) for t, d in zip(taus, decay, strict=True)]
         # a depth-scaled branch driven by v likewise, at its time of the row
-        tk = np.asarray(h.get("depth_taus_s", []), dtype=float)[None, :] * np.maximum(
-            e / h.get("depth_scale_m", 1.0), DEPTH_FLOOR)[:, None]
         drive = tk * (1.0 - dd) * (v * inside[:, 0])[:, None]
         br += [varying_filter(drive[:, k], dd[:, k]) for k in range(dd.shape[1])]
         return np.column_stack([basis, *br]) * inside, e

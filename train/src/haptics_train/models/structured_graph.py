@@ -53,7 +53,7 @@ if TYPE_CHECKING:
 
 #: The compression (a fraction of the depth scale D) under which a depth-scaled branch's time
 #: stops shrinking: at first contact e / D is 0, and a time of 0 would empty the branch every
-#: step (structured.py `depth_decays`, the kernel's `depth_floor_m`).
+#: step (structured.py `depth_times`, the kernel's `depth_floor_m`).
 DEPTH_FLOOR = 1e-3
 
 
@@ -152,7 +152,7 @@ def structured_graph(m: StructuredModel) -> onnx.ModelProto:
     q2 = g.op("Add", g.op("Mul", q, g.const(row(decay))), dfeq, hint="q")
     if nd:
         # depth-scaled: qd' = (exp(-(dt D / tau_k) / max(e, floor D)) qd + dF_eq) in contact,
-        # else 0 (emptied; structured.py `depth_decays`)
+        # else 0 (emptied; structured.py `depth_times`, `depth_decays`)
         depth = float(b["depth_scale_m"])
         inv = g.op("Reciprocal", g.op("Max", ec, g.const(DEPTH_FLOOR * depth)))
         dd = g.op("Exp", g.op("Mul", inv, g.const(row(-dt * depth / dtaus))))
