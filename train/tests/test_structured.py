@@ -257,3 +257,18 @@ def test_train_chooses_structureds_basis_on_validation_unless_told():
     assert _candidates("structured", None, None, Dataset(train=[], test=[])) is None
     told = {"structured": {"depth_taus_s": [1.0]}}
     assert _candidates("structured", told, None, with_val) is None
+
+
+def test_a_model_fitted_before_the_indentation_elements_still_predicts(fitted):
+    """A `structured` saved before the indentation elements has none of their keys in its
+    basis (`depth_scale_m`, `power_exponents`, `depth_taus_s`): `scripts/up.sh` serves and the
+    study scores a `models/` folder trained earlier, so such a model must predict as it did
+    (until the review mend of 2026-11-30 it raised KeyError)."""
+    import copy
+
+    old = copy.deepcopy(fitted)
+    for key in ("depth_scale_m", "power_exponents", "depth_taus_s"):
+        old.basis_.pop(key)
+    x, v = presses([0.018], 2.5)
+    X = np.column_stack([x, v])
+    np.testing.assert_array_equal(old.predict(X), fitted.predict(X))
