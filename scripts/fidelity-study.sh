@@ -12,11 +12,13 @@
 #   --material  default materials/sponge.toml: its report goes to docs/study and its figures
 #               into docs/fidelity.json; another material's report goes to docs/study/<name>
 #               (unless --out says otherwise) and its figures into <out>/fidelity.json.
-# Env:  MODELS  haptics-train specs to train (default "sd_poly2,rf:memory,structured,lawfree,
-#               lstm_slow": the spring-damper baseline, the learned model the earlier study
-#               found best to feel, the structured model, the law-free model, the LSTM stepped
-#               at 100 Hz over seconds; the full comparison takes about half an hour per
-#               setting on the shared 2-core machine).
+# Env:  MODELS  haptics-train specs to train (default "sd_poly2,rf:memory,structured,
+#               structured_path,lawfree,lstm_slow": the spring-damper baseline, the learned
+#               model the earlier study found best to feel, the structured model with the
+#               bench's friction on the recorded and on the path's velocity (the felt force
+#               chooses: validation cannot), the law-free model, the LSTM stepped at 100 Hz
+#               over seconds; the full comparison takes about half an hour per setting on
+#               the shared 2-core machine).
 #       DECIMATE  for the recordings (default 1).
 #       HAPTICS_RT_LOOP, HAPTICS_INFER_SERVER  binaries to use instead of building them (frozen
 #               copies while others rebuild the tree).
@@ -35,7 +37,7 @@ while [ $# -gt 0 ]; do
 done
 [ -f "$material" ] || { echo "fidelity-study: no material file $material" >&2; exit 2; }
 name=$(basename "$material" .toml)
-models=${MODELS:-sd_poly2,rf:memory,structured,lawfree,lstm_slow}
+models=${MODELS:-sd_poly2,rf:memory,structured,structured_path,lawfree,lstm_slow}
 names=${models//:/_} # rf:memory -> rf_memory: the trained models' names
 if [ -z "$out" ]; then
   if [ "$name" = sponge ]; then out=docs/study; else out=docs/study/$name; fi

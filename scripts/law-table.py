@@ -15,7 +15,7 @@ import math
 import sys
 from pathlib import Path
 
-MODELS = ("oracle", "sd_poly2", "rf_memory", "structured", "lawfree")
+MODELS = ("oracle", "sd_poly2", "rf_memory", "structured", "structured_path", "lawfree")
 
 
 def read(p: Path) -> dict:

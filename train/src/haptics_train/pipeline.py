@@ -81,6 +81,9 @@ DEFAULT_SPECS: tuple[str, ...] = (
     # structured stateful: equilibrium, Maxwell branches, hysteresis, permanent set; the
     # bench's friction fitted beside it and not rendered
     "structured",
+    # the same with the bench's viscous friction on the path's velocity (no lag): which of the
+    # two a hand feels closer, validation does not tell; the study's felt force does
+    "structured_path",
     # assumes no law: fading memory in time + play operators on the path, an MLP on them
     # (issue 23); the bench's friction fitted beside it and not rendered
     "lawfree",
@@ -160,7 +163,9 @@ def _candidates(
     if algo == "lawfree":
         options = lawfree_candidates((hyper or {}).get(algo, {}))
         return ("readout", options) if options else None
-    if algo == "structured" and not set(INDENTATION) & set((hyper or {}).get(algo, {})):
+    if algo in ("structured", "structured_path") and not set(INDENTATION) & set(
+        (hyper or {}).get(algo, {})
+    ):
         # the foam's basis, or with the indentation elements (structured.py): on the bench's
         # foams they fitted no closer on validation, on Bouc-Wen 8 % and the gel 54 % closer
         # (docs/laws.md, "Indentation shapes")
