@@ -81,9 +81,8 @@ DEFAULT_SPECS: tuple[str, ...] = (
     # structured stateful: equilibrium, Maxwell branches, hysteresis, permanent set; the
     # bench's friction fitted beside it and not rendered
     "structured",
-    # the same with the bench's viscous friction on the path's velocity (no lag): which of the
-    # two a hand feels closer, validation does not tell; the study's felt force does
-    "structured_path",
+    # (not `structured_path`: validation, which ranks this comparison, prefers it where a hand
+    # feels it further; scripts/fidelity-study.sh trains it, and the study's felt force chooses)
     # assumes no law: fading memory in time + play operators on the path, an MLP on them
     # (issue 23); the bench's friction fitted beside it and not rendered
     "lawfree",
