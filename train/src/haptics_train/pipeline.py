@@ -50,7 +50,7 @@ from .lawfree_selection import (
 from .metrics import fmt_figure
 from .models import ForceModel, TrainConfig, fit_recordings, parse_spec
 from .models.lawfree_net import NET_MAX_STEPS
-from .models.structured import INDENTATION
+from .models.structured import INDENTATION, StructuredModel
 from .reference import add_reference
 
 #: The pipeline's default comparison: Table 6.2 baselines, Table 6.15 algorithms on the six
@@ -162,7 +162,8 @@ def _candidates(
     if algo == "lawfree":
         options = lawfree_candidates((hyper or {}).get(algo, {}))
         return ("readout", options) if options else None
-    if algo in ("structured", "structured_path") and not set(INDENTATION) & set(
+    # every variant of structured (structured_path too) has the same two bases
+    if isinstance(parse_spec(algo), StructuredModel) and not set(INDENTATION) & set(
         (hyper or {}).get(algo, {})
     ):
         # the foam's basis, or with the indentation elements (structured.py): on the bench's

@@ -53,7 +53,7 @@ def make_model(
     if algo == "structured":
         return StructuredModel(h)  # always on x, v (kinematics only)
     if algo == "structured_path":
-        return StructuredPathModel(h)
+        return StructuredPathModel(h)  # the same, its bench term on the path's velocity
     if algo == "lawfree":
         return LawFreeModel(h)  # always on x, v (kinematics only)
     fs = feature_set(fset)

@@ -17,6 +17,8 @@ object has. This model has each element of a viscoelastic foam:
     object = max(0, F_eq + sum_i g_i q_i + sum_k g_k r_k + sum_m h_m F_eq u_m)
                                                         (0 out of contact)
     bench  = sum_l c_l z_l + b v                        Dahl friction on x (length L_l), viscous
+                                                        (v: the recorded velocity, or for
+                                                        `structured_path` the path's)
 
 What is fitted and what is a grid (issue 23: no number is read off a material file):
 
@@ -110,6 +112,7 @@ import math
 import numpy as np
 import onnx
 from scipy.linalg import solve_banded
+from scipy.ndimage import uniform_filter1d
 from scipy.optimize import nnls
 from scipy.signal import lfilter
 from threadpoolctl import threadpool_limits
@@ -307,11 +310,7 @@ def path_velocity(x: np.ndarray, dt: float, window_s: float) -> np.ndarray:
     `window_s` (ends held), then differenced. It looks ahead, so it only ever explains a
     recording (the bench's friction in the target), never a served force."""
     n = int(round(window_s / dt)) if dt > 0.0 else 1
-    if n > 1 and len(x) > n:
-        xs = np.convolve(np.pad(x, (n // 2, n - 1 - n // 2), mode="edge"), np.ones(n) / n,
-                         mode="valid")  # fmt: skip
-    else:
-        xs = x
+    xs = uniform_filter1d(x, n, mode="nearest") if 1 < n < len(x) else x
     return np.gradient(xs, dt) if len(xs) > 1 else np.zeros(len(x))
 
 
@@ -602,4 +601,3 @@ class StructuredPathModel(StructuredModel):
 
     algo = "structured_path"
     defaults = {**STRUCTURED_DEFAULT, "bench_velocity_window_s": PATH_WINDOW_S}
-
