@@ -13,9 +13,10 @@
 #               into docs/fidelity.json; another material's report goes to docs/study/<name>
 #               (unless --out says otherwise) and its figures into <out>/fidelity.json.
 # Env:  MODELS  haptics-train specs to train (default "sd_poly2,rf:memory,structured,
-#               structured_path,lawfree,lstm_slow": the spring-damper baseline, the learned
-#               model the earlier study found best to feel, the structured model with the
-#               bench's friction on the recorded and on the path's velocity (the felt force
+#               structured_path,structured_hyst,lawfree,lstm_slow": the spring-damper
+#               baseline, the learned model the earlier study found best to feel, the
+#               structured model with the bench's friction on the recorded and on the path's
+#               velocity, and with a hysteresis of the object's own size (the felt force
 #               chooses: validation cannot), the law-free model, the LSTM stepped at 100 Hz
 #               over seconds; the full comparison takes about half an hour per setting on
 #               the shared 2-core machine).
@@ -37,7 +38,7 @@ while [ $# -gt 0 ]; do
 done
 [ -f "$material" ] || { echo "fidelity-study: no material file $material" >&2; exit 2; }
 name=$(basename "$material" .toml)
-models=${MODELS:-sd_poly2,rf:memory,structured,structured_path,lawfree,lstm_slow}
+models=${MODELS:-sd_poly2,rf:memory,structured,structured_path,structured_hyst,lawfree,lstm_slow}
 names=${models//:/_} # rf:memory -> rf_memory: the trained models' names
 if [ -z "$out" ]; then
   if [ "$name" = sponge ]; then out=docs/study; else out=docs/study/$name; fi

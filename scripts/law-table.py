@@ -15,7 +15,8 @@ import math
 import sys
 from pathlib import Path
 
-MODELS = ("oracle", "sd_poly2", "rf_memory", "structured", "structured_path", "lawfree")
+MODELS = ("oracle", "sd_poly2", "rf_memory", "structured", "structured_path", "structured_hyst",
+          "lawfree")
 
 
 def read(p: Path) -> dict:

@@ -44,9 +44,10 @@ case "${1:-}" in
 esac
 
 model=${HAPTICS_MODEL:-}
-# not structured_path: up.sh recommends on validation, and validation prefers it on the sponge
-# where a hand feels it 27 % further (docs/laws.md, "The bench's velocity"); the study, which
-# chooses by felt force, has both (scripts/fidelity-study.sh)
+# not structured_path nor structured_hyst: up.sh recommends on validation, and validation
+# prefers both on the sponge, where a hand feels them 27 % and more further (docs/laws.md, "The
+# bench's velocity", "A hysteresis of the object's own size"); the study, which chooses by felt
+# force, has all three (scripts/fidelity-study.sh)
 candidates=${HAPTICS_CANDIDATES:-sd_poly2,rf:memory,structured,lawfree}
 autostart=${HAPTICS_AUTOSTART:-shadow}
 http=${HAPTICS_HTTP:-127.0.0.1:8080}
@@ -118,7 +119,7 @@ if [ -z "$model" ]; then
   say "serving the recommended model $model ($models/recommendation.json; HAPTICS_MODEL overrides)"
 elif [ ! -f "$models/$model.onnx" ]; then
   case "$model" in
-    sd_*|prony|structured|structured_path) spec=$model ;;
+    sd_*|prony|structured|structured_path|structured_hyst) spec=$model ;;
     *) spec="${model%_*}:${model##*_}" ;; # rf_six -> rf:six, dnn_fb_six -> dnn_fb:six
   esac
   say "train the default model $model (haptics-train train --models $spec, then export)"

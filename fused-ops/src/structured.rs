@@ -74,8 +74,8 @@ pub struct StructuredParams {
     depth_branches: Vec<(f64, f64)>,
     /// the compression under which a depth-scaled branch's time stops shrinking, m
     depth_floor_m: f64,
-    /// (-1 / length, gain h) per Dahl hysteresis state
-    hysteresis: Vec<(f64, f64)>,
+    /// (-1 / length, gain h on F_eq u, force hc of u alone) per Dahl hysteresis state
+    hysteresis: Vec<(f64, f64, f64)>,
     set: Option<SetLaw>,
 }
 
@@ -153,10 +153,17 @@ impl StepModel for StructuredParams {
         let lengths = r.positive_list("hysteresis_m")?;
         let hg = r.list("hysteresis_gains")?;
         r.paired("hysteresis_gains", &hg, "hysteresis_m", &lengths)?;
+        // a hysteresis of its own size (N): absent on a model fitted without one
+        let mut hc = r.list("hysteresis_constant_n")?;
+        if hc.is_empty() {
+            hc = vec![0.0; lengths.len()];
+        }
+        r.paired("hysteresis_constant_n", &hc, "hysteresis_m", &lengths)?;
         let hysteresis = lengths
             .iter()
             .zip(&hg)
-            .map(|(&l, &h)| (-1.0 / l, h))
+            .zip(&hc)
+            .map(|((&l, &h), &c)| (-1.0 / l, h, c))
             .collect();
 
         let set_max = r.float("set_max_m")?;
@@ -302,11 +309,11 @@ impl StructuredParams {
         } else {
             0.0
         };
-        for (m, &(neg_inv_l, h)) in self.hysteresis.iter().enumerate() {
+        for (m, &(neg_inv_l, h, hc)) in self.hysteresis.iter().enumerate() {
             let att = (de.abs() * neg_inv_l).exp();
             let u = (sg + att * (f64::from(h_in[nk + m]) - sg)) * contact;
             h_out[nk + m] = u as f32;
-            f += h * fe * u;
+            f += (h * fe + hc) * u;
         }
         (h_out[nk + nm], c_out[C_SET_LO]) = split(s);
         h_out[nk + nm + 1] = md as f32;
@@ -589,5 +596,56 @@ mod tests {
             f.iter().all(|v| v.is_finite()) && f.windows(2).all(|w| w[1] > w[0]),
             "{f:?}"
         );
+    }
+
+    /// A hysteresis of its own size adds hc u on top of the F_eq-scaled one: pressing (u
+    /// rising to +1) the force is higher by hc u, releasing lower; absent, the kernel is the
+    /// one before the attribute existed; a count that does not match is an error.
+    #[test]
+    fn a_constant_hysteresis_adds_its_own_force_in_contact_only() {
+        let xs: Vec<f32> = (0..40)
+            .map(|i| 0.001 * (if i < 20 { i } else { 40 - i }) as f32)
+            .chain([-0.001, 0.002])
+            .collect();
+        let plain = StructuredParams::from_attrs(&simple()).unwrap();
+        let with_hc =
+            StructuredParams::from_attrs(&with(simple(), "hysteresis_constant_n", vec![0.5]))
+                .unwrap();
+        let zero =
+            StructuredParams::from_attrs(&with(simple(), "hysteresis_constant_n", vec![0.0]))
+                .unwrap();
+        assert_eq!(plain, zero);
+        let (a, b) = (run(&plain, &xs), run(&with_hc, &xs));
+        // the Dahl state u of the one 2 mm length, written out: a 1 mm step moves it
+        // 1 - exp(-0.5) of the way to the sign of the motion, and it is 0 out of contact
+        let (mut u, mut e_prev) = (0.0f64, 0.0f64);
+        for (i, &x) in xs.iter().enumerate() {
+            let ec = f64::from(x).max(0.0);
+            let de = ec - e_prev;
+            let sg = de.signum() * f64::from(u8::from(de != 0.0));
+            let contact = f64::from(u8::from(ec > 0.0));
+            u = (sg + (-de.abs() / 0.002).exp() * (u - sg)) * contact;
+            e_prev = ec; // the kernel's previous e, clamped at 0
+            let want = (f64::from(a[i]) + 0.5 * u).max(0.0) * contact;
+            // where the plain force is 0 the clamp may hide part of it: compare above 0
+            if a[i] > 0.0 && want > 0.0 {
+                assert!(
+                    (f64::from(b[i]) - want).abs() < 1e-5,
+                    "{i}: {} vs {want}",
+                    b[i]
+                );
+            }
+        }
+        assert!(
+            b[5] > a[5] && b[30] < a[30],
+            "pressing {} {}, releasing {} {}",
+            b[5],
+            a[5],
+            b[30],
+            a[30]
+        );
+        assert_eq!(b[40], 0.0, "out of contact");
+        let bad = with(simple(), "hysteresis_constant_n", vec![0.5, 0.5]);
+        assert!(StructuredParams::from_attrs(&bad).is_err());
     }
 }

@@ -57,6 +57,16 @@ def info(n: int) -> SequenceInfo:
                         contact_off_n=0.05, loop_rate_hz=RATE)  # fmt: skip
 
 
+def fit_each(algos: tuple[str, ...], X: np.ndarray, y: np.ndarray, hyper: dict) -> dict:
+    """Each variant of structured fitted on the one recording (X, y), by name."""
+    fits = {}
+    for algo in algos:
+        m = make_model(algo, hyper=hyper)
+        m.fit([X], [y], info=[info(len(X))])
+        fits[algo] = m
+    return fits
+
+
 @pytest.fixture(scope="module")
 def fitted():
     x, v = presses([0.01, 0.02, 0.015, 0.025], 2.0)
@@ -314,11 +324,7 @@ def test_structured_path_reads_the_benchs_viscous_friction_through_a_lagged_velo
     a = 30.0 / RATE
     v_rec = lfilter([a], [1, -(1 - a)], v)
     X = np.column_stack([x, v_rec])
-    fits = {}
-    for algo in ("structured", "structured_path"):
-        m = make_model(algo, hyper=SMALL)
-        m.fit([X], [y], info=[info(len(x))])
-        fits[algo] = m
+    fits = fit_each(("structured", "structured_path"), X, y, SMALL)
     path, rec = fits["structured_path"], fits["structured"]
     assert path.name == "structured_path" and rec.name == "structured"
     assert path.hyper["bench_velocity_window_s"] == PATH_WINDOW_S
@@ -334,3 +340,46 @@ def test_structured_path_reads_the_benchs_viscous_friction_through_a_lagged_velo
     with_val = Dataset(train=[], test=[], validation=[object()])  # type: ignore[list-item]
     assert _candidates("structured_path", None, None, with_val) == _candidates(
         "structured", None, None, with_val)
+
+
+def test_structured_hyst_renders_a_hysteresis_of_the_objects_own_size(fused_ops):
+    """A pad whose hysteresis loop keeps its height at every depth (a Bouc-Wen z: a Dahl state
+    over 3 mm, 0.8 N, whatever the compression) under the bench's Coulomb friction.
+    `structured_path` can scale a hysteresis only with F_eq, and leaves the object far off;
+    `structured_hyst` finds the loop's height, leaves the friction to the bench, and its
+    graphs (fused and multi-node) render what it predicts."""
+    from haptics_train.models.structured import HYST_FRAC, constant_hysteresis, dahl
+
+    height = 0.8
+    x, v = presses([0.01, 0.02, 0.015, 0.025], 2.0)
+    e = np.maximum(x, 0.0)
+    z = dahl(e, 0.003, e <= 0)
+    obj = np.where(e > 0, np.maximum(equilibrium(e) + height * z, 0.0), 0.0)
+    y = obj + FRICTION_N * np.tanh(v / 1e-4)
+    X = np.column_stack([x, v])
+    hyper = {**SMALL, "hysteresis_frac": [0.01, 0.04, 0.12]}
+    fits = fit_each(("structured_path", "structured_hyst"), X, y, hyper)
+    hyst, path = fits["structured_hyst"], fits["structured_path"]
+    assert make_model("structured_hyst").hyper["hysteresis_frac"] == HYST_FRAC
+    assert hyst.hyper["hysteresis_constant"] and not path.hyper["hysteresis_constant"]
+    # every Dahl state longer than the bench's friction length may carry a force of its own
+    assert constant_hysteresis(hyst.basis_) == [True, True, True]
+    assert np.all(hyst.hc_ >= 0) and hyst.hc_.sum() == pytest.approx(height, rel=0.25), hyst.hc_
+    assert hyst.c_.sum() == pytest.approx(FRICTION_N, rel=0.2), hyst.c_
+    assert np.all(path.__dict__.get("hc_", np.zeros(1)) == 0)
+    xt, vt = presses([0.018], 2.5)  # a depth and a rate it was not fitted on
+    et = np.maximum(xt, 0.0)
+    objt = np.where(et > 0, np.maximum(equilibrium(et) + height * dahl(et, 0.003, et <= 0), 0.0),
+                    0.0)  # fmt: skip
+    Xt = np.column_stack([xt, vt])
+    off = {k: float(np.sqrt(np.mean((m.predict_served(Xt) - objt) ** 2)))
+           for k, m in fits.items()}  # fmt: skip
+    # measured: 0.038 N off against 0.070 (F_eq u does part of it at these depths)
+    assert off["structured_hyst"] < 0.65 * off["structured_path"], off
+    assert loop_work(xt, hyst.predict_served(Xt)) > 0  # it dissipates
+    prov = provenance(hyst, TrainConfig(progress=False), None, None)
+    want = hyst.predict_served(Xt)
+    for fused in (True, False):
+        st = OnnxStepper(to_contract_onnx(hyst, prov, fused=fused))
+        got = np.array([st.step(r) for r in Xt.astype(np.float32)])
+        np.testing.assert_allclose(got, want, atol=2e-3, err_msg=f"fused={fused}")

@@ -81,8 +81,9 @@ DEFAULT_SPECS: tuple[str, ...] = (
     # structured stateful: equilibrium, Maxwell branches, hysteresis, permanent set; the
     # bench's friction fitted beside it and not rendered
     "structured",
-    # (not `structured_path`: validation, which ranks this comparison, prefers it where a hand
-    # feels it further; scripts/fidelity-study.sh trains it, and the study's felt force chooses)
+    # (not `structured_path` nor `structured_hyst`: validation, which ranks this comparison,
+    # prefers them where a hand feels them further; scripts/fidelity-study.sh trains them, and
+    # the study's felt force chooses)
     # assumes no law: fading memory in time + play operators on the path, an MLP on them
     # (issue 23); the bench's friction fitted beside it and not rendered
     "lawfree",
@@ -162,7 +163,7 @@ def _candidates(
     if algo == "lawfree":
         options = lawfree_candidates((hyper or {}).get(algo, {}))
         return ("readout", options) if options else None
-    # every variant of structured (structured_path too) has the same two bases
+    # every variant of structured (structured_path, structured_hyst too) has the same two bases
     if isinstance(parse_spec(algo), StructuredModel) and not set(INDENTATION) & set(
         (hyper or {}).get(algo, {})
     ):

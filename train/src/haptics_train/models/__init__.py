@@ -11,10 +11,10 @@ from .prony import PronyModel
 from .sklearn_models import RF_THESIS, SVR_THESIS, ForestModel, LinearModel, SVRModel
 from .slow_lstm import SlowLSTMModel
 from .spring_damper import SpringDamper
-from .structured import StructuredModel, StructuredPathModel
+from .structured import StructuredHystModel, StructuredModel, StructuredPathModel
 
 ALGOS = ("sd_const", "sd_poly1", "sd_poly2", "lr", "svr", "rf", "dnn", "lstm", "dnn_fb", "lstm_fb",
-         "prony", "structured", "structured_path", "lstm_slow", "lawfree")
+         "prony", "structured", "structured_path", "structured_hyst", "lstm_slow", "lawfree")
 
 #: `dnn_fb` / `lstm_fb`: the same networks trained with feedback noise on the previous force
 #: (see networks.perturb_previous_force), for a closed loop that does not drift. Its scale is a
@@ -54,6 +54,8 @@ def make_model(
         return StructuredModel(h)  # always on x, v (kinematics only)
     if algo == "structured_path":
         return StructuredPathModel(h)  # the same, its bench term on the path's velocity
+    if algo == "structured_hyst":
+        return StructuredHystModel(h)  # structured_path, its hysteresis also of its own size
     if algo == "lawfree":
         return LawFreeModel(h)  # always on x, v (kinematics only)
     fs = feature_set(fset)

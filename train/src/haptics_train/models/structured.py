@@ -14,15 +14,16 @@ object has. This model has each element of a viscoelastic foam:
                                                         d_k(e) = exp(-dt / (tau_k e / D)),
                                                         emptied out of contact
     u_m(t) = Dahl state of the compression path (length L_m, in [-1, 1], 0 out of contact)
-    object = max(0, F_eq + sum_i g_i q_i + sum_k g_k r_k + sum_m h_m F_eq u_m)
-                                                        (0 out of contact)
+    object = max(0, F_eq + sum_i g_i q_i + sum_k g_k r_k + sum_m (h_m F_eq + hc_m) u_m)
+                                                        (0 out of contact; hc_m only in
+                                                        `structured_hyst`, below)
     bench  = sum_l c_l z_l + b v                        Dahl friction on x (length L_l), viscous
                                                         (v: the recorded velocity, or for
                                                         `structured_path` the path's)
 
 What is fitted and what is a grid (issue 23: no number is read off a material file):
 
-- Fitted on the training rows by non-negative least squares: a_j, g_i, h_m, c_l >= 0 (the
+- Fitted on the training rows by non-negative least squares: a_j, g_i, h_m, hc_m, c_l >= 0 (the
   equilibrium curve only stiffens with depth, every Maxwell branch and hysteresis element only
   dissipates, so the model cannot drift or inject energy), b.
 - Measured on the training data: the depth scale D (`depth_scale_m_`), the largest
@@ -102,7 +103,8 @@ Sequences layout (`models.base`): `fit(X, y, info)`, X one [n_i, 2] array (x, v)
 rows in time order. Fitted attributes: `dt_`, `depth_scale_m_`, `basis_` (the resolved basis in
 metres and seconds: what the graph and `predict` step), `set_law_`, `set_max_m_`, `a_`
 (equilibrium: plateaus, poles, powers), `g_` (branches: fixed times, then depth-scaled), `h_`
-(hysteresis), `c_` (friction), `b_` (viscous), `train_info_`.
+(hysteresis), `hc_` (hysteresis of its own size: zeros but in `structured_hyst`), `c_`
+(friction), `b_` (viscous), `train_info_`.
 """
 
 from __future__ import annotations
@@ -151,6 +153,9 @@ STRUCTURED_DEFAULT: dict = {
     # the bench's viscous term on the recorded velocity (0) or the path's over this window
     # (`bench_velocity`; `structured_path` sets it)
     "bench_velocity_window_s": 0.0,
+    # hysteresis only as a fraction of F_eq (False), or also of its own size (True:
+    # `constant_hysteresis`; `structured_hyst` sets it)
+    "hysteresis_constant": False,
 }
 
 #: The indentation elements (module docstring): the candidate basis `haptics-train train`
@@ -301,8 +306,20 @@ def _object_columns(
     br += [varying_filter(dfeq * inside[:, 0], dd[:, k]) for k in range(dd.shape[1])]
     out = ~inside[:, 0]
     ep = np.maximum(e, 0.0)
-    hy = [feq * dahl(ep, L, out) for L in h["hysteresis_lengths_m"]]
+    us = [dahl(ep, L, out) for L in h["hysteresis_lengths_m"]]
+    hy = [feq * u for u in us]
+    hy += [u for u, k in zip(us, constant_hysteresis(h), strict=True) if k]
     return np.column_stack([basis, *br, *hy]) * inside, e
+
+
+def constant_hysteresis(h: dict) -> list[bool]:
+    """Which Dahl hysteresis states also carry a force of their own size, not a fraction of
+    F_eq (`hysteresis_constant`): those longer than the bench's longest friction length, so
+    the object's hysteresis is never the bench's friction under another name."""
+    if not h.get("hysteresis_constant", False):
+        return [False] * len(h["hysteresis_lengths_m"])
+    longest = max((float(f) for f in h["friction_lengths_m"]), default=0.0)
+    return [float(L) > longest for L in h["hysteresis_lengths_m"]]
 
 
 def path_velocity(x: np.ndarray, dt: float, window_s: float) -> np.ndarray:
@@ -349,6 +366,7 @@ def resolve_basis(h: dict, depth: float) -> dict:
         "power_exponents": [float(p) for p in h.get("power_exponents", [])],
         "depth_taus_s": [float(t) for t in h.get("depth_taus_s", [])],
         "bench_velocity_window_s": float(h.get("bench_velocity_window_s", 0.0)),
+        "hysteresis_constant": bool(h.get("hysteresis_constant", False)),
     }
 
 
@@ -507,7 +525,10 @@ class StructuredModel(ForceModel):
         self.a_ = coef[:nb]
         self.g_ = coef[nb : nb + nk]
         self.h_ = coef[nb + nk : nb + nk + nm]
-        bench = coef[nb + nk + nm :]
+        mask = np.asarray(constant_hysteresis(self.basis_), dtype=bool)
+        self.hc_ = np.zeros(nm)
+        self.hc_[mask] = coef[nb + nk + nm : nb + nk + nm + int(mask.sum())]
+        bench = coef[nb + nk + nm + int(mask.sum()) :]
         self.c_ = bench[:-2]
         self.b_ = float(bench[-2] - bench[-1])
         self.n_features_in_ = len(self.features)
@@ -525,6 +546,7 @@ class StructuredModel(ForceModel):
             "equilibrium": self.a_.tolist(),
             "branch_gains": self.g_.tolist(),
             "hysteresis": self.h_.tolist(),
+            "hysteresis_constant_n": self.hc_.tolist(),
             "friction_n": self.c_.tolist(),
             "viscous_ns_per_m": self.b_,
         }
@@ -560,7 +582,9 @@ class StructuredModel(ForceModel):
         x, v = xv[:, 0], xv[:, 1]
         dt = self.dt_ if dt is None else dt
         obj, e = _object_columns(x, dt, self.set_max_m_, self.a_, v, self.basis_)
-        f = obj @ np.concatenate([self.a_, self.g_, self.h_])
+        hc = getattr(self, "hc_", np.zeros(len(self.h_)))
+        hc = hc[np.asarray(constant_hysteresis(self.basis_), dtype=bool)]
+        f = obj @ np.concatenate([self.a_, self.g_, self.h_, hc])
         served = np.where(e > 0.0, np.maximum(f, 0.0), 0.0)
         cols = _bench_columns(x, v, self.basis_, dt)  # ..., +v, -v: the viscous term's velocity
         bench = cols[:, :-2] @ self.c_ + self.b_ * cols[:, -2]
@@ -601,3 +625,25 @@ class StructuredPathModel(StructuredModel):
 
     algo = "structured_path"
     defaults = {**STRUCTURED_DEFAULT, "bench_velocity_window_s": PATH_WINDOW_S}
+
+
+#: `structured_hyst`'s hysteresis lengths, fractions of D: from 1 % of the deepest press
+#: (the default grid's shortest) to half of it, about half a decade apart; the lengths over which
+#: a rubber-like or granular material's hysteresis saturates after a reversal are a few per
+#: cent to tens of per cent of its strain range (Bouc-Wen fits of elastomer pads and
+#: isolators: Ismail, Ikhouane & Rodellar 2009, Arch. Comput. Methods Eng. 16:161). Only
+#: those longer than the bench's longest friction length get a force of their own.
+HYST_FRAC = [0.01, 0.03, 0.05, 0.1, 0.2, 0.3, 0.5]
+
+
+class StructuredHystModel(StructuredPathModel):
+    """`structured_path` whose Dahl hysteresis states also carry a force of their own size
+    (`constant_hysteresis`), not only a fraction of F_eq: a hysteretic material whose loop
+    keeps its height at every depth (a Bouc-Wen pad's z, bounded whatever the compression) is
+    out of reach of F_eq u alone, and `structured` felt such an object 0.70 N off (docs/laws.md,
+    "A hysteresis of the object's own size"). Its states are `structured`'s Dahl states on a
+    finer grid (`HYST_FRAC`); the served kernel is the same, with one more weight per state."""
+
+    algo = "structured_hyst"
+    defaults = {**StructuredPathModel.defaults, "hysteresis_constant": True,
+                "hysteresis_frac": HYST_FRAC}  # fmt: skip
