@@ -115,7 +115,7 @@ if [ ! -f "models/$model.onnx" ]; then
   say "no models/$model.onnx: recording the dataset and training it (as scripts/up.sh does)"
   [ -f data/dataset/test_2.1.parquet ] || bash scripts/record-dataset.sh data/dataset >&2
   case "$model" in
-    sd_*|prony|structured|structured_path|structured_hyst|lstm_slow) spec=$model ;;
+    sd_*|prony|structured*|lstm_slow) spec=$model ;;
     *) spec="${model%_*}:${model##*_}" ;; # rf_six -> rf:six, dnn_fb_six -> dnn_fb:six
   esac
   .venv/bin/haptics-train train --models "$spec" >&2

@@ -119,7 +119,7 @@ if [ -z "$model" ]; then
   say "serving the recommended model $model ($models/recommendation.json; HAPTICS_MODEL overrides)"
 elif [ ! -f "$models/$model.onnx" ]; then
   case "$model" in
-    sd_*|prony|structured|structured_path|structured_hyst) spec=$model ;;
+    sd_*|prony|structured*) spec=$model ;;
     *) spec="${model%_*}:${model##*_}" ;; # rf_six -> rf:six, dnn_fb_six -> dnn_fb:six
   esac
   say "train the default model $model (haptics-train train --models $spec, then export)"

@@ -582,13 +582,18 @@ class StructuredModel(ForceModel):
         x, v = xv[:, 0], xv[:, 1]
         dt = self.dt_ if dt is None else dt
         obj, e = _object_columns(x, dt, self.set_max_m_, self.a_, v, self.basis_)
-        hc = getattr(self, "hc_", np.zeros(len(self.h_)))
-        hc = hc[np.asarray(constant_hysteresis(self.basis_), dtype=bool)]
+        hc = self.hysteresis_forces()[np.asarray(constant_hysteresis(self.basis_), dtype=bool)]
         f = obj @ np.concatenate([self.a_, self.g_, self.h_, hc])
         served = np.where(e > 0.0, np.maximum(f, 0.0), 0.0)
         cols = _bench_columns(x, v, self.basis_, dt)  # ..., +v, -v: the viscous term's velocity
         bench = cols[:, :-2] @ self.c_ + self.b_ * cols[:, -2]
         return served, bench
+
+    def hysteresis_forces(self) -> np.ndarray:
+        """`hc_`, the hysteresis forces of their own size (N, one per Dahl state): zeros for a
+        model pickled before they existed (what `predict` and both graphs render)."""
+        hc = getattr(self, "hc_", None)
+        return np.zeros(len(self.h_)) if hc is None else np.asarray(hc, dtype=np.float64)
 
     def predict(self, X: np.ndarray, dt: float | None = None) -> np.ndarray:
         """The force the RFOB reads: the object's plus the bench's friction (one sequence,

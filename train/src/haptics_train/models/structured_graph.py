@@ -99,13 +99,6 @@ def _equilibrium(g: Graph, ec: str, m: StructuredModel) -> str:
     return fe
 
 
-def hysteresis_constant(m: StructuredModel) -> np.ndarray:
-    """The hysteresis forces of their own size, N, one per Dahl state (zeros for a model
-    fitted without them, or pickled before they existed)."""
-    hc = getattr(m, "hc_", None)
-    return np.zeros(len(m.h_)) if hc is None else np.asarray(hc, dtype=np.float64)
-
-
 def structured_graph(m: StructuredModel) -> onnx.ModelProto:
     b = m.basis_
     taus = np.asarray(b["taus_s"], dtype=np.float64)
@@ -172,13 +165,13 @@ def structured_graph(m: StructuredModel) -> onnx.ModelProto:
     # a u + (1 - a) sign(de) = sign + a (u - sign); 0 out of contact
     u2 = g.op("Mul", g.op("Add", sg, g.op("Mul", att, g.op("Sub", u, sg))), contact, hint="u")
 
-    hc = hysteresis_constant(m)
-    if hc.any():  # a hysteresis of its own size: hc u beside h F_eq u
-        terms = g.op("Concat", q2, g.op("Mul", u2, fe), u2, fe, axis=2)
-        weights = np.concatenate([gk, hw, hc, [1.0]])
-    else:
-        terms = g.op("Concat", q2, g.op("Mul", u2, fe), fe, axis=2)
-        weights = np.concatenate([gk, hw, [1.0]])
+    # a hysteresis of its own size (hc u beside h F_eq u) only where fitted: without it the
+    # graph is the one exported before it existed
+    hc = m.hysteresis_forces()
+    own = [(u2, hc)] if hc.any() else []
+    cols = [(q2, gk), (g.op("Mul", u2, fe), hw), *own, (fe, np.ones(1))]
+    terms = g.op("Concat", *(c for c, _ in cols), axis=2)
+    weights = np.concatenate([w for _, w in cols])
     f = g.op("MatMul", terms, g.const(weights.reshape(-1, 1)))
     force = g.op("Mul", g.op("Relu", f), contact)
     h_out = g.op("Concat", q2, u2, s, md2, e, axis=2)
@@ -217,7 +210,7 @@ def structured_fused(m: StructuredModel) -> onnx.ModelProto:
             floats_attr("depth_taus_s", dtaus),
             floats_attr("depth_gains", m.g_[nk:]),
         ]
-    hc = hysteresis_constant(m)
+    hc = m.hysteresis_forces()
     if hc.any():  # absent: none (the kernel reads zeros, as before the attribute)
         attrs.append(floats_attr("hysteresis_constant_n", hc))
     if float(m.set_max_m_) > 0.0:
