@@ -14,8 +14,9 @@
 # held 1.5-3.5 s, driven by the position controller (`haptics-train presses`, then `rt-loop run
 # --experiment position-replay`; two programmes, seeds 5 and 6). Off by default: on the
 # bench's six laws it made the recommended model's felt force closer on some and further on
-# others (docs/laws.md, "Presses and holds at a hand's speeds in training"). Needs the
-# project's .venv (setup.sh).
+# others (docs/laws.md, "Presses and holds at a hand's speeds in training"), and again with
+# the four candidates of 2026-11-30 on nine objects: closer on seven, 2.43x further on a memory
+# foam (docs/laws.md, "Presses and holds in training again"). Needs the project's .venv (setup.sh).
 #
 # Usage: scripts/record-dataset.sh [--material FILE] [--bench FILE] [OUTDIR=data/dataset]
 #        --material: the simulated object (default materials/sponge.toml; e.g. materials/foam-b.toml)

@@ -26,7 +26,13 @@ from haptics_train.study import (
     write_fidelity,
 )
 from haptics_train.study.report import floor_section, phase_section
-from haptics_train.study.score import HAND_PHASES, felt_by_phase, hand_phase, run_flags
+from haptics_train.study.score import (
+    HAND_PHASES,
+    fast_models,
+    felt_by_phase,
+    hand_phase,
+    run_flags,
+)
 
 
 def test_align_identical_grid_is_identity() -> None:
@@ -198,6 +204,25 @@ def test_fidelity_keys_follow_the_numbers_and_the_recommendation(tmp_path: Path)
     assert doc["felt_friction_compensation"] == "on"
     assert doc["felt_fast_rmse_n"] == 0.6 and doc["free_run_rmse_n"] == 0.2
     assert json.loads(path.read_text()) == doc
+
+
+def test_fast_hand_runs_the_best_and_the_models_every_table_shows() -> None:
+    rows = [
+        _row(ORACLE, 0.05, False),
+        _row("sd_poly2", 1.5, False),
+        _row("structured", 0.07, True),
+        _row("structured_path", 0.08, True),
+        _row("structured_hyst", 0.09, True),
+        _row("lawfree", 0.20, True),
+        _row("rf_memory", 0.50, True),
+        _row("dnn_fb_six", 0.10, True),
+    ]
+    # the three closest learned models, then the table's models however far they felt
+    assert fast_models(rows) == {
+        "structured", "structured_path", "structured_hyst", "lawfree", "rf_memory", "sd_poly2"
+    }  # fmt: skip
+    # a model named in FAST_ALWAYS but not studied is not asked for
+    assert fast_models(rows[:3]) == {"structured", "sd_poly2"}
 
 
 def test_floor_section_is_computed_from_the_numbers() -> None:

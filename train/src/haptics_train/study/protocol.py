@@ -45,6 +45,11 @@ RANK2_SEED_OFFSET = 20
 #: The sensitivity run: the same depths, pressed and released 2.5 times faster.
 FAST_HAND = {**STUDY_HAND, "press_s": 0.4, "release_s": 0.4}
 FAST_BEST = 3
+#: Models that run the fast hand (and the long session) wherever they are studied, whatever
+#: their rank: the ones each law's table shows (issue 23's "Show": rf_memory, structured, the
+#: law-free learner). With six learned models the three best left `lawfree`'s and
+#: `rf_memory`'s fast figures out of the table on most laws.
+FAST_ALWAYS = ("rf_memory", "structured", "lawfree")
 #: The second sensitivity run: a session four times as long, twelve presses to the headline's
 #: middle set-point (36.5 s of loop time), for the models of the fast hand. Why: the headline is
 #: three presses from rest (9.5 s); a memory slower than that (a foam's compression set, which

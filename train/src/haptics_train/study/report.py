@@ -12,6 +12,7 @@ from ..truth import OBJECT_FORCE
 from .processes import Run
 from .protocol import (
     DEFAULT_MATERIAL,
+    FAST_ALWAYS,
     FAST_BEST,
     FAST_HAND,
     GOAL_RATIO,
@@ -311,7 +312,9 @@ def write_readme(
         L.append(
             f"The same three presses with press and release in {fh['press_s']} s instead of "
             f"{h['press_s']} s (the reference re-run with that hand too), for the "
-            f"{FAST_BEST} best learned models above and the spring-dampers. Reported whatever "
+            f"{FAST_BEST} best learned models above, "
+            f"{', '.join(f'`{n}`' for n in FAST_ALWAYS)} wherever studied, and the "
+            "spring-dampers. Reported whatever "
             "it shows. Fallbacks are steps whose served force was refused (NaN/Inf), late or "
             "missing: the loop rendered its built-in fallback instead; an answer beyond "
             "`reproduction.max_force_n` is rendered at the limit and flagged `saturated`.\n"

@@ -22,7 +22,6 @@ from .processes import Run, Tools, find_tools, read_series, run_loop, write_conf
 from .protocol import (
     BUILTIN,
     DEFAULT_MATERIAL,
-    FAST_BEST,
     FAST_HAND,
     LONG_HAND,
     ORACLE,
@@ -38,13 +37,12 @@ from .report import fmt, load_results, results_json, write_fidelity, write_readm
 from .score import (
     Row,
     compare,
+    fast_models,
     felt_by_phase,
     felt_by_press,
     felt_rmse,
     floor_summary,
     prediction_along_real,
-    rankable,
-    repro_rmse,
     score_run,
 )
 
@@ -132,10 +130,9 @@ def run_study(
             extra, files = extra_on, files_on
     ref, rows = settings[primary]
 
-    # The same presses, 2.5 times faster, for the best learned models, the spring-dampers and
-    # the oracle (in the headline setting).
-    ranked = sorted((r for r in rows if r.learned and rankable(r)), key=repro_rmse)
-    keep = {r.name for r in ranked[:FAST_BEST]} | set(SPRING_DAMPERS)
+    # The same presses, 2.5 times faster, for the best learned models, those every law's table
+    # shows, the spring-dampers and the oracle (in the headline setting).
+    keep = fast_models(rows)
     fast_files = [f for f in files if f.stem in keep]
     fast_ref, fast_rows = _reproduce_all(
         tools, fast_files, work, "fast_", fast_hand, seed, False, say, extra, clock

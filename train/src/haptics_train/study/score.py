@@ -12,7 +12,7 @@ import numpy as np
 from ..metrics import regression_metrics
 from ..truth import FELT_FORCE, OBJECT_FORCE, object_truth
 from .processes import Run
-from .protocol import BUILTIN, ORACLE
+from .protocol import BUILTIN, FAST_ALWAYS, FAST_BEST, ORACLE, SPRING_DAMPERS
 
 
 def align(
@@ -212,6 +212,16 @@ def best_row(rows: list[Row], learned: bool, key: str = "repro") -> Row | None:
     if not cand:
         return None
     return min(cand, key=lambda r: getattr(r, key)["rmse"])
+
+
+def fast_models(rows: list[Row]) -> set[str]:
+    """The models the fast hand and the long session run (besides the oracle): the
+    `FAST_BEST` learned models closest on the headline, the spring-dampers, and `FAST_ALWAYS`
+    (the models every law's table shows), each where it was studied."""
+    ranked = sorted((r for r in rows if r.learned and rankable(r)), key=repro_rmse)
+    studied = {r.name for r in rows}
+    always = (set(SPRING_DAMPERS) | set(FAST_ALWAYS)) & studied
+    return {r.name for r in ranked[:FAST_BEST]} | always
 
 
 def sd2_row(rows: list[Row]) -> Row | None:
