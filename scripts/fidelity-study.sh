@@ -13,13 +13,17 @@
 #               into docs/fidelity.json; another material's report goes to docs/study/<name>
 #               (unless --out says otherwise) and its figures into <out>/fidelity.json.
 # Env:  MODELS  haptics-train specs to train (default "sd_poly2,rf:memory,structured,
-#               structured_path,structured_hyst,lawfree,lstm_slow": the spring-damper
-#               baseline, the learned model the earlier study found best to feel, the
-#               structured model with the bench's friction on the recorded and on the path's
-#               velocity, and with a hysteresis of the object's own size (the felt force
-#               chooses: validation cannot), the law-free model, the LSTM stepped at 100 Hz
-#               over seconds; the full comparison takes about half an hour per setting on
-#               the shared 2-core machine).
+#               structured_path,structured_hyst,lawfree,structured+holds,
+#               structured_path+holds,structured_hyst+holds,lawfree+holds,lstm_slow": the
+#               spring-damper baseline, the learned model the earlier study found best to
+#               feel, the structured model with the bench's friction on the recorded and on
+#               the path's velocity, and with a hysteresis of the object's own size (the felt
+#               force chooses: validation cannot), the law-free model, the same four trained
+#               on the press-and-hold recordings too (`+holds`, holds.py: the felt force
+#               chooses that as well), the LSTM stepped at 100 Hz over seconds; the full
+#               comparison takes about half an hour per setting on the shared 2-core machine).
+#       PRESSES  record the press-and-hold recordings (default 1: the +holds models train on
+#               them; every other model ignores them; record-dataset.sh).
 #       DECIMATE  for the recordings (default 1).
 #       HAPTICS_RT_LOOP, HAPTICS_INFER_SERVER  binaries to use instead of building them (frozen
 #               copies while others rebuild the tree).
@@ -38,8 +42,11 @@ while [ $# -gt 0 ]; do
 done
 [ -f "$material" ] || { echo "fidelity-study: no material file $material" >&2; exit 2; }
 name=$(basename "$material" .toml)
-models=${MODELS:-sd_poly2,rf:memory,structured,structured_path,structured_hyst,lawfree,lstm_slow}
+holds=structured+holds,structured_path+holds,structured_hyst+holds,lawfree+holds
+models=${MODELS:-sd_poly2,rf:memory,structured,structured_path,structured_hyst,lawfree,$holds,lstm_slow}
 names=${models//:/_} # rf:memory -> rf_memory: the trained models' names
+names=${names//+/_}  # structured+holds -> structured_holds
+export PRESSES=${PRESSES:-1}
 if [ -z "$out" ]; then
   if [ "$name" = sponge ]; then out=docs/study; else out=docs/study/$name; fi
 fi

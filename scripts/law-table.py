@@ -16,7 +16,8 @@ import sys
 from pathlib import Path
 
 MODELS = ("oracle", "sd_poly2", "rf_memory", "structured", "structured_path", "structured_hyst",
-          "lawfree")
+          "lawfree", "structured_holds", "structured_path_holds", "structured_hyst_holds",
+          "lawfree_holds")
 
 
 def read(p: Path) -> dict:
@@ -81,7 +82,11 @@ def main(argv: list[str]) -> int:
         "whose friction a model can know; evaluate.py). The recommendation is the model that "
         "felt closest on the study's ranking runs (two other hand programmes, each with its own "
         "seed; the geometric mean over both; `fidelity.rank`), "
-        "never on these; the validation recording's sliding rows rank a model without them.\n"),
+        "never on these; the validation recording's sliding rows rank a model without them. "
+        "A model whose name ends in `_holds` was trained, and made its choices, on the "
+        "dataset's press-and-hold recordings too (`+holds`, holds.py); the others never saw "
+        "them. Where a dataset has them, the validation columns pool both validation "
+        "recordings for every model.\n"),
         ("The laws and their sources: docs/laws.md; an object whose law is an ONNX graph "
          "(`law = \"onnx\"`) and how to write one: [onnx.md](onnx.md).\n"),
         ("| law | model | felt | fast | free run | free run, sliding | validation free run "

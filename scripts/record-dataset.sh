@@ -12,11 +12,12 @@
 # With PRESSES=1, also `train_hold` and `validation_hold`: presses at a hand's speeds (peaks
 # of 10, 40 and 80 mm/s) to five depths (0.25-0.95 of the ramps' deepest compression), each
 # held 1.5-3.5 s, driven by the position controller (`haptics-train presses`, then `rt-loop run
-# --experiment position-replay`; two programmes, seeds 5 and 6). Off by default: on the
-# bench's six laws it made the recommended model's felt force closer on some and further on
-# others (docs/laws.md, "Presses and holds at a hand's speeds in training"), and again with
-# the four candidates of 2026-11-30 on nine objects: closer on seven, 2.43x further on a memory
-# foam (docs/laws.md, "Presses and holds in training again"). Needs the project's .venv (setup.sh).
+# --experiment position-replay`; two programmes, seeds 5 and 6). Only the models asked for
+# with `+holds` (`structured+holds`, ...: holds.py) train on them; scripts/fidelity-study.sh
+# records them and trains its candidates both ways. Off by default: trained on by every model
+# they made the recommended model's felt force closer on some objects and further on others
+# (docs/laws.md, "Presses and holds at a hand's speeds in training" and "Presses and holds in
+# training again"). Needs the project's .venv (setup.sh).
 #
 # Usage: scripts/record-dataset.sh [--material FILE] [--bench FILE] [OUTDIR=data/dataset]
 #        --material: the simulated object (default materials/sponge.toml; e.g. materials/foam-b.toml)

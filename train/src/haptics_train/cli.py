@@ -13,6 +13,7 @@ import torch
 
 from .data import DataError, Dataset, load_data
 from .features import FEATURE_SETS
+from .holds import HOLDS_ALGOS, HOLDS_SPEC
 from .importer import DEFAULT_MAX_GAP_FACTOR, FORCE_UNITS, POSITION_UNITS, TIME_UNITS
 from .models import ALGOS, TrainConfig
 from .pipeline import DEFAULT_SPECS
@@ -64,7 +65,9 @@ def _train_opts(p: argparse.ArgumentParser) -> None:
         "--models",
         default=",".join(DEFAULT_SPECS),
         help="comma-separated ALGO[:FEATURESET] specs; algorithms: "
-        f"{', '.join(ALGOS)}; feature sets: {', '.join(FEATURE_SETS)} "
+        f"{', '.join(ALGOS)}; feature sets: {', '.join(FEATURE_SETS)}; "
+        f"{', '.join(HOLDS_ALGOS)} also as ALGO{HOLDS_SPEC}: trained on the dataset's "
+        "press-and-hold recordings too, named ALGO_holds (holds.py) "
         "(default: the full comparison)",
     )
     p.add_argument(

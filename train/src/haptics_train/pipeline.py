@@ -36,6 +36,7 @@ from .fidelity import (
     recommendation,
     validation_score,
 )
+from .holds import spec_dataset, split_spec
 from .lawfree_selection import (
     BOTH_SCORES_RULE,
     DAMAGE_RULE,
@@ -93,7 +94,7 @@ DEFAULT_SPECS: tuple[str, ...] = (
 def _configured(spec: str, preset: str, hyper: dict[str, dict] | None, extra: dict) -> ForceModel:
     """The unfitted model of `spec`, the user's hyper-parameters and `extra` on top."""
     m = parse_spec(spec, preset)
-    algo = spec.partition(":")[0].strip()
+    algo = split_spec(spec)[0].partition(":")[0].strip()
     for key in (algo.removesuffix("_fb"), algo) if algo.endswith("_fb") else (algo,):
         if hyper and key in hyper:
             m.hyper.update(hyper[key])
@@ -255,12 +256,16 @@ def train_models(
     memory, kept where it is clearly closer (`keep_at_margin`)."""
     for spec in specs:
         parse_spec(spec, preset)  # an unknown algorithm or feature set stops before any training
+        spec_dataset(dataset, spec)  # so does a `+holds` spec on a dataset without holds
     if (note := feature_gains_note(dataset)) is not None:
         print(f"[train] warning: {note}", flush=True)
     out.mkdir(parents=True, exist_ok=True)
     models = []
+    every_recording = dataset
     for spec in specs:
-        algo = spec.partition(":")[0].strip()
+        # what this model trains and chooses on: the hold recordings only for `+holds` (holds.py)
+        dataset = spec_dataset(every_recording, spec)
+        algo = split_spec(spec)[0].partition(":")[0].strip()
         candidates = _candidates(algo, hyper, feedback_noise_candidates, dataset)
         print(f"[train] {spec} on {len(dataset.train)} recordings ...", flush=True)
         try:
@@ -297,7 +302,7 @@ def train_models(
                     rule += NETWORK_RULE
                     m, network = try_network_readout(
                         m, dataset, cfg, scored[pick], every[pick],
-                        lambda c: validation_free_run_scores(c, cfg, dataset), steps)
+                        lambda c, ds=dataset: validation_free_run_scores(c, cfg, ds), steps)
                 m.train_info_["selection"] = {
                     "parameter": parameter,
                     "metric": SELECTION_METRIC,
@@ -315,7 +320,7 @@ def train_models(
                     raise ValueError("DAgger chooses its round on a validation recording; "
                                      "the dataset has none")  # fmt: skip
                 m = fit_dagger(m, dataset.train, cfg, rounds,
-                               lambda c: validation_free_run_rmse(c, cfg, dataset),
+                               lambda c, ds=dataset: validation_free_run_rmse(c, cfg, ds),
                                SELECTION_METRIC)  # fmt: skip
         except (ValueError, RuntimeError, FloatingPointError) as e:
             # one model failing (e.g. a diverging network) must not lose the others

@@ -4,6 +4,7 @@ estimator shape and the arrays each model takes: `base`)."""
 from __future__ import annotations
 
 from ..features import feature_set
+from ..holds import HOLDS_ALGOS, HOLDS_KEY, HOLDS_SPEC, split_spec
 from .base import ForceModel, NotFittedError, TrainConfig, fit_recordings, predict_at
 from .lawfree import LawFreeModel
 from .networks import DNN_THESIS, LSTM_THESIS, DenseModel, LSTMModel
@@ -84,7 +85,12 @@ def make_model(
 
 def parse_spec(spec: str, preset: str = "default") -> ForceModel:
     """`rf:six`, `lstm:xva_f`, `sd_poly2` (spring-dampers always use x and v), `lstm_slow`
-    (x and v unless a kinematics-only set is named)."""
-    algo, _, fset = spec.partition(":")
-    default = "x_v" if algo.strip() == "lstm_slow" else "six"  # kinematics only
-    return make_model(algo.strip(), (fset or default).strip(), preset)
+    (x and v unless a kinematics-only set is named); `structured+holds`: trained on the
+    dataset's press-and-hold recordings too (holds.py), for the models of `HOLDS_ALGOS`."""
+    base, holds = split_spec(spec)
+    algo, _, fset = base.partition(":")
+    algo = algo.strip()
+    if holds and (algo not in HOLDS_ALGOS or fset):
+        raise ValueError(f"{spec}: only {', '.join(HOLDS_ALGOS)} take {HOLDS_SPEC} (holds.py)")
+    default = "x_v" if algo == "lstm_slow" else "six"  # kinematics only
+    return make_model(algo, (fset or default).strip(), preset, {HOLDS_KEY: True} if holds else None)

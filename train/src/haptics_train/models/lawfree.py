@@ -95,6 +95,7 @@ from scipy.signal import lfilter
 
 from ..data import SequenceInfo
 from ..features import KINEMATICS
+from ..holds import holds_name
 from ..metrics import loop_work
 from .base import ForceModel, check_sequences, serve_dt, served_dt, step_dt
 from .contact_rows import sliding_rows
@@ -180,7 +181,7 @@ class LawFreeModel(ForceModel):
 
     @property
     def name(self) -> str:
-        return "lawfree"
+        return "lawfree" + holds_name(self.hyper)  # `lawfree_holds`: holds.py
 
     @property
     def state_size(self) -> int:

@@ -121,6 +121,7 @@ from threadpoolctl import threadpool_limits
 
 from ..data import SequenceInfo
 from ..features import KINEMATICS
+from ..holds import holds_name
 from .base import ForceModel, check_sequences, serve_dt, step_dt
 from .contact_rows import sliding_rows
 from .structured_graph import DEPTH_FLOOR, structured_fused, structured_graph
@@ -435,7 +436,7 @@ class StructuredModel(ForceModel):
 
     @property
     def name(self) -> str:
-        return self.algo
+        return self.algo + holds_name(self.hyper)  # `structured_holds`: holds.py
 
     @property
     def state_size(self) -> int:
