@@ -9,7 +9,7 @@ import pytest
 
 from haptics_train import pipeline
 from haptics_train.data import Dataset, Recording
-from haptics_train.holds import spec_dataset, split_spec
+from haptics_train.holds import spec_algo, spec_dataset, split_spec
 from haptics_train.models import TrainConfig, parse_spec
 
 
@@ -34,6 +34,7 @@ def _names(recs: list[Recording]) -> list[str]:
 def test_a_holds_spec_is_named_for_it_and_only_the_studys_candidates_take_it() -> None:
     assert split_spec("structured_hyst+holds") == ("structured_hyst", True)
     assert split_spec("rf:memory") == ("rf:memory", False)
+    assert (spec_algo("lawfree+holds"), spec_algo("rf:memory")) == ("lawfree", "rf")
     for algo in ("structured", "structured_path", "structured_hyst", "lawfree"):
         m = parse_spec(f"{algo}+holds")
         assert m.name == f"{algo}_holds" and m.hyper["train_holds"] is True

@@ -40,6 +40,12 @@ def split_spec(spec: str) -> tuple[str, bool]:
     return s, False
 
 
+def spec_algo(spec: str) -> str:
+    """The algorithm of a spec, without its feature set or `+holds` (`rf:memory` -> `rf`,
+    `lawfree+holds` -> `lawfree`): the key of its hyper-parameters and its choices."""
+    return split_spec(spec)[0].partition(":")[0].strip()
+
+
 def holds_name(hyper: dict) -> str:
     """The name suffix of a model with these hyperparameters (`_holds` or nothing)."""
     return HOLDS_NAME if hyper.get(HOLDS_KEY, False) else ""

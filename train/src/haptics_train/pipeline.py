@@ -36,7 +36,7 @@ from .fidelity import (
     recommendation,
     validation_score,
 )
-from .holds import spec_dataset, split_spec
+from .holds import spec_algo, spec_dataset
 from .lawfree_selection import (
     BOTH_SCORES_RULE,
     DAMAGE_RULE,
@@ -94,7 +94,7 @@ DEFAULT_SPECS: tuple[str, ...] = (
 def _configured(spec: str, preset: str, hyper: dict[str, dict] | None, extra: dict) -> ForceModel:
     """The unfitted model of `spec`, the user's hyper-parameters and `extra` on top."""
     m = parse_spec(spec, preset)
-    algo = split_spec(spec)[0].partition(":")[0].strip()
+    algo = spec_algo(spec)
     for key in (algo.removesuffix("_fb"), algo) if algo.endswith("_fb") else (algo,):
         if hyper and key in hyper:
             m.hyper.update(hyper[key])
@@ -265,7 +265,7 @@ def train_models(
     for spec in specs:
         # what this model trains and chooses on: the hold recordings only for `+holds` (holds.py)
         dataset = spec_dataset(every_recording, spec)
-        algo = split_spec(spec)[0].partition(":")[0].strip()
+        algo = spec_algo(spec)
         candidates = _candidates(algo, hyper, feedback_noise_candidates, dataset)
         print(f"[train] {spec} on {len(dataset.train)} recordings ...", flush=True)
         try:
