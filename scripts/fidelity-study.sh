@@ -5,8 +5,9 @@
 # candidate models on each, record the out-of-distribution suite and score the recommended
 # model on it, and run the reproduction study (felt force, the oracle's floor, both friction
 # settings side by side; it ranks the candidates again with the felt force of runs of their own,
-# another hand programme and seed than the headline). Prints (and writes
-# to the report folder as timings.json) the minutes each step took.
+# another hand programme and seed than the headline, and builds `blend`, the mean of the two it
+# ranked first, recommended where it felt closer on those runs: models/blend.py). Prints (and
+# writes to the report folder as timings.json) the minutes each step took.
 #
 # Usage: scripts/fidelity-study.sh [--material FILE] [--out DIR] [extra haptics-train study options]
 #   --material  default materials/sponge.toml: its report goes to docs/study and its figures
@@ -97,7 +98,10 @@ step record_ood bash scripts/record-ood.sh --material "$material" "$work/ood"
 step study "$ht" study --models-dir "$work/off/models" \
   --bench bench.toml --bench-models-dir "$work/on/models" --material "$material" \
   --trajectory "$work/off/dataset/test_2.1.parquet" --out "$out" --work "$work/study" \
-  --rt-loop "$rt_loop" --infer-server "$infer_server" --fidelity "$fidelity" "$@"
+  --rt-loop "$rt_loop" --infer-server "$infer_server" --fidelity "$fidelity" \
+  --dataset "$work/off/dataset" "$@"
+# the study built `blend` (the mean of the two its ranking runs put first) where it could
+[ -f "$work/off/models/blend.joblib" ] && names+=,blend
 # after the study: the suite's keys are the (felt-force ranked) recommended model's
 step score_ood "$ht" ood --suite "$work/ood" --models-dir "$work/off/models" --names "$names" \
   --fidelity "$fidelity" --readme "$out/README.md"

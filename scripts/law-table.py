@@ -17,7 +17,7 @@ from pathlib import Path
 
 MODELS = ("oracle", "sd_poly2", "rf_memory", "structured", "structured_path", "structured_hyst",
           "lawfree", "structured_holds", "structured_path_holds", "structured_hyst_holds",
-          "lawfree_holds")
+          "lawfree_holds", "blend")
 
 
 def read(p: Path) -> dict:
@@ -42,7 +42,8 @@ def law_rows(d: Path) -> dict:
     st = read(d / "study" / "results.json")
     sm = st.get("models") or {}
     fast = st.get("fast_hand") or {}
-    out: dict = {"recommended": rec.get("recommended"), "models": {}}
+    out: dict = {"recommended": rec.get("recommended"), "models": {},
+                 "blend": (rec.get("blend") or {}).get("members")}  # fmt: skip
     for name in (*MODELS, rec.get("recommended")):
         if not name or name in out["models"]:
             continue
@@ -86,7 +87,9 @@ def main(argv: list[str]) -> int:
         "A model whose name ends in `_holds` was trained, and made its choices, on the "
         "dataset's press-and-hold recordings too (`+holds`, holds.py); the others never saw "
         "them. Where a dataset has them, the validation columns pool both validation "
-        "recordings for every model.\n"),
+        "recordings for every model. `blend` is the mean of the two models the ranking runs "
+        "put first (models/blend.py; its two per law under the goals), built by the study "
+        "and ranked on the same runs.\n"),
         ("The laws and their sources: docs/laws.md; an object whose law is an ONNX graph "
          "(`law = \"onnx\"`) and how to write one: [onnx.md](onnx.md).\n"),
         ("| law | model | felt | fast | free run | free run, sliding | validation free run "
@@ -126,6 +129,8 @@ def main(argv: list[str]) -> int:
             f" its felt force and {fmt(sd_vs_lf_free, 2)}x its free run (goal >= 2: "
             f"{'met' if min(sd_vs_lf_felt, sd_vs_lf_free) >= 2 else 'not met'}; on the sliding "
             f"rows {fmt(sd_vs_lf_slide, 2)}x)."
+            + (f" `blend`: the mean of `{doc['blend'][0]}` and `{doc['blend'][1]}`."
+               if doc.get("blend") else "")
         )
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(L) + "\n")

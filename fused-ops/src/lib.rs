@@ -1,6 +1,7 @@
 //! ONNX Runtime custom operators for the haptics models: one fused node per physics-shaped
 //! model, in the custom-op domain [`DOMAIN`]: `StructuredStep` (train's `structured`),
-//! `LawFreeStep` (`lawfree`), `DenseStep` (`dnn`, `dnn_fb`),
+//! `LawFreeStep` (`lawfree`), `BlendStep` (`blend`: two of those in one node), `DenseStep`
+//! (`dnn`, `dnn_fb`),
 //! `PronyStep` (`prony`), `LstmStep` (`lstm`, `lstm_fb`), `SlowLstmStep` (`lstm_slow`),
 //! `SvrStep` (`svr`), `SpringDamperStep` (`sd_const`, `sd_poly1`, `sd_poly2`) and `ForestStep`
 //! (`rf`).
@@ -27,6 +28,7 @@
 
 mod ahead;
 mod attrs;
+mod blend;
 mod dense;
 mod forest;
 mod huge;
@@ -46,6 +48,7 @@ mod tensors;
 
 pub use ahead::{run_ahead, serve_ahead_on_this_thread};
 pub use attrs::{AttrError, Attrs};
+pub use blend::{BlendParams, BlendStep};
 pub use dense::{DenseParams, DenseStep};
 pub use forest::{ForestParams, ForestStep};
 pub use lawfree::{LawFreeParams, LawFreeStep};
@@ -69,6 +72,7 @@ pub fn domain() -> ort::Result<OperatorDomain> {
     OperatorDomain::new(DOMAIN)?
         .add(StructuredStep::default())?
         .add(LawFreeStep::default())?
+        .add(BlendStep::default())?
         .add(DenseStep::default())?
         .add(PronyStep::default())?
         .add(LstmStep::default())?

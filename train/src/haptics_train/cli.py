@@ -318,6 +318,15 @@ def cmd_pipeline(a: argparse.Namespace) -> None:
     print(f"[pipeline] done in {time.perf_counter() - t0:.0f} s")
 
 
+def cmd_blend(a: argparse.Namespace) -> None:
+    from .pipeline import blend_models
+
+    names = _names(a) or []
+    if len(names) != 2:
+        raise ValueError(f"--names takes two models, got {len(names)}: {','.join(names)}")
+    blend_models(Path(a.models_dir), _data(a), (names[0], names[1]))
+
+
 def cmd_study(a: argparse.Namespace) -> None:
     from .study import StudyError, run_study
 
@@ -347,6 +356,7 @@ def cmd_study(a: argparse.Namespace) -> None:
             clock=a.clock,
             fidelity=Path(a.fidelity) if a.fidelity else None,
             headline=a.headline,
+            dataset=Path(a.dataset) if a.dataset else None,
         )
     except StudyError as e:
         raise RuntimeError(str(e)) from None
@@ -520,7 +530,19 @@ def build_parser() -> argparse.ArgumentParser:
         default="docs/fidelity.json",
         help="merge the study's keys into this file ('' to skip; default %(default)s)",
     )
+    s.add_argument(
+        "--dataset",
+        help="the models' dataset folder: with it (and the headline off) the study also builds "
+        "`blend`, the mean of the two candidates its ranking runs put first, runs it on the "
+        "same programmes and recommends it where it felt closer there (models/blend.py)",
+    )
     s.set_defaults(fn=cmd_study)
+
+    s = sub.add_parser("blend", help="the mean of two trained stateful models as one model "
+                       "(blend.joblib, evaluated and exported as blend.onnx)")  # fmt: skip
+    _common(s)
+    s.add_argument("--names", required=True, help="the two models, comma-separated")
+    s.set_defaults(fn=cmd_blend)
 
     s = sub.add_parser("pipeline", help="analyze + train + evaluate + export + report")
     _common(s)

@@ -50,6 +50,7 @@ from .lawfree_selection import (
 )
 from .metrics import fmt_figure
 from .models import ForceModel, TrainConfig, fit_recordings, parse_spec
+from .models.blend import BLEND_NAME, BlendModel
 from .models.lawfree_net import NET_MAX_STEPS
 from .models.structured import INDENTATION, StructuredModel
 from .reference import add_reference
@@ -525,3 +526,35 @@ def export_models(
                   "scores it)", flush=True)  # fmt: skip
         _save_results(folder, results)
     return results
+
+
+def blend_models(folder: Path, dataset: Dataset, pair: tuple[str, str]) -> BlendModel:
+    """`blend` (models/blend.py) of two trained models of `folder`: saved as blend.joblib,
+    then evaluated and exported like any model (results.json entry, predictions, blend.onnx
+    with its reference steps, cost and parity). Refused with why (`BlendError`) when the two
+    cannot be blended. The study calls it with the two candidates its ranking runs put first."""
+    (a, cfg), (b, _) = load_models(folder, list(pair))
+    model = BlendModel.of(a, b)
+    cfg.progress = False
+    joblib.dump({"model": model, "config": cfg}, folder / f"{BLEND_NAME}.joblib")
+    print(f"[blend] {BLEND_NAME} = the mean of {a.name} and {b.name}", flush=True)
+    evaluate_models([(model, cfg)], dataset, folder)
+    export_models([(model, cfg)], dataset, folder)
+    return model
+
+
+def remove_blend(folder: Path) -> bool:
+    """Removes `folder`'s blend (its .joblib, .onnx, predictions and results.json entry): a
+    blend is made of the two candidates a study ranked first, so one left from an earlier
+    study is no candidate of the next. True when there was one."""
+    found = False
+    for f in (folder / f"{BLEND_NAME}.joblib", folder / f"{BLEND_NAME}.onnx",
+              folder / "predictions" / f"{BLEND_NAME}.npz"):  # fmt: skip
+        if f.exists():
+            f.unlink()
+            found = True
+    results = load_results(folder)
+    if results.pop(BLEND_NAME, None) is not None:
+        _save_results(folder, results)
+        found = True
+    return found

@@ -527,6 +527,14 @@ def recommendation_section(rec: dict | None, rows: list[Row], setup: dict) -> li
             f"{fmt(e.get('score'), 2)} | {fmt(here if math.isfinite(here) else None)} |"
         )
     L.append("")
+    blend = (rec or {}).get("blend")
+    if blend and blend.get("members"):
+        a, b = blend["members"][:2]
+        L.append(
+            f"`blend` is the mean of `{a}` and `{b}`, the two models the ranking runs put "
+            "first before it was built, each stepping its own state (models/blend.py); it ran "
+            "on the same ranking programmes and is ranked like the others.\n"
+        )
     name = rec["recommended"]
     mine = felt_rmse(named_row(rows, name))
     if not math.isfinite(mine):

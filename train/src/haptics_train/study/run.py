@@ -79,6 +79,7 @@ def run_study(
     clock: str = "lockstep",
     fidelity: Path | None = None,
     headline: str = "off",
+    dataset: Path | None = None,
 ) -> Path:
     """The study. With `bench` (a bench file of `rt-loop identify-friction`) every reproduction
     runs twice: without friction compensation and with it (`--bench`, in the reference too),
@@ -88,6 +89,10 @@ def run_study(
     today (no bench file in scripts/up.sh), `on` the compensated setting."""
     t_start = time.perf_counter()
     tools = find_tools(root, rt_loop, infer_server)
+    from ..pipeline import remove_blend  # the pipeline's imports are heavy: only when needed
+
+    if dataset is not None and headline == "off" and remove_blend(models_dir):
+        print(f"[study] removed the blend of an earlier study from {models_dir}", flush=True)
     files = study_models(models_dir, names)
     if not material.is_file():
         raise StudyError(f"no material file {material}")
@@ -188,6 +193,15 @@ def run_study(
             )
             programmes.append(rank_rows)
         felt_doc = rerank_by_felt(models_dir, results, programmes)
+        if dataset is not None and primary == "off" and felt_doc is not None:
+            hands = {"rank_": (rank_hand, seed + RANK_SEED_OFFSET),
+                     "rank2_": (rank2_hand, seed + RANK2_SEED_OFFSET), "": (hand, seed),
+                     "fast_": (fast_hand, seed), "long_": (long_hand, seed)}  # fmt: skip
+            lists = {"rank_": programmes[0], "rank2_": programmes[1], "": rows,
+                     "fast_": fast_rows, "long_": long_rows}  # fmt: skip
+            felt_doc = _blend(tools, models_dir, dataset, felt_doc, work, hands, lists,
+                              programmes, say, common, clock) or felt_doc  # fmt: skip
+            results = load_results(models_dir)
     total = time.perf_counter() - t_start
     write_plots(out_dir, ref, rows, rec, rep_s)
     setup = {
@@ -249,12 +263,14 @@ def _reproduce_all(
     say: Callable[[str], None],
     extra: list[str] | None = None,
     clock: str = "lockstep",
+    floors: bool = True,
 ) -> tuple[Run, list[Row]]:
     """The reference (shadow on the simulated object), the oracle, then every model's
     reproduction (and, optionally, its prediction along the real interaction, against the
     object's own force F_object), then the
     builtin spring-damper, all with the same hand programme, seed, material and bench file
-    (`extra`: rt-loop flags)."""
+    (`extra`: rt-loop flags). `floors` False: no oracle and no builtin spring-damper (a model
+    added to runs that have them already, `_blend`)."""
     cfg = work / f"{tag}hand.toml"
     write_config(cfg, seed, hand, clock)
     base = ["--config", str(cfg), "--clock", clock, "--seed", str(seed), *(extra or [])]
@@ -298,8 +314,9 @@ def _reproduce_all(
                         by_press=felt_by_press(t_ref, f_ref, r, hand)))  # fmt: skip
         return score
 
-    ro = rt_loop_row(ORACLE, "oracle", "rt-loop oracle", ("--model", "oracle"))
-    say(f"{tag}oracle: felt-force RMSE {fmt(ro['rmse'] if ro else None)} N (the floor)")
+    if floors:
+        ro = rt_loop_row(ORACLE, "oracle", "rt-loop oracle", ("--model", "oracle"))
+        say(f"{tag}oracle: felt-force RMSE {fmt(ro['rmse'] if ro else None)} N (the floor)")
     for f in files:
         name = f.stem
         r = loop(name, "reproduction", "reproduction", f"repro_{name}", model=f)
@@ -322,9 +339,66 @@ def _reproduce_all(
             f"{r.served} served / {r.fallbacks} fallbacks, stop {r.stop or '-'}, "
             f"{r.wall_s:.1f} s {r.note}"
         )
-    rb = rt_loop_row(BUILTIN, "builtin", "rt-loop builtin")
-    say(f"{tag}builtin spring-damper: felt-force RMSE {fmt(rb['rmse'] if rb else None)} N")
+    if floors:
+        rb = rt_loop_row(BUILTIN, "builtin", "rt-loop builtin")
+        say(f"{tag}builtin spring-damper: felt-force RMSE {fmt(rb['rmse'] if rb else None)} N")
     return ref, rows
+
+
+def blend_pair(ranking: list[dict]) -> tuple[str, str] | None:
+    """The two candidates a blend is made of: the first two of the ranking (best first) that
+    have a felt force on the ranking runs; None when fewer than two have one."""
+    felt = [e["model"] for e in ranking if e.get("felt_rmse_n") is not None]
+    return (felt[0], felt[1]) if len(felt) >= 2 else None
+
+
+def _blend(
+    tools: Tools,
+    models_dir: Path,
+    dataset: Path,
+    felt_doc: dict,
+    work: Path,
+    hands: dict[str, tuple[dict[str, float], int]],
+    lists: dict[str, list[Row]],
+    programmes: list[list[Row]],
+    say: Callable[[str], None],
+    common: list[str],
+    clock: str,
+) -> dict | None:
+    """`blend` of the two candidates the ranking runs put first (both with a felt force):
+    built, evaluated and exported (pipeline.blend_models), run with every hand of the study
+    (`hands`: tag -> programme and seed; its rows appended to `lists`, the ranking programmes
+    among them), and the recommendation ranked again with its felt force beside the others'.
+    The recommendation document, or None (said why) when the two cannot be blended."""
+    from ..data import load_data
+    from ..models.blend import BLEND_NAME, BlendError
+    from ..pipeline import blend_models
+
+    pair = blend_pair(felt_doc["ranking"])
+    if pair is None:
+        say("blend: fewer than two candidates with a felt force; none built")
+        return None
+    try:
+        blend_models(models_dir, load_data(dataset), pair)
+    except BlendError as e:
+        say(f"blend: none built ({e})")
+        return None
+    file = models_dir / f"{BLEND_NAME}.onnx"
+    for tag, (hand, seed) in hands.items():
+        cfg_extra = common  # the headline setting: no bench file (the blend is built "off")
+        _, got = _reproduce_all(tools, [file], work, tag, hand, seed, False, say, cfg_extra,
+                                clock, floors=False)  # fmt: skip
+        lists[tag].extend(got)
+    doc = rerank_by_felt(models_dir, load_results(models_dir), programmes)
+    if doc is not None:
+        entry = next(e for e in doc["ranking"] if e["model"] == BLEND_NAME)
+        best = next(e for e in doc["ranking"] if e["model"] != BLEND_NAME)
+        say(f"blend of {pair[0]} and {pair[1]}: ranking runs {fmt(entry.get('felt_rmse_n'))} N "
+            f"against {best['model']}'s {fmt(best.get('felt_rmse_n'))} N: "
+            f"{'recommended' if doc['recommended'] == BLEND_NAME else 'not recommended'}")
+        doc["blend"] = {"members": list(pair), "weights": [0.5, 0.5]}
+        (models_dir / RECOMMENDATION_FILE).write_text(json.dumps(doc, indent=1) + "\n")
+    return doc
 
 
 def ranking_felt(programmes: list[list[Row]], results: dict) -> dict[str, list[float]]:

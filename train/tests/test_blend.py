@@ -1,0 +1,120 @@
+"""`blend` (models/blend.py): the mean of two fitted stateful models, each stepping its own
+state; dissipative when its members are, served as one stateful graph in parity with
+`predict_served`, refused with why for members it cannot blend; and the study's choice of its
+two members and clean-up of an earlier study's blend."""
+
+import copy
+import json
+
+import joblib
+import numpy as np
+import pytest
+from test_lawfree import SMALL as LAWFREE_SMALL
+from test_lawfree import pad
+from test_structured import SMALL as STRUCTURED_SMALL
+from test_structured import info, presses
+
+from haptics_train.closed_loop import OnnxStepper
+from haptics_train.contract import validate_model
+from haptics_train.export import provenance, to_contract_onnx
+from haptics_train.metrics import loop_work
+from haptics_train.models import TrainConfig, make_model
+from haptics_train.models.blend import BLEND_NAME, BlendError, BlendModel, blendable
+from haptics_train.pipeline import remove_blend
+from haptics_train.study.run import blend_pair
+
+
+def training() -> tuple[list[np.ndarray], list[np.ndarray], list]:
+    x, v = presses([0.01, 0.02, 0.015, 0.025, 0.006], 2.0)
+    _, y = pad(x, v)
+    return [np.column_stack([x, v])], [y], [info(len(x))]
+
+
+@pytest.fixture(scope="module")
+def members():
+    X, y, inf = training()
+    a = make_model("structured", hyper=STRUCTURED_SMALL).fit(X, y, info=inf)
+    b = make_model("lawfree", hyper=LAWFREE_SMALL).fit(X, y, info=inf)
+    return a, b
+
+
+def held_out() -> tuple[np.ndarray, np.ndarray]:
+    x, v = presses([0.018, 0.008], 1.3)  # depths and a rate neither member was fitted on
+    return x, np.column_stack([x, v])
+
+
+def test_the_blend_is_the_mean_of_its_members_and_dissipates(members):
+    a, b = members
+    m = BlendModel.of(a, b)
+    x, X = held_out()
+    np.testing.assert_allclose(m.predict(X), 0.5 * (a.predict(X) + b.predict(X)))
+    served = m.predict_served(X)
+    np.testing.assert_allclose(served, 0.5 * (a.predict_served(X) + b.predict_served(X)))
+    assert m.name == BLEND_NAME and m.state_size == a.state_size + b.state_size
+    assert m.train_info_["members"] == [a.name, b.name]
+    assert np.all(served >= 0) and loop_work(x, served) > 0  # pushes only, absorbs energy
+    # closer to the object than the worse member (a mean is never further than both)
+    obj, _ = pad(x, X[:, 1])
+    err = {k: np.sqrt(np.mean((f - obj) ** 2)) for k, f in
+           (("a", a.predict_served(X)), ("b", b.predict_served(X)), ("blend", served))}
+    assert err["blend"] <= max(err["a"], err["b"]), err
+
+
+def test_the_blend_is_served_as_one_stateful_graph_in_parity(members, fused_ops):
+    m = BlendModel.of(*members)
+    for fused in (True, False):  # the fused nodes, and the members' multi-node graphs
+        om = to_contract_onnx(m, provenance(m, TrainConfig(progress=False), None, None),
+                              fused=fused)  # fmt: skip
+        meta = validate_model(om)
+        ops = [n.op_type for n in om.graph.node]
+        assert ops == ["BlendStep"] if fused else len(ops) > 2, ops  # one node when fused
+        assert meta["haptics.kind"] == "stateful"
+        assert meta["haptics.state_size"] == str(m.state_size)
+        assert float(meta["haptics.step_s"]) == m.serve_dt_
+        _, X = held_out()
+        st = OnnxStepper(om)
+        got = np.array([st.step(r) for r in X.astype(np.float32)])
+        np.testing.assert_allclose(got, m.predict_served(X), atol=2e-3)
+
+
+def test_fit_fits_both_members_like_a_voting_regressor():
+    X, y, inf = training()
+    m = BlendModel([make_model("structured", hyper=STRUCTURED_SMALL),
+                    make_model("lawfree", hyper=LAWFREE_SMALL)]).fit(X, y, info=inf)  # fmt: skip
+    assert all(hasattr(k, "train_info_") for k in m.members_)
+    assert np.isfinite(m.predict(X[0])).all()
+
+
+def test_models_it_cannot_blend_are_refused_with_why(members):
+    a, b = members
+    sd = make_model("sd_poly2")
+    sd.fit(np.array([[0.001, 0.0], [0.002, 0.0]]), np.array([1.0, 2.0]))
+    with pytest.raises(BlendError, match="not a stateful model"):
+        BlendModel.of(a, sd)
+    with pytest.raises(BlendError, match=f"both are {a.name}"):
+        BlendModel.of(a, a)
+    other = copy.deepcopy(b)
+    other.serve_dt_ = 2 * b.serve_dt_  # exported for a loop of another rate
+    assert "steps at" in (blendable(a, other) or "")
+    with pytest.raises(BlendError, match="weights"):
+        BlendModel((a, b), {"weights": [0.5, -0.5]})
+    assert blendable(a, b) is None
+
+
+def test_the_study_blends_the_first_two_with_a_felt_force():
+    ranking = [{"model": "s", "felt_rmse_n": 0.05}, {"model": "v", "felt_rmse_n": None},
+               {"model": "l", "felt_rmse_n": 0.07}, {"model": "p", "felt_rmse_n": 0.08}]
+    assert blend_pair(ranking) == ("s", "l")
+    assert blend_pair(ranking[:2]) is None
+
+
+def test_an_earlier_studys_blend_is_removed_and_nothing_else(tmp_path):
+    (tmp_path / "predictions").mkdir()
+    for f in ("blend.joblib", "blend.onnx", "predictions/blend.npz", "structured.onnx"):
+        joblib.dump({}, tmp_path / f)
+    (tmp_path / "results.json").write_text(json.dumps({"blend": {}, "structured": {"x": 1}}))
+    assert remove_blend(tmp_path)
+    assert sorted(p.name for p in tmp_path.rglob("*") if p.is_file()) == [
+        "results.json", "structured.onnx"]  # fmt: skip
+    assert json.loads((tmp_path / "results.json").read_text()) == {"structured": {"x": 1}}
+    assert not remove_blend(tmp_path)
