@@ -63,8 +63,6 @@ def blendable(a: ForceModel, b: ForceModel) -> str | None:
             return f"{m.name} is not a stateful model stepped in time (kind {m.kind})"
         if not hasattr(m, "train_info_"):
             return f"{m.name} is not fitted"
-        if not hasattr(m, "predict_served") and not hasattr(m, "predict"):
-            return f"{m.name} has no predict"
     if a.name == b.name:
         return f"both are {a.name}"
     if tuple(a.features) != tuple(b.features):

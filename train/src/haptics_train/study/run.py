@@ -371,7 +371,7 @@ def _blend(
     among them), and the recommendation ranked again with its felt force beside the others'.
     The recommendation document, or None (said why) when the two cannot be blended."""
     from ..data import load_data
-    from ..models.blend import BLEND_NAME, BlendError
+    from ..models.blend import BLEND_NAME, WEIGHTS, BlendError
     from ..pipeline import blend_models
 
     pair = blend_pair(felt_doc["ranking"])
@@ -385,8 +385,8 @@ def _blend(
         return None
     file = models_dir / f"{BLEND_NAME}.onnx"
     for tag, (hand, seed) in hands.items():
-        cfg_extra = common  # the headline setting: no bench file (the blend is built "off")
-        _, got = _reproduce_all(tools, [file], work, tag, hand, seed, False, say, cfg_extra,
+        # the headline setting's flags: no bench file (the blend is built "off")
+        _, got = _reproduce_all(tools, [file], work, tag, hand, seed, False, say, common,
                                 clock, floors=False)  # fmt: skip
         lists[tag].extend(got)
     doc = rerank_by_felt(models_dir, load_results(models_dir), programmes)
@@ -396,7 +396,7 @@ def _blend(
         say(f"blend of {pair[0]} and {pair[1]}: ranking runs {fmt(entry.get('felt_rmse_n'))} N "
             f"against {best['model']}'s {fmt(best.get('felt_rmse_n'))} N: "
             f"{'recommended' if doc['recommended'] == BLEND_NAME else 'not recommended'}")
-        doc["blend"] = {"members": list(pair), "weights": [0.5, 0.5]}
+        doc["blend"] = {"members": list(pair), "weights": list(WEIGHTS)}
         (models_dir / RECOMMENDATION_FILE).write_text(json.dumps(doc, indent=1) + "\n")
     return doc
 
