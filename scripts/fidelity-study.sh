@@ -100,7 +100,7 @@ step study "$ht" study --models-dir "$work/off/models" \
   --trajectory "$work/off/dataset/test_2.1.parquet" --out "$out" --work "$work/study" \
   --rt-loop "$rt_loop" --infer-server "$infer_server" --fidelity "$fidelity" \
   --dataset "$work/off/dataset" "$@"
-# the study built `blend` (the mean of the two its ranking runs put first) where it could
+# the study built `blend` (its ranking runs' first, with the partner and weights that felt closest there) where it could
 [ -f "$work/off/models/blend.joblib" ] && names+=,blend
 # after the study: the suite's keys are the (felt-force ranked) recommended model's
 step score_ood "$ht" ood --suite "$work/ood" --models-dir "$work/off/models" --names "$names" \

@@ -36,14 +36,21 @@ def fmt(v: float, nd: int = 3) -> str:
     return "-" if not math.isfinite(v) else f"{v:.{nd}f}"
 
 
+def weights(doc: dict) -> tuple[float, float]:
+    """The blend's weights (an earlier study's entry has none: equal)."""
+    w = doc.get("blend_weights") or [0.5, 0.5]
+    return float(w[0]), float(w[1])
+
+
 def law_rows(d: Path) -> dict:
     res = read(d / "models" / "results.json")
     rec = read(d / "models" / "recommendation.json")
     st = read(d / "study" / "results.json")
     sm = st.get("models") or {}
     fast = st.get("fast_hand") or {}
+    blend = rec.get("blend") or {}
     out: dict = {"recommended": rec.get("recommended"), "models": {},
-                 "blend": (rec.get("blend") or {}).get("members")}  # fmt: skip
+                 "blend": blend.get("members"), "blend_weights": blend.get("weights")}  # fmt: skip
     for name in (*MODELS, rec.get("recommended")):
         if not name or name in out["models"]:
             continue
@@ -87,9 +94,10 @@ def main(argv: list[str]) -> int:
         "A model whose name ends in `_holds` was trained, and made its choices, on the "
         "dataset's press-and-hold recordings too (`+holds`, holds.py); the others never saw "
         "them. Where a dataset has them, the validation columns pool both validation "
-        "recordings for every model. `blend` is the mean of the two models the ranking runs "
-        "put first (models/blend.py; its two per law under the goals), built by the study "
-        "and ranked on the same runs.\n"),
+        "recordings for every model. `blend` is the model the ranking runs put first, blended "
+        "with the partner and the weights that felt closest on the same runs (models/blend.py; "
+        "its members and weights per law under the goals), built by the study and ranked on "
+        "the same runs.\n"),
         ("The laws and their sources: docs/laws.md; an object whose law is an ONNX graph "
          "(`law = \"onnx\"`) and how to write one: [onnx.md](onnx.md).\n"),
         ("| law | model | felt | fast | free run | free run, sliding | validation free run "
@@ -129,8 +137,8 @@ def main(argv: list[str]) -> int:
             f" its felt force and {fmt(sd_vs_lf_free, 2)}x its free run (goal >= 2: "
             f"{'met' if min(sd_vs_lf_felt, sd_vs_lf_free) >= 2 else 'not met'}; on the sliding "
             f"rows {fmt(sd_vs_lf_slide, 2)}x)."
-            + (f" `blend`: the mean of `{doc['blend'][0]}` and `{doc['blend'][1]}`."
-               if doc.get("blend") else "")
+            + (f" `blend`: {weights(doc)[0]:g} x `{doc['blend'][0]}` + {weights(doc)[1]:g} x "
+               f"`{doc['blend'][1]}`." if doc.get("blend") else "")
         )
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(L) + "\n")

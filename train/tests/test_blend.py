@@ -1,13 +1,15 @@
 """`blend` (models/blend.py): the mean of two fitted stateful models, each stepping its own
 state; dissipative when its members are, served as one stateful graph in parity with
 `predict_served`, refused with why for members it cannot blend; and the study's choice of its
-two members and clean-up of an earlier study's blend."""
+two members (the first of the ranking, and the partner whose blend with it the ranking runs
+feel closest) and clean-up of an earlier study's blend."""
 
 import copy
 import json
 
 import joblib
 import numpy as np
+import onnx
 import pytest
 from test_lawfree import SMALL as LAWFREE_SMALL
 from test_lawfree import pad
@@ -19,9 +21,16 @@ from haptics_train.contract import validate_model
 from haptics_train.export import provenance, to_contract_onnx
 from haptics_train.metrics import loop_work
 from haptics_train.models import TrainConfig, make_model
-from haptics_train.models.blend import BLEND_NAME, BlendError, BlendModel, blendable
-from haptics_train.pipeline import remove_blend
-from haptics_train.study.run import blend_pair
+from haptics_train.models.blend import (
+    BLEND_NAME,
+    WEIGHT_GRID,
+    BlendError,
+    BlendModel,
+    blendable,
+)
+from haptics_train.pipeline import remove_blend, trial_blends
+from haptics_train.study.report import blend_sentence
+from haptics_train.study.run import blend_partners
 
 
 def training() -> tuple[list[np.ndarray], list[np.ndarray], list]:
@@ -101,11 +110,39 @@ def test_models_it_cannot_blend_are_refused_with_why(members):
     assert blendable(a, b) is None
 
 
-def test_the_study_blends_the_first_two_with_a_felt_force():
+def test_the_study_tries_the_first_with_every_other_felt_candidate():
     ranking = [{"model": "s", "felt_rmse_n": 0.05}, {"model": "v", "felt_rmse_n": None},
                {"model": "l", "felt_rmse_n": 0.07}, {"model": "p", "felt_rmse_n": 0.08}]
-    assert blend_pair(ranking) == ("s", "l")
-    assert blend_pair(ranking[:2]) is None
+    assert blend_partners(ranking) == ("s", ["l", "p"])
+    assert blend_partners(ranking[1:]) == ("l", ["p"])
+    assert blend_partners(ranking[:2]) is None
+
+
+def test_trial_blends_are_servable_files_and_skip_what_cannot_blend(members, tmp_path, fused_ops):
+    a, b = members
+    sd = make_model("sd_poly2")
+    sd.fit(np.array([[0.001, 0.0], [0.002, 0.0]]), np.array([1.0, 2.0]))
+    cfg = TrainConfig(progress=False)
+    for m in (a, b, sd):
+        joblib.dump({"model": m, "config": cfg}, tmp_path / f"{m.name}.joblib")
+    files = trial_blends(tmp_path, a.name, [sd.name, b.name], tmp_path / "trials")
+    assert list(files) == [b.name]  # sd_poly2 is stateless: left out, not an error
+    om = onnx.load(str(files[b.name]))
+    assert validate_model(om)["haptics.state_size"] == str(a.state_size + b.state_size)
+    _, X = held_out()
+    st = OnnxStepper(om)
+    got = np.array([st.step(r) for r in X.astype(np.float32)])
+    np.testing.assert_allclose(got, BlendModel.of(a, b).predict_served(X), atol=2e-3)
+    assert not (tmp_path / "blend.onnx").exists()  # trials never become the folder's blend
+    # a weight of the grid: its own file, the weighted mean
+    w = WEIGHT_GRID[1]
+    got_w = trial_blends(tmp_path, a.name, [b.name], tmp_path / "trials", w)
+    assert got_w[b.name] != files[b.name]
+    st = OnnxStepper(onnx.load(str(got_w[b.name])))
+    got = np.array([st.step(r) for r in X.astype(np.float32)])
+    want = w[0] * a.predict_served(X) + w[1] * b.predict_served(X)
+    np.testing.assert_allclose(got, want, atol=2e-3)
+    assert np.abs(want - BlendModel.of(a, b).predict_served(X)).max() > 1e-2  # not the mean
 
 
 def test_an_earlier_studys_blend_is_removed_and_nothing_else(tmp_path):
@@ -118,3 +155,18 @@ def test_an_earlier_studys_blend_is_removed_and_nothing_else(tmp_path):
         "results.json", "structured.onnx"]  # fmt: skip
     assert json.loads((tmp_path / "results.json").read_text()) == {"structured": {"x": 1}}
     assert not remove_blend(tmp_path)
+
+
+def test_the_report_says_what_the_blend_is_made_of_and_how_it_was_chosen():
+    entry = {
+        "members": ["s", "l"],
+        "weights": [0.75, 0.25],
+        "partners_felt_n": {"l": 0.0412, "p": 0.05},
+        "weights_felt_n": [{"weights": list(w), "felt_rmse_n": 0.04} for w in WEIGHT_GRID],
+    }
+    text = blend_sentence(entry)
+    assert "0.75 x `s` + 0.25 x `l`" in text and "of the 2 partners" in text
+    assert "(0.0412 N)" in text and "0.5 / 0.5, 0.75 / 0.25, 0.25 / 0.75" in text
+    # an earlier study's entry, before partners and weights were chosen
+    earlier = {"members": ["s", "l"], "weights": [0.5, 0.5]}
+    assert "the mean of `s` and `l`" in blend_sentence(earlier)

@@ -324,7 +324,13 @@ def cmd_blend(a: argparse.Namespace) -> None:
     names = _names(a) or []
     if len(names) != 2:
         raise ValueError(f"--names takes two models, got {len(names)}: {','.join(names)}")
-    blend_models(Path(a.models_dir), _data(a), (names[0], names[1]))
+    try:
+        w = tuple(float(v) for v in a.weights.split(","))
+    except ValueError:
+        w = ()
+    if len(w) != 2:
+        raise ValueError(f"--weights takes two numbers, comma-separated: got {a.weights!r}")
+    blend_models(Path(a.models_dir), _data(a), (names[0], names[1]), (w[0], w[1]))
 
 
 def cmd_study(a: argparse.Namespace) -> None:
@@ -533,8 +539,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--dataset",
         help="the models' dataset folder: with it (and the headline off) the study also builds "
-        "`blend`, the mean of the two candidates its ranking runs put first, runs it on the "
-        "same programmes and recommends it where it felt closer there (models/blend.py)",
+        "`blend`: the candidate its ranking runs put first, blended with the partner and "
+        "weights that felt closest on those runs; recommends it where it felt closest there "
+        "(models/blend.py)",
     )
     s.set_defaults(fn=cmd_study)
 
@@ -542,6 +549,12 @@ def build_parser() -> argparse.ArgumentParser:
                        "(blend.joblib, evaluated and exported as blend.onnx)")  # fmt: skip
     _common(s)
     s.add_argument("--names", required=True, help="the two models, comma-separated")
+    s.add_argument(
+        "--weights",
+        default="0.5,0.5",
+        help="their weights, comma-separated, non-negative (default %(default)s; a study's "
+        "choice is in its recommendation.json, `blend`)",
+    )
     s.set_defaults(fn=cmd_blend)
 
     s = sub.add_parser("pipeline", help="analyze + train + evaluate + export + report")

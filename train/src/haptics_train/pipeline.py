@@ -50,7 +50,7 @@ from .lawfree_selection import (
 )
 from .metrics import fmt_figure
 from .models import ForceModel, TrainConfig, fit_recordings, parse_spec
-from .models.blend import BLEND_NAME, BlendModel
+from .models.blend import BLEND_NAME, WEIGHTS, BlendModel, blendable
 from .models.lawfree_net import NET_MAX_STEPS
 from .models.structured import INDENTATION, StructuredModel
 from .reference import add_reference
@@ -528,16 +528,46 @@ def export_models(
     return results
 
 
-def blend_models(folder: Path, dataset: Dataset, pair: tuple[str, str]) -> BlendModel:
+def trial_blends(
+    folder: Path,
+    first: str,
+    others: list[str],
+    out: Path,
+    weights: tuple[float, float] = WEIGHTS,
+) -> dict[str, Path]:
+    """The blends of `first` with each of `others` (models of `folder`) at `weights`, written
+    to `out` as servable ONNX files only (the contract's metadata; no evaluation, parity nor
+    reference: the study runs them on its ranking programmes to choose `first`'s partner and
+    the weights, then builds the chosen one properly with `blend_models`). Other name -> file;
+    a model that cannot be blended with `first` is left out and said why."""
+    out.mkdir(parents=True, exist_ok=True)
+    (a, cfg), *rest = load_models(folder, [first, *others])
+    files: dict[str, Path] = {}
+    for (b, _), name in zip(rest, others, strict=True):
+        why = blendable(a, b)
+        if why is not None:
+            print(f"[blend] {first} with {name}: not tried ({why})", flush=True)
+            continue
+        model = BlendModel.of(a, b, weights)
+        prov = provenance(model, cfg, None, None)
+        tag = f"with_{name}_w{round(100 * weights[0])}"
+        files[name] = save_onnx(to_contract_onnx(model, prov), out / f"{tag}.onnx")
+    return files
+
+
+def blend_models(
+    folder: Path, dataset: Dataset, pair: tuple[str, str], weights: tuple[float, float] = WEIGHTS
+) -> BlendModel:
     """`blend` (models/blend.py) of two trained models of `folder`: saved as blend.joblib,
     then evaluated and exported like any model (results.json entry, predictions, blend.onnx
     with its reference steps, cost and parity). Refused with why (`BlendError`) when the two
-    cannot be blended. The study calls it with the two candidates its ranking runs put first."""
+    cannot be blended. The study calls it with the pair and weights its ranking runs chose."""
     (a, cfg), (b, _) = load_models(folder, list(pair))
-    model = BlendModel.of(a, b)
+    model = BlendModel.of(a, b, weights)
     cfg.progress = False
     joblib.dump({"model": model, "config": cfg}, folder / f"{BLEND_NAME}.joblib")
-    print(f"[blend] {BLEND_NAME} = the mean of {a.name} and {b.name}", flush=True)
+    print(f"[blend] {BLEND_NAME} = {model.weights[0]:g} {a.name} + {model.weights[1]:g} {b.name}",
+          flush=True)  # fmt: skip
     evaluate_models([(model, cfg)], dataset, folder)
     export_models([(model, cfg)], dataset, folder)
     return model
@@ -545,7 +575,7 @@ def blend_models(folder: Path, dataset: Dataset, pair: tuple[str, str]) -> Blend
 
 def remove_blend(folder: Path) -> bool:
     """Removes `folder`'s blend (its .joblib, .onnx, predictions and results.json entry): a
-    blend is made of the two candidates a study ranked first, so one left from an earlier
+    blend is made of the candidates a study's ranking runs chose, so one left from an earlier
     study is no candidate of the next. True when there was one."""
     found = False
     for f in (folder / f"{BLEND_NAME}.joblib", folder / f"{BLEND_NAME}.onnx",

@@ -1,21 +1,24 @@
-"""`blend`: the mean of two fitted stateful models' forces, each stepping its own state.
+"""`blend`: the weighted mean of two fitted stateful models' forces, each stepping its own state.
 
-Why: on the bench laws the study's two best candidates often err in different places (a
+Why: on the bench laws the study's best candidates often err in different places (a
 `structured` fit and a `lawfree` one, or a fit with and without the press-and-hold recordings),
-and the mean of two such answers is closer than either on some objects (docs/laws.md, "The mean
-of the two best"). It is a candidate the study's felt force chooses, never a replacement: the
-study builds it from the two candidates its ranking runs put first, runs it on the same ranking
-programmes, and recommends it only where it felt closer there (study/run.py, `_blend`).
+and a mean of two such answers is closer than either on some objects (docs/laws.md, "The mean
+of the two best", "The blend's partner and weights"). It is a candidate the study's felt force
+chooses, never a replacement: the study takes the candidate its ranking runs put first, tries
+it with every other at equal weights on the same ranking programmes, then the closest pair at
+the weights of `WEIGHT_GRID`, and recommends the result only where it felt closest there
+(study/run.py, `_blend`).
 
 What it is:
 
-    F = w_a F_a(x, v; s_a) + w_b F_b(x, v; s_b),   w_a = w_b = 1/2 (`weights`)
+    F = w_a F_a(x, v; s_a) + w_b F_b(x, v; s_b),   w_a, w_b >= 0 (`weights`; 1/2 each by default)
 
 with s_a and s_b the members' own states, stepped side by side. Both members are kinematics-in
 models (the same features, no previous force), so each one's answer does not depend on the
 other's. Each member dissipates by construction (`structured`'s non-negative weights,
-`lawfree`'s passive memory), and a positive-weighted mean of two forces along the same motion
-absorbs the same mean energy, so the blend dissipates too: no gain, no energy injected.
+`lawfree`'s passive memory), and a non-negative-weighted sum of two forces along the same
+motion absorbs the same weighted sum of their energies, so the blend dissipates too: no gain,
+no energy injected. The study's weights sum to 1, so the blend stays between its members.
 
 Served as one stateful ONNX model: `h_in`/`c_in` hold the members' states one after the other
 ([s_a, s_b]). By default (fused members) one node, `ai.haptics:BlendStep` (`blend_fused`;
@@ -41,8 +44,12 @@ from onnx import TensorProto, compose, helper, numpy_helper
 
 from .base import ForceModel, NotFittedError
 
-#: The members' weights: equal, as tested (docs/laws.md); not tuned on any object.
+#: The members' weights by default (`haptics-train blend`, and the study's partner search).
 WEIGHTS = (0.5, 0.5)
+
+#: The weights the study tries on the pair it chose, the first on the ranking's first (docs/laws.md,
+#: "The blend's partner and weights"): a grid fixed before its test, never fitted to an object.
+WEIGHT_GRID = ((0.5, 0.5), (0.75, 0.25), (0.25, 0.75))
 
 #: The name of the blend in a models folder (its .joblib and .onnx); one per folder.
 BLEND_NAME = "blend"

@@ -469,6 +469,27 @@ def _times(v: object) -> str:
     return f"{fmt(v, 2)}x" if isinstance(v, int | float) and math.isfinite(v) else "-"
 
 
+def blend_sentence(blend: dict) -> str:
+    """What the study's `blend` is made of and how its parts were chosen, from the
+    recommendation's `blend` entry (study/run.py, `_blend`)."""
+    a, b = blend["members"][:2]
+    wa, wb = (blend.get("weights") or [0.5, 0.5])[:2]
+    tried = blend.get("partners_felt_n") or {}
+    grid = [e["weights"] for e in blend.get("weights_felt_n") or []]
+    if not tried:  # an earlier study's entry: the first two of its ranking, equal weights
+        return (f"`blend` is the mean of `{a}` and `{b}`, the two models the ranking runs put "
+                "first before it was built, each stepping its own state (models/blend.py); it "
+                "ran on the same ranking programmes and is ranked like the others.\n")  # fmt: skip
+    return (
+        f"`blend` is {wa:g} x `{a}` + {wb:g} x `{b}`, each stepping its own state "
+        f"(models/blend.py). `{a}` is the model the ranking runs put first before it was "
+        f"built; of the {len(tried)} partners tried with it at equal weights, `{b}` felt "
+        f"closest on those runs ({fmt(tried.get(b), 4)} N), and of the weights tried "
+        f"({', '.join(f'{w[0]:g} / {w[1]:g}' for w in grid)}) these. It is ranked like the "
+        "others.\n"
+    )
+
+
 def recommendation_section(rec: dict | None, rows: list[Row], setup: dict) -> list[str]:
     """Which model the product serves (`rec`: the recommendation re-ranked by the study, the
     ranking as `fidelity.rank` wrote it), the multiples that chose it, and how it felt on these
@@ -529,12 +550,7 @@ def recommendation_section(rec: dict | None, rows: list[Row], setup: dict) -> li
     L.append("")
     blend = (rec or {}).get("blend")
     if blend and blend.get("members"):
-        a, b = blend["members"][:2]
-        L.append(
-            f"`blend` is the mean of `{a}` and `{b}`, the two models the ranking runs put "
-            "first before it was built, each stepping its own state (models/blend.py); it ran "
-            "on the same ranking programmes and is ranked like the others.\n"
-        )
+        L.append(blend_sentence(blend))
     name = rec["recommended"]
     mine = felt_rmse(named_row(rows, name))
     if not math.isfinite(mine):

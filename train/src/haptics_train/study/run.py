@@ -345,11 +345,12 @@ def _reproduce_all(
     return ref, rows
 
 
-def blend_pair(ranking: list[dict]) -> tuple[str, str] | None:
-    """The two candidates a blend is made of: the first two of the ranking (best first) that
-    have a felt force on the ranking runs; None when fewer than two have one."""
+def blend_partners(ranking: list[dict]) -> tuple[str, list[str]] | None:
+    """The blend's first member and the partners tried with it: the first candidate of the
+    ranking (best first) with a felt force on the ranking runs, and every other one with one,
+    in ranking order; None when fewer than two have one."""
     felt = [e["model"] for e in ranking if e.get("felt_rmse_n") is not None]
-    return (felt[0], felt[1]) if len(felt) >= 2 else None
+    return (felt[0], felt[1:]) if len(felt) >= 2 else None
 
 
 def _blend(
@@ -365,21 +366,61 @@ def _blend(
     common: list[str],
     clock: str,
 ) -> dict | None:
-    """`blend` of the two candidates the ranking runs put first (both with a felt force):
-    built, evaluated and exported (pipeline.blend_models), run with every hand of the study
+    """`blend` of the candidate the ranking runs put first with the partner that blends
+    closest: the equal-weight blend of the first with every other candidate (`blend_partners`;
+    those that cannot be blended with it are left out) is run on the two ranking programmes
+    (`pipeline.trial_blends`: files only), the one whose geometric mean felt closest there
+    is built, evaluated and exported (pipeline.blend_models), run with every hand of the study
     (`hands`: tag -> programme and seed; its rows appended to `lists`, the ranking programmes
     among them), and the recommendation ranked again with its felt force beside the others'.
-    The recommendation document, or None (said why) when the two cannot be blended."""
+    The partner is chosen on the ranking runs only, as the recommendation is; the headline
+    runs choose nothing. The recommendation document, or None (said why) when no blend can be
+    built."""
     from ..data import load_data
-    from ..models.blend import BLEND_NAME, WEIGHTS, BlendError
-    from ..pipeline import blend_models
+    from ..models.blend import BLEND_NAME, WEIGHT_GRID, WEIGHTS, BlendError
+    from ..pipeline import blend_models, trial_blends
 
-    pair = blend_pair(felt_doc["ranking"])
-    if pair is None:
+    found = blend_partners(felt_doc["ranking"])
+    if found is None:
         say("blend: fewer than two candidates with a felt force; none built")
         return None
+    first, others = found
+
+    def ranking_runs(files: dict[str, Path], tag: str) -> dict[str, float]:
+        """Each trial's felt force on the two ranking programmes (their geometric mean), for
+        the trials that ran on both."""
+        per: dict[str, list[float]] = {name: [] for name in files}
+        for rank in ("rank_", "rank2_"):
+            hand, seed = hands[rank]
+            _, got = _reproduce_all(tools, list(files.values()), work, f"{tag}{rank}", hand,
+                                    seed, False, say, common, clock, floors=False)  # fmt: skip
+            for name, f in files.items():
+                per[name].append(felt_rmse(next((r for r in got if r.name == f.stem), None)))
+        return {name: statistics.geometric_mean(v) for name, v in per.items()
+                if all(math.isfinite(x) and x > 0 for x in v)}  # fmt: skip
+
+    trials = trial_blends(models_dir, first, others, work / "blend_trials")
+    partners = ranking_runs(trials, "trial_")
+    if not partners:
+        say(f"blend: no blend with {first} ran on both ranking programmes; none built")
+        return None
+    partner = min(partners, key=lambda n: partners[n])
+    say(f"blend: {first} with each of {len(partners)} partners, equal weights, on the ranking "
+        f"runs; {partner} felt closest ({fmt(partners[partner])} N)")  # fmt: skip
+    # then the pair's weights, on the same runs
+    by_weight = {WEIGHTS: partners[partner]}
+    for w in WEIGHT_GRID:
+        if w != WEIGHTS:
+            files = trial_blends(models_dir, first, [partner], work / "blend_trials", w)
+            felt = ranking_runs(files, f"trial_w{round(100 * w[0])}_")
+            if partner in felt:
+                by_weight[w] = felt[partner]
+    weights = min(by_weight, key=lambda w: by_weight[w])
+    say(f"blend: weights {weights[0]:g} / {weights[1]:g} felt closest on the ranking runs "
+        f"({fmt(by_weight[weights])} N)")  # fmt: skip
+    pair = (first, partner)
     try:
-        blend_models(models_dir, load_data(dataset), pair)
+        blend_models(models_dir, load_data(dataset), pair, weights)
     except BlendError as e:
         say(f"blend: none built ({e})")
         return None
@@ -396,7 +437,13 @@ def _blend(
         say(f"blend of {pair[0]} and {pair[1]}: ranking runs {fmt(entry.get('felt_rmse_n'))} N "
             f"against {best['model']}'s {fmt(best.get('felt_rmse_n'))} N: "
             f"{'recommended' if doc['recommended'] == BLEND_NAME else 'not recommended'}")
-        doc["blend"] = {"members": list(pair), "weights": list(WEIGHTS)}
+        doc["blend"] = {
+            "members": list(pair),
+            "weights": list(weights),
+            "partners_felt_n": partners,
+            "weights_felt_n": [{"weights": list(w), "felt_rmse_n": v}
+                               for w, v in by_weight.items()],  # fmt: skip
+        }
         (models_dir / RECOMMENDATION_FILE).write_text(json.dumps(doc, indent=1) + "\n")
     return doc
 
