@@ -66,8 +66,11 @@ def blendable(a: ForceModel, b: ForceModel) -> str | None:
     state steps in time (`steps_in_time`), fitted, on the same kinematic features, exported for
     the same loop period."""
     for m in (a, b):
-        if m.kind != "stateful" or not getattr(m, "steps_in_time", False):
-            return f"{m.name} is not a stateful model stepped in time (kind {m.kind})"
+        if m.kind != "stateful":
+            return f"{m.name} is not a stateful model (kind {m.kind})"
+        if not getattr(m, "steps_in_time", False):
+            # lstm_slow: its state steps at the object's pace (100 Hz), not once a loop period
+            return f"{m.name}'s state does not step at the loop's period (steps_in_time)"
         if not hasattr(m, "train_info_"):
             return f"{m.name} is not fitted"
     if a.name == b.name:
