@@ -11,8 +11,9 @@ import os
 import shutil
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from pathlib import Path
+from typing import TypeVar
 
 from ..fidelity import RECOMMENDATION_FILE, load_recommendation, merge, recommendation
 from ..truth import OBJECT_FORCE
@@ -45,6 +46,9 @@ from .score import (
     prediction_along_real,
     score_run,
 )
+
+# a trial's key: a partner's name, or a pair of weights
+K = TypeVar("K", bound=Hashable)
 
 
 def study_models(models_dir: Path, names: list[str] | None) -> list[Path]:
@@ -369,13 +373,14 @@ def _blend(
     """`blend` of the candidate the ranking runs put first with the partner that blends
     closest: the equal-weight blend of the first with every other candidate (`blend_partners`;
     those that cannot be blended with it are left out) is run on the two ranking programmes
-    (`pipeline.trial_blends`: files only), the one whose geometric mean felt closest there
+    (`pipeline.trial_blends`: files only); the pair whose geometric mean felt closest there
+    is run again at the grid's other weights (`WEIGHT_GRID`), and the closest of its weights
     is built, evaluated and exported (pipeline.blend_models), run with every hand of the study
     (`hands`: tag -> programme and seed; its rows appended to `lists`, the ranking programmes
     among them), and the recommendation ranked again with its felt force beside the others'.
-    The partner is chosen on the ranking runs only, as the recommendation is; the headline
-    runs choose nothing. The recommendation document, or None (said why) when no blend can be
-    built."""
+    The partner and the weights are chosen on the ranking runs only, as the recommendation
+    is; the headline runs choose nothing. The recommendation document, or None (said why)
+    when no blend can be built."""
     from ..data import load_data
     from ..models.blend import BLEND_NAME, WEIGHT_GRID, WEIGHTS, BlendError
     from ..pipeline import blend_models, trial_blends
@@ -386,18 +391,20 @@ def _blend(
         return None
     first, others = found
 
-    def ranking_runs(files: dict[str, Path], tag: str) -> dict[str, float]:
-        """Each trial's felt force on the two ranking programmes (their geometric mean), for
-        the trials that ran on both."""
-        per: dict[str, list[float]] = {name: [] for name in files}
+    def ranking_runs(files: dict[K, Path], tag: str) -> dict[K, float]:
+        """Each trial's felt force on the two ranking programmes, the geometric mean as the
+        recommendation takes it (`ranking_felt`: a trial that fell back or failed on either
+        programme has none); all the trials of one call share each programme's reference run."""
+        programmes: list[list[Row]] = []
         for rank in ("rank_", "rank2_"):
             hand, seed = hands[rank]
             _, got = _reproduce_all(tools, list(files.values()), work, f"{tag}{rank}", hand,
                                     seed, False, say, common, clock, floors=False)  # fmt: skip
-            for name, f in files.items():
-                per[name].append(felt_rmse(next((r for r in got if r.name == f.stem), None)))
-        return {name: statistics.geometric_mean(v) for name, v in per.items()
-                if all(math.isfinite(x) and x > 0 for x in v)}  # fmt: skip
+            programmes.append(got)
+        # rows are named by their file's stem
+        key_of = {f.stem: key for key, f in files.items()}
+        return {key_of[stem]: statistics.geometric_mean(v)
+                for stem, v in ranking_felt(programmes, key_of).items()}  # fmt: skip
 
     trials = trial_blends(models_dir, first, others, work / "blend_trials")
     partners = ranking_runs(trials, "trial_")
@@ -407,14 +414,10 @@ def _blend(
     partner = min(partners, key=lambda n: partners[n])
     say(f"blend: {first} with each of {len(partners)} partners, equal weights, on the ranking "
         f"runs; {partner} felt closest ({fmt(partners[partner])} N)")  # fmt: skip
-    # then the pair's weights, on the same runs
-    by_weight = {WEIGHTS: partners[partner]}
-    for w in WEIGHT_GRID:
-        if w != WEIGHTS:
-            files = trial_blends(models_dir, first, [partner], work / "blend_trials", w)
-            felt = ranking_runs(files, f"trial_w{round(100 * w[0])}_")
-            if partner in felt:
-                by_weight[w] = felt[partner]
+    # then the pair's weights, on the same runs: the grid's other weights in one call
+    files = {w: trial_blends(models_dir, first, [partner], work / "blend_trials", w)[partner]
+             for w in WEIGHT_GRID if w != WEIGHTS}  # fmt: skip
+    by_weight = {WEIGHTS: partners[partner], **ranking_runs(files, "trial_w_")}
     weights = min(by_weight, key=lambda w: by_weight[w])
     say(f"blend: weights {weights[0]:g} / {weights[1]:g} felt closest on the ranking runs "
         f"({fmt(by_weight[weights])} N)")  # fmt: skip
