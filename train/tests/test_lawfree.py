@@ -241,3 +241,23 @@ def test_lawfree_network_readout_is_not_tried_on_recordings_with_a_friction(fitt
     assert fitted.train_info_["free_air_friction_n"] == pytest.approx(FRICTION_N, rel=0.1)
     why = network_skipped(fitted)
     assert why is not None and "friction in free air" in why
+
+
+def test_the_play_operators_follow_their_definition():
+    """`plays` (a loop on Python floats, for speed) against the definition written as it reads,
+    p = clamp(p, u - r, u + r) from p = 0, row by row with numpy: equal to the bit, on a random
+    walk that crosses every band both ways, a zero width (p = u) included."""
+    from haptics_train.models.lawfree import plays
+
+    rng = np.random.default_rng(3)
+    u = np.cumsum(rng.normal(scale=0.02, size=20_000))
+    widths = np.array([0.0, 0.005, 0.05, 0.4])
+    want = np.empty((len(u), len(widths)))
+    p = np.zeros(len(widths))
+    for n, un in enumerate(u):
+        p = np.minimum(np.maximum(p, un - widths), un + widths)
+        want[n] = p
+    got = plays(u, widths)
+    assert np.array_equal(got, want)
+    assert np.array_equal(got[:, 0], u)  # no width: the play is the input itself
+    assert plays(u[:0], widths).shape == (0, len(widths))

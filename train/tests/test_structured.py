@@ -383,3 +383,54 @@ def test_structured_hyst_renders_a_hysteresis_of_the_objects_own_size(fused_ops)
         st = OnnxStepper(to_contract_onnx(hyst, prov, fused=fused))
         got = np.array([st.step(r) for r in Xt.astype(np.float32)])
         np.testing.assert_allclose(got, want, atol=2e-3, err_msg=f"fused={fused}")
+
+
+def test_the_dahl_state_and_the_set_follow_their_definitions():
+    """`dahl` and `permanent_set` (loops on Python floats, for speed) against their recursions
+    written as they read, row by row: equal to the bit on a random path in and out of contact,
+    with resets where it is out."""
+    import math
+
+    from haptics_train.models.structured import dahl, permanent_set
+
+    rng = np.random.default_rng(5)
+    x = 0.004 * np.sin(np.cumsum(rng.uniform(0.0, 0.01, 30_000))) + np.cumsum(
+        rng.normal(scale=2e-5, size=30_000))  # fmt: skip
+    reset = x <= 0.0
+    for length in (2e-5, 5e-4):
+        want, u, prev = np.zeros(len(x)), 0.0, x[0]
+        for n in range(len(x)):
+            dp, prev = x[n] - prev, x[n]
+            if reset[n]:
+                u = 0.0
+            elif dp > 0.0:
+                a = math.exp(-dp / length)
+                u = a * u + 1.0 - a
+            elif dp < 0.0:
+                a = math.exp(dp / length)
+                u = a * u - (1.0 - a)
+            want[n] = u
+        assert np.array_equal(dahl(x, length, reset), want)
+        assert np.all(np.abs(dahl(x, length)) <= 1.0)
+    law = {
+        "set_reference_m": 0.003,
+        "set_exponent": 1.5,
+        "set_tau_grow_s": 0.3,
+        "set_loaded_fraction": 0.5,
+        "set_tau_recover_s": 3.0,
+        "set_keep_fraction": 0.6,
+    }
+    dt, max_m = 1 / RATE, 0.0005
+    want, s, md = np.zeros(len(x)), 0.0, 0.0
+    for n, xn in enumerate(x):
+        md = max(md, xn)
+        target = max_m * (md / 0.003) ** 1.5
+        loaded = xn > 0.5 * md and xn - s > 0.0
+        if loaded and s < target:
+            s += (target - s) * min(dt / 0.3, 1.0)
+        elif not loaded and s > 0.6 * target:
+            s -= (s - 0.6 * target) * min(dt / 3.0, 1.0)
+        want[n] = s
+    got = permanent_set(x, dt, max_m, law)
+    assert np.array_equal(got, want) and got.max() > 0.0
+    assert not permanent_set(x, dt, 0.0, law).any()

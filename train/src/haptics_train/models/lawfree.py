@@ -126,13 +126,27 @@ def damage_inputs(d: np.ndarray, fracs: list[float] | tuple[float, ...]) -> list
 
 
 def plays(u: np.ndarray, widths: np.ndarray) -> np.ndarray:
-    """[n, P] play operators of u (zero initial state), one per half-width."""
-    out = np.empty((len(u), len(widths)))
-    p = np.zeros(len(widths))
-    lo, hi = np.maximum, np.minimum
-    for n, un in enumerate(u.tolist()):
-        p = hi(lo(p, un - widths), un + widths)
-        out[n] = p
+    """[n, P] play operators of u (zero initial state), one per half-width r: p follows u
+    once u leaves [p - r, p + r] (p = clamp(p, u - r, u + r)). A plain loop on Python floats,
+    one width at a time: the recursion is nonlinear, and a row of numpy calls on P values
+    cost about ten times as much (2.2 s on a validation recording of 785,000 rows, 4.4 s of
+    the 7.7 s of scoring one candidate of `lawfree`'s grid)."""
+    ul = u.tolist()
+    out = np.empty((len(ul), len(widths)))
+    for k, r in enumerate(widths.tolist()):
+        col: list[float] = []
+        keep = col.append
+        p = 0.0
+        for un in ul:
+            lo = un - r
+            if p < lo:
+                p = lo
+            else:
+                hi = un + r
+                if p > hi:
+                    p = hi
+            keep(p)
+        out[:, k] = col
     return out
 
 

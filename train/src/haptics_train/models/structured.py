@@ -110,6 +110,7 @@ metres and seconds: what the graph and `predict` step), `set_law_`, `set_max_m_`
 from __future__ import annotations
 
 import math
+from itertools import repeat
 
 import numpy as np
 import onnx
@@ -174,13 +175,17 @@ SET_KEYS = ("set_frac", "set_exponent", "set_tau_grow_s", "set_loaded_fraction",
 def dahl(path: np.ndarray, length: float, reset: np.ndarray | None = None) -> np.ndarray:
     """The Dahl state u in [-1, 1] along a path, exact for a straight step: u approaches the
     sign of the motion over `length` of travel, whatever the rate (rate-independent
-    hysteresis). Where `reset`, u = 0. A plain loop: the recursion is nonlinear."""
-    out = np.empty(len(path))
+    hysteresis). Where `reset`, u = 0. A plain loop on Python floats: the recursion is
+    nonlinear (appending to a list, not storing into the array row by row: a fit calls it
+    about 1,700 times, and that store was a third of its cost)."""
+    ps = path.tolist()
+    got: list[float] = []
+    keep = got.append
     u = 0.0
-    prev = float(path[0]) if len(path) else 0.0
-    rs = reset.tolist() if reset is not None else [False] * len(path)
+    prev = ps[0] if ps else 0.0
     exp = math.exp
-    for n, (p, r) in enumerate(zip(path.tolist(), rs, strict=True)):
+    resets = repeat(False, len(ps)) if reset is None else reset.tolist()
+    for p, r in zip(ps, resets, strict=True):
         dp = p - prev
         prev = p
         if r:
@@ -191,8 +196,8 @@ def dahl(path: np.ndarray, length: float, reset: np.ndarray | None = None) -> np
         elif dp < 0.0:
             a = exp(dp / length)
             u = a * u - (1.0 - a)
-        out[n] = u
-    return out
+        keep(u)
+    return np.array(got, dtype=float)
 
 
 def permanent_set(x: np.ndarray, dt: float, max_m: float, h: dict) -> np.ndarray:
@@ -201,9 +206,8 @@ def permanent_set(x: np.ndarray, dt: float, max_m: float, h: dict) -> np.ndarray
     toward a kept fraction of it otherwise (a compression-set law of the kind of rt-loop's
     sponge, docs/physics.md, "The simulated sponge bench"; its shape `h` is the fitted
     `set_law_`, never a material's)."""
-    out = np.zeros(len(x))
     if max_m <= 0.0:
-        return out
+        return np.zeros(len(x))
     s = md = 0.0
     kg = min(dt / float(h["set_tau_grow_s"]), 1.0)
     kr = min(dt / float(h["set_tau_recover_s"]), 1.0)
@@ -213,16 +217,22 @@ def permanent_set(x: np.ndarray, dt: float, max_m: float, h: dict) -> np.ndarray
         float(h["set_keep_fraction"]),
         float(h["set_exponent"]),
     )
-    for n, xn in enumerate(x.tolist()):
-        md = max(md, xn)
-        target = max_m * (md / ref) ** k
+    got: list[float] = []
+    store = got.append
+    target = max_m * (md / ref) ** k
+    for xn in x.tolist():
+        if xn > md:
+            # the target moves only with the deepest compression: a power per new depth,
+            # not per row
+            md = xn
+            target = max_m * (md / ref) ** k
         loaded = xn > lf * md and xn - s > 0.0
         if loaded and s < target:
             s += (target - s) * kg
         elif not loaded and s > keep * target:
             s -= (s - keep * target) * kr
-        out[n] = s
-    return out
+        store(s)
+    return np.array(got, dtype=float)
 
 
 def equilibrium_basis(e: np.ndarray, h: dict) -> np.ndarray:
@@ -277,23 +287,55 @@ def varying_filter(u: np.ndarray, d: np.ndarray) -> np.ndarray:
     return solve_banded((1, 0), ab, u, check_finite=False)
 
 
+class _Geometry:
+    """What the object's columns need that the equilibrium's weights do not change, for one
+    sequence and one set law: e (the compression less the set), the basis at e, the
+    depth-scaled branches' times and decays, the contact mask, and the Dahl states (computed
+    on first use: the linear pass needs none). A fit's passes share one set law and differ
+    only in the weights, so `_fit` keeps one per sequence across its passes: the set, the
+    basis and the Dahl states are loops or powers over every row, computed once instead of
+    once a pass."""
+
+    def __init__(self, x: np.ndarray, dt: float, set_m: float, h: dict) -> None:
+        self.h = h
+        self.e = x - permanent_set(x, dt, set_m, h)
+        self.basis = equilibrium_basis(self.e, h)
+        self.decay = np.exp(-dt / np.asarray(h["taus_s"], dtype=float))
+        self.tk = depth_times(self.e, h)
+        self.dd = depth_decays(self.tk, self.e, dt)
+        self.inside = (self.e > 0.0)[:, None]
+        self._dahl: list[np.ndarray] | None = None
+
+    def dahl_states(self) -> list[np.ndarray]:
+        """The Dahl states along the compression, reset out of contact, one per length."""
+        if self._dahl is None:
+            ep = np.maximum(self.e, 0.0)
+            out = ~self.inside[:, 0]
+            self._dahl = [dahl(ep, L, out) for L in self.h["hysteresis_lengths_m"]]
+        return self._dahl
+
+
 def _object_columns(
-    x: np.ndarray, dt: float, set_m: float, a: np.ndarray | None, v: np.ndarray, h: dict
+    x: np.ndarray,
+    dt: float,
+    set_m: float,
+    a: np.ndarray | None,
+    v: np.ndarray,
+    h: dict,
+    geo: _Geometry | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(columns of the object's force, e). With `a` (an equilibrium fitted already): basis,
     Maxwell branches driven by dF_eq, hysteresis F_eq u_m; without (the first pass): basis and
-    velocity-driven branches."""
-    e = x - permanent_set(x, dt, set_m, h)
-    basis = equilibrium_basis(e, h)
-    taus = np.asarray(h["taus_s"], dtype=float)
-    decay = np.exp(-dt / taus)
-    tk = depth_times(e, h)
-    dd = depth_decays(tk, e, dt)
+    velocity-driven branches. `geo`: the sequence's `_Geometry` for this set law (`x`, `dt`,
+    `set_m` and `h`), when the caller keeps one."""
+    g = _Geometry(x, dt, set_m, h) if geo is None else geo
+    e, basis, decay, tk, dd = g.e, g.basis, g.decay, g.tk, g.dd
     # Every column is 0 where the probe is out of the object (e <= 0), as the served force
     # is: a branch's state still decays there after a release, and the fit, which counts the
     # rows out of contact (the bench's friction alone), must not credit it with a force the
     # model never renders.
-    inside = (e > 0.0)[:, None]
+    inside = g.inside
+    taus = np.asarray(h["taus_s"], dtype=float)
     if a is None:
         br = [lfilter([t * (1 - d)], [1.0, -d], v) for t, d in zip(taus, decay, strict=True)]
         # a depth-scaled branch driven by v likewise, at its time of the row
@@ -305,9 +347,7 @@ def _object_columns(
     br = [lfilter([1.0], [1.0, -d], dfeq) for d in decay]
     # emptied out of contact: driven only inside, and its decay 0 there
     br += [varying_filter(dfeq * inside[:, 0], dd[:, k]) for k in range(dd.shape[1])]
-    out = ~inside[:, 0]
-    ep = np.maximum(e, 0.0)
-    us = [dahl(ep, L, out) for L in h["hysteresis_lengths_m"]]
+    us = g.dahl_states()
     hy = [feq * u for u in us]
     hy += [u for u, k in zip(us, constant_hysteresis(h), strict=True) if k]
     return np.column_stack([basis, *br, *hy]) * inside, e
@@ -558,16 +598,21 @@ class StructuredModel(ForceModel):
         `iterations` passes with the branches and hysteresis driven by the equilibrium of the
         pass before."""
         a = None
+        geos: list[_Geometry] = []  # one per sequence, shared by the passes (one set law)
         for _ in range(1 + iterations):
-            fit = self._fit_pass(rows, set_m, a, b)
+            fit = self._fit_pass(rows, set_m, a, b, geos)
             a = fit["coef"][: fit["nb"]]
         return fit
 
-    def _fit_pass(self, rows: list, set_m: float, a: np.ndarray | None, b: dict) -> dict:
+    def _fit_pass(
+        self, rows: list, set_m: float, a: np.ndarray | None, b: dict, geos: list[_Geometry]
+    ) -> dict:
         mats, ys = [], []
         nb = equilibrium_size(b)
-        for x, v, t, keep, dt, bench in rows:
-            obj, _ = _object_columns(x, dt, set_m, a, v, b)
+        for i, (x, v, t, keep, dt, bench) in enumerate(rows):
+            if i == len(geos):
+                geos.append(_Geometry(x, dt, set_m, b))
+            obj, _ = _object_columns(x, dt, set_m, a, v, b, geos[i])
             mats.append(np.column_stack([obj, bench])[keep])
             ys.append(t[keep])
         m, y = np.concatenate(mats), np.concatenate(ys)
