@@ -28,7 +28,7 @@ from haptics_train.models.blend import (
     BlendModel,
     blendable,
 )
-from haptics_train.pipeline import remove_blend, trial_blends
+from haptics_train.pipeline import export_models, remove_blend, trial_blends
 from haptics_train.study.report import blend_sentence
 from haptics_train.study.run import blend_partners
 
@@ -143,6 +143,26 @@ def test_trial_blends_are_servable_files_and_skip_what_cannot_blend(members, tmp
     want = w[0] * a.predict_served(X) + w[1] * b.predict_served(X)
     np.testing.assert_allclose(got, want, atol=2e-3)
     assert np.abs(want - BlendModel.of(a, b).predict_served(X)).max() > 1e-2  # not the mean
+
+
+def test_the_chosen_trial_is_the_exported_blends_graph(members, tmp_path, fused_ops):
+    """The study lets the chosen trial's ranking runs stand for the built blend's (study/run.py,
+    `_blend`): the trial file and the blend `export_models` writes must step alike. Export adds
+    metadata only (provenance, cost, reference steps); the graphs are the same bytes."""
+    a, b = members
+    cfg = TrainConfig(progress=False)
+    for m in (a, b):
+        joblib.dump({"model": m, "config": cfg}, tmp_path / f"{m.name}.joblib")
+    w = WEIGHT_GRID[1]
+    trial = onnx.load(str(trial_blends(tmp_path, a.name, [b.name], tmp_path / "trials", w)[b.name]))
+    export_models([(BlendModel.of(a, b, w), cfg)], None, tmp_path)
+    built = onnx.load(str(tmp_path / f"{BLEND_NAME}.onnx"))
+    assert built.graph.SerializeToString() == trial.graph.SerializeToString()
+    assert built.opset_import == trial.opset_import
+    _, X = held_out()
+    steps = [OnnxStepper(m) for m in (trial, built)]
+    got = np.array([[st.step(r) for st in steps] for r in X.astype(np.float32)])
+    np.testing.assert_array_equal(got[:, 0], got[:, 1])
 
 
 def test_an_earlier_studys_blend_is_removed_and_nothing_else(tmp_path):

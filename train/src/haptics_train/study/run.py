@@ -5,6 +5,7 @@ re-rank the recommendation; then the scores, figures and report."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -49,6 +50,8 @@ from .score import (
 
 # a trial's key: a partner's name, or a pair of weights
 K = TypeVar("K", bound=Hashable)
+# the run tags of the two ranking programmes (`study`'s hands and lists)
+RANKING_TAGS = ("rank_", "rank2_")
 
 
 def study_models(models_dir: Path, names: list[str] | None) -> list[Path]:
@@ -375,9 +378,10 @@ def _blend(
     those that cannot be blended with it are left out) is run on the two ranking programmes
     (`pipeline.trial_blends`: files only); the pair whose geometric mean felt closest there
     is run again at the grid's other weights (`WEIGHT_GRID`), and the closest of its weights
-    is built, evaluated and exported (pipeline.blend_models), run with every hand of the study
-    (`hands`: tag -> programme and seed; its rows appended to `lists`, the ranking programmes
-    among them), and the recommendation ranked again with its felt force beside the others'.
+    is built, evaluated and exported (pipeline.blend_models), run with every other hand of the
+    study (`hands`: tag -> programme and seed; its rows appended to `lists`; on the ranking
+    programmes the chosen trial's rows stand for it, the same graph run alike), and the
+    recommendation ranked again with its felt force beside the others'.
     The partner and the weights are chosen on the ranking runs only, as the recommendation
     is; the headline runs choose nothing. The recommendation document, or None (said why)
     when no blend can be built."""
@@ -391,16 +395,21 @@ def _blend(
         return None
     first, others = found
 
+    # ranking programme's tag -> trial file's stem -> its row: the chosen trial's rows stand
+    # for the built blend's on these programmes (below)
+    ran: dict[str, dict[str, Row]] = {}
+
     def ranking_runs(files: dict[K, Path], tag: str) -> dict[K, float]:
         """Each trial's felt force on the two ranking programmes, the geometric mean as the
         recommendation takes it (`ranking_felt`: a trial that fell back or failed on either
         programme has none); all the trials of one call share each programme's reference run."""
         programmes: list[list[Row]] = []
-        for rank in ("rank_", "rank2_"):
+        for rank in RANKING_TAGS:
             hand, seed = hands[rank]
             _, got = _reproduce_all(tools, list(files.values()), work, f"{tag}{rank}", hand,
                                     seed, False, say, common, clock, floors=False)  # fmt: skip
             programmes.append(got)
+            ran.setdefault(rank, {}).update((r.name, r) for r in got)
         # rows are named by their file's stem
         key_of = {f.stem: key for key, f in files.items()}
         return {key_of[stem]: statistics.geometric_mean(v)
@@ -419,6 +428,7 @@ def _blend(
              for w in WEIGHT_GRID if w != WEIGHTS}  # fmt: skip
     by_weight = {WEIGHTS: partners[partner], **ranking_runs(files, "trial_w_")}
     weights = min(by_weight, key=lambda w: by_weight[w])
+    chosen = (trials[partner] if weights == WEIGHTS else files[weights]).stem
     say(f"blend: weights {weights[0]:g} / {weights[1]:g} felt closest on the ranking runs "
         f"({fmt(by_weight[weights])} N)")  # fmt: skip
     pair = (first, partner)
@@ -429,6 +439,15 @@ def _blend(
         return None
     file = models_dir / f"{BLEND_NAME}.onnx"
     for tag, (hand, seed) in hands.items():
+        if chosen in ran.get(tag, {}):
+            # The ranking programmes have run this blend already, as the chosen trial: the same
+            # members and weights in the same one-node graph (`trial_blends`, `blend_models`),
+            # the same programme, seed and lockstep clock, so running blend.onnx again there
+            # gives the same run (4 runs, about 9 s of a study). Its rows, named for the blend.
+            row = ran[tag][chosen]
+            run = dataclasses.replace(row.run, name=BLEND_NAME)
+            lists[tag].append(dataclasses.replace(row, name=BLEND_NAME, run=run))
+            continue
         # the headline setting's flags: no bench file (the blend is built "off")
         _, got = _reproduce_all(tools, [file], work, tag, hand, seed, False, say, common,
                                 clock, floors=False)  # fmt: skip
