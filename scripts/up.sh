@@ -78,16 +78,24 @@ haptics_build
 
 # A dataset recorded on another object (two material files of the same name, or an edited
 # one) must not be trained on, nor its models served, as if it were this object's: each
-# recording carries the material file's text in its metadata (`haptics.run`). An ONNX object's
+# recording carries the material file's text in its metadata (`haptics.run`). The two are
+# compared as tables, not as text (`haptics_train.data.same_object`): a comment edited, or
+# `law = "foam"` written out where the file said nothing, is the same object. An ONNX object's
 # graph is not in it: a graph replaced under the same material file goes unnoticed.
 if [ -f "$dataset/test_2.1.parquet" ]; then
   .venv/bin/python - "$dataset/test_2.1.parquet" "$material" "$models" <<'PY' || exit 2
-import json, sys
+import json, sys, tomllib
 import pyarrow.parquet as pq
+from haptics_train.data import same_object
 rec, mat, models = sys.argv[1:]
 meta = pq.ParquetFile(rec).metadata.metadata or {}
 run = json.loads(meta.get(b"haptics.run", b"{}"))
-if "material" in run and run["material"] != open(mat).read():
+try:
+    text = open(mat).read()
+    tomllib.loads(text)
+except (OSError, tomllib.TOMLDecodeError) as e:
+    sys.exit(f"up: {mat}: not a material file ({e})")
+if "material" in run and not same_object(run["material"], text):
     sys.exit(f"up: {rec} was recorded on another object than {mat} ({run.get('material_file')}, "
              f"or the file has changed since): move {rec.rsplit('/', 1)[0]} and {models} aside "
              f"to record and train on {mat}")

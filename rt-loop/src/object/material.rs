@@ -300,9 +300,9 @@ fn resolve(path: &Path) -> std::path::PathBuf {
 mod tests {
     use super::*;
 
-    /// A file without `law` is a foam (every file written before there was a choice); a file
-    /// naming another law reads that law's table; an unknown law, a table of another law or an
-    /// unknown key is a one-line error naming it.
+    /// The shipped foams name their law; a file without `law` is a foam (every file written
+    /// before there was a choice); a file naming another law reads that law's table; an
+    /// unknown law, a table of another law or an unknown key is a one-line error naming it.
     #[test]
     fn a_file_names_its_law_foam_by_default() {
         let sponge = std::fs::read_to_string(concat!(
@@ -310,10 +310,24 @@ mod tests {
             "/../materials/sponge.toml"
         ))
         .unwrap();
-        let old = Material::parse(&sponge).unwrap();
-        assert_eq!(old.law.name(), "foam");
-        let named = Material::parse(&format!("law = \"foam\"\n{sponge}")).unwrap();
-        assert_eq!(named, old);
+        let named = Material::parse(&sponge).unwrap();
+        assert_eq!(named.law.name(), "foam");
+        // the same file as it was written before there was a choice: no `law` line
+        let unnamed: String = sponge
+            .lines()
+            .filter(|l| !l.starts_with("law = "))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        assert_ne!(unnamed, sponge, "materials/sponge.toml names its law");
+        assert_eq!(Material::parse(&unnamed).unwrap(), named);
+        for foam in ["foam-b", "foam-c"] {
+            let path = format!("{}/../materials/{foam}.toml", env!("CARGO_MANIFEST_DIR"));
+            let text = std::fs::read_to_string(&path).unwrap();
+            assert!(
+                text.lines().any(|l| l.starts_with("law = \"foam\"")),
+                "{path}"
+            );
+        }
         let gel = "name = \"g\"\nlaw = \"poroelastic\"\n[poroelastic]\nshear_modulus_pa = 1.0\n\
                    poisson_drained = 0.2\nindenter_radius_m = 0.01\ndiffusivity_m2_per_s = 1e-5\n";
         assert_eq!(Material::parse(gel).unwrap().law.name(), "poroelastic");

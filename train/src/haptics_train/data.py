@@ -291,6 +291,22 @@ def training_arrays(
     raise ValueError(f"unknown layout {layout!r} (rows|sequences)")
 
 
+def same_object(recorded: str, material: str) -> bool:
+    """Whether a recording's material text (its `haptics.run` metadata's `material`: the file
+    rt-loop read) describes the object of `material`, a material file's text. Compared as
+    TOML tables with `law` as rt-loop reads it (`"foam"` where a file names none), so an edited
+    comment, or the law written out, is the same object; any value changed is another.
+    `scripts/up.sh` refuses a dataset recorded on another object. Raises
+    `tomllib.TOMLDecodeError` for a text that is not TOML."""
+
+    def tables(text: str) -> dict:
+        doc = tomllib.loads(text)
+        doc.setdefault("law", "foam")
+        return doc
+
+    return tables(recorded) == tables(material)
+
+
 def sha256_file(path: Path) -> str:
     h = hashlib.sha256()
     with path.open("rb") as fh:
