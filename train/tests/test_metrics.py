@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from haptics_train.metrics import regression_metrics
+from haptics_train.metrics import active_work_note, loop_work, regression_metrics
 
 
 def test_hand_worked_example():
@@ -67,3 +67,16 @@ def test_force_metrics_by_hand():
     assert both["contact_rows"] == 4 and both["contact_rmse"] == pytest.approx(np.sqrt(1 / 4))
     diverged = force_metrics(y, np.array([0.0, np.inf, 0.0, 0.0]), x, 0.5)
     assert diverged["rmse"] == float("inf") and diverged["max_abs"] == float("inf")
+
+
+def test_a_model_that_gives_energy_back_over_its_training_recordings_is_told() -> None:
+    # a press and release along a loop: loading above unloading absorbs, the reverse gives back
+    x = np.concatenate([np.linspace(0.0, 0.01, 50), np.linspace(0.01, 0.0, 50)])
+    up, down = 1000.0 * x[:50], 800.0 * x[50:]
+    absorbs = loop_work(x, np.concatenate([up, down]))
+    gives = loop_work(x, np.concatenate([800.0 * x[:50], 1000.0 * x[50:]]))
+    assert absorbs == pytest.approx(0.01, rel=0.05) and gives == pytest.approx(-absorbs)
+    assert active_work_note([absorbs, absorbs]) is None
+    assert active_work_note([absorbs, -5e-6]) is None  # noise where the probe barely meets it
+    note = active_work_note([absorbs, gives, absorbs])
+    assert note is not None and "recording 2 of 3: 0.01 J" in note and "passivity" in note

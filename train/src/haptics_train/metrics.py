@@ -42,6 +42,27 @@ def loop_work(x: np.ndarray, f: np.ndarray) -> float:
         return float(np.sum(0.5 * (f[1:] + f[:-1]) * np.diff(x)))
 
 
+#: |work| below this over a recording is numerical noise, not energy given back: the bench's
+#: free-air recordings, where the probe barely meets the object, read within 2e-4 J of zero
+ACTIVE_WORK_TOL_J = 1e-3
+
+
+def active_work_note(works: list[float], tol_j: float = ACTIVE_WORK_TOL_J) -> str | None:
+    """What to tell a user whose model, rendered along its own training recordings, did
+    negative net work on one of them (`works`: `loop_work` per recording, J): over a recording
+    that starts and ends at rest a passive object absorbs energy; one that gives it back can feel
+    active in the hand. None when every recording absorbed (or stayed within `tol_j` of 0)."""
+    bad = [(i, w) for i, w in enumerate(works) if w < -tol_j]
+    if not bad:
+        return None
+    which = ", ".join(f"recording {i + 1} of {len(works)}: {-w:.3g} J" for i, w in bad)
+    return (
+        f"the rendered object gives energy back over its training recordings ({which}); a "
+        "passive object absorbs it, so this model can feel active: rt-loop's passivity layer "
+        "bounds it (on by default for a real board, `--passivity on` on the bench)"
+    )
+
+
 def force_metrics(
     y_true: np.ndarray, y_pred: np.ndarray, x: np.ndarray, contact_n: float
 ) -> dict[str, float]:

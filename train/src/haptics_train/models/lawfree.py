@@ -64,7 +64,8 @@ Free run by construction: no state depends on the model's own output (the force 
 back), so the one-step prediction IS the free run over the whole recording, and the state is
 bounded whatever the input (the filters are stable, a play stays within r of u): the model
 cannot drift. Dissipation is not enforced (the readout's signs are free); `train_info_`
-reports the work the rendered object does over the training recordings (> 0: it absorbs).
+reports the work the rendered object does over the training recordings (> 0: it absorbs), and
+the fit warns when one of them gets energy back (`metrics.active_work_note`).
 
 The state steps once per row at the training period `dt` when fitted, and at the loop's period
 `serve_dt_` when exported (`haptics.step_s`), like `structured`. Exported as a
@@ -96,7 +97,7 @@ from scipy.signal import lfilter
 from ..data import SequenceInfo
 from ..features import KINEMATICS
 from ..holds import holds_name
-from ..metrics import loop_work
+from ..metrics import active_work_note, loop_work
 from .base import ForceModel, check_sequences, serve_dt, served_dt, step_dt
 from .contact_rows import sliding_rows
 from .lawfree_graph import lawfree_fused, lawfree_graph
@@ -304,11 +305,15 @@ class LawFreeModel(ForceModel):
             "friction_n": self.c_.tolist(),
             "fit_seconds": round(time.perf_counter() - t0, 2),
         }
-        # the work the rendered object does over each training recording (> 0: it absorbs)
-        self.train_info_["object_work_j_per_recording"] = [
+        # the work the rendered object does over each training recording (> 0: it absorbs);
+        # dissipation is not enforced (the readout's signs are free), so say when it is not
+        works = [
             loop_work(x, self.predict_served(np.column_stack([x, v]), dt))
             for x, v, _, _, dt in picked
         ]
+        self.train_info_["object_work_j_per_recording"] = works
+        if (note := active_work_note(works)) is not None:
+            print(f"[train] {self.name}: warning: {note}", flush=True)
         return self
 
     def _fit_rows(
