@@ -193,18 +193,19 @@ def run_study(
     felt_doc = None
     if rank_files and load_recommendation(models_dir) is not None:
         programmes = []
-        for tag, rh, offset in (("rank_", rank_hand, RANK_SEED_OFFSET),
-                                ("rank2_", rank2_hand, RANK2_SEED_OFFSET)):  # fmt: skip
+        for tag, rh, offset in zip(RANKING_TAGS, (rank_hand, rank2_hand),
+                                   (RANK_SEED_OFFSET, RANK2_SEED_OFFSET), strict=True):  # fmt: skip
             _, rank_rows = _reproduce_all(
                 tools, rank_files, work, tag, rh, seed + offset, False, say, common, clock
             )
             programmes.append(rank_rows)
         felt_doc = rerank_by_felt(models_dir, results, programmes)
         if dataset is not None and primary == "off" and felt_doc is not None:
-            hands = {"rank_": (rank_hand, seed + RANK_SEED_OFFSET),
-                     "rank2_": (rank2_hand, seed + RANK2_SEED_OFFSET), "": (hand, seed),
+            r1, r2 = RANKING_TAGS
+            hands = {r1: (rank_hand, seed + RANK_SEED_OFFSET),
+                     r2: (rank2_hand, seed + RANK2_SEED_OFFSET), "": (hand, seed),
                      "fast_": (fast_hand, seed), "long_": (long_hand, seed)}  # fmt: skip
-            lists = {"rank_": programmes[0], "rank2_": programmes[1], "": rows,
+            lists = {r1: programmes[0], r2: programmes[1], "": rows,
                      "fast_": fast_rows, "long_": long_rows}  # fmt: skip
             felt_doc = _blend(tools, models_dir, dataset, felt_doc, work, hands, lists,
                               programmes, say, common, clock) or felt_doc  # fmt: skip
